@@ -1,0 +1,7 @@
+//! `amr-actors`: the runtime. Supervised actors that own the drivers and the algorithms, the robot
+//! and server actor trees, and what the runtime needs to start: loading the configuration.
+//!
+//! The actor trees arrive with their issue; this crate depends on `amr-core` and `amr-drivers` and is
+//! used by `host` (see `../shared/ARCHITECTURE.md`).
+
+pub mod config;

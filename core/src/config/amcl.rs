@@ -1,0 +1,132 @@
+//! `amcl.toml`: AMCL parameters, with nav2_amcl's names and defaults (research/amcl.md §1.1) so that a
+//! nav2 user can carry a parameter file over key by key. Keys we do not implement are rejected,
+//! not silently ignored.
+
+use serde::Deserialize;
+
+use super::value::{Count, Finite, Fraction, NonNegative, OpenFraction, Positive};
+use super::{ConfigFileType, Violation, rule};
+use crate::se2::Se2;
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AmclParams {
+    pub min_particles: Count,
+    pub max_particles: Count,
+    /// KLD-sampling error bound ε (nav2 `pf_err`).
+    pub pf_err: OpenFraction,
+    /// KLD-sampling normal quantile z (nav2 `pf_z`, used directly as the quantile).
+    pub pf_z: OpenFraction,
+    /// Differential motion model noise: rotation from rotation.
+    pub alpha1: NonNegative,
+    /// Rotation from translation.
+    pub alpha2: NonNegative,
+    /// Translation from translation.
+    pub alpha3: NonNegative,
+    /// Translation from rotation.
+    pub alpha4: NonNegative,
+    /// Distance-map cutoff of the likelihood field.
+    pub laser_likelihood_max_dist: Positive,
+    /// ≤ 0: use the scan's own maximum range (nav2 convention).
+    pub laser_max_range: Finite,
+    /// ≤ 0: use the scan's own minimum range (nav2 convention).
+    pub laser_min_range: Finite,
+    /// Beams used per update, evenly subsampled over the valid beams.
+    pub max_beams: Count,
+    pub z_hit: Fraction,
+    pub z_rand: Fraction,
+    pub sigma_hit: Positive,
+    /// Translation that triggers a filter update.
+    pub update_min_d: NonNegative,
+    /// Rotation that triggers a filter update.
+    pub update_min_a: NonNegative,
+    /// Resample every n-th update.
+    pub resample_interval: Count,
+    /// Augmented MCL: slow average decay (0 disables random injection).
+    pub recovery_alpha_slow: Fraction,
+    /// Augmented MCL: fast average decay (0 disables random injection).
+    pub recovery_alpha_fast: Fraction,
+    /// Start from this pose instead of global localisation.
+    #[serde(default)]
+    pub initial_pose: Option<InitialPose>,
+}
+
+/// An initial pose with its spread (nav2 `initial_pose` plus the covariance it takes from
+/// `/initialpose`).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InitialPose {
+    pub x: Finite,
+    pub y: Finite,
+    pub yaw: Finite,
+    pub std_xy_m: NonNegative,
+    pub std_yaw_rad: NonNegative,
+}
+
+impl InitialPose {
+    #[must_use]
+    pub fn pose(&self) -> Se2 {
+        Se2::new(self.x.get(), self.y.get(), self.yaw.get())
+    }
+}
+
+impl AmclParams {
+    /// The configured maximum range, or `None` for "the scan's own" (nav2: a value ≤ 0).
+    #[must_use]
+    pub fn max_range_m(&self) -> Option<f64> {
+        Some(self.laser_max_range.get()).filter(|r| *r > 0.0)
+    }
+
+    /// The configured minimum range, or `None` for "the scan's own" (nav2: a value ≤ 0).
+    #[must_use]
+    pub fn min_range_m(&self) -> Option<f64> {
+        Some(self.laser_min_range.get()).filter(|r| *r > 0.0)
+    }
+}
+
+impl ConfigFileType for AmclParams {
+    fn validate(&self) -> Result<(), Violation> {
+        rule(
+            self.min_particles <= self.max_particles,
+            "min_particles",
+            format!(
+                "must not exceed max_particles ({} > {})",
+                self.min_particles.get(),
+                self.max_particles.get()
+            ),
+        )?;
+        rule(
+            self.max_beams.get() >= 2,
+            "max_beams",
+            format!("must be at least 2 (got {})", self.max_beams.get()),
+        )?;
+        rule(
+            self.z_hit.get() + self.z_rand.get() > 0.0,
+            "z_hit",
+            "z_hit and z_rand must not both be 0: every particle would weigh nothing",
+        )?;
+        if let (Some(min), Some(max)) = (self.min_range_m(), self.max_range_m()) {
+            rule(
+                min < max,
+                "laser_min_range",
+                format!("must be less than laser_max_range ({min} m >= {max} m)"),
+            )?;
+        }
+        let (slow, fast) = (self.recovery_alpha_slow.get(), self.recovery_alpha_fast.get());
+        rule(
+            (slow == 0.0) == (fast == 0.0),
+            "recovery_alpha_slow",
+            format!(
+                "recovery_alpha_slow and recovery_alpha_fast are both 0 (off) or both > 0 (got {slow} and {fast})"
+            ),
+        )?;
+        rule(
+            slow == 0.0 || slow < fast,
+            "recovery_alpha_slow",
+            format!(
+                "must be less than recovery_alpha_fast: the slow average must move slower ({slow} >= {fast})"
+            ),
+        )?;
+        Ok(())
+    }
+}

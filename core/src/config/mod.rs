@@ -1,0 +1,255 @@
+//! The configuration schema: TOML text in, validated domain types out.
+//!
+//! A configuration is a set of files (normally the `config/` directory):
+//!
+//! | file | type | what |
+//! |---|---|---|
+//! | `robot-<id>.toml` | [`RobotConfig`] | one robot: chassis, kinematics, LiDAR mount, limits, devices |
+//! | `server.toml` | [`ServerConfig`] | the formation, fusion weights and gates, the T1–T4 switch |
+//! | `vamr.toml` | [`VamrParams`] | the Virtual-AMR pipeline parameters (paper Table 2) |
+//! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names and defaults) |
+//! | `*.md` | — | documentation, ignored |
+//!
+//! Every struct rejects unknown keys. Rules on a single value are checked while the file is
+//! deserialised (see [`value`]); rules that relate several values are checked afterwards. Either
+//! way the first broken rule comes back as a [`ConfigError`] naming the file, the key and the rule.
+//! This module does no IO: callers read the files and hand over their text.
+
+mod amcl;
+mod robot;
+mod server;
+pub mod value;
+mod vamr;
+
+use std::fmt;
+
+use serde::de::DeserializeOwned;
+
+pub use amcl::{AmclParams, InitialPose};
+pub use robot::{
+    CanConfig, CanTransport, ChassisConfig, CommLossReaction, DeviceSource, DriveConfig, DrivesConfig,
+    IMU_BAUD_RATES, IMU_STREAM_RATES_HZ, ImuConfig, ImuDataMode, KinematicsConfig, LidarConfig, LidarDialect,
+    LidarStartup, MotionLimits, MountConfig, NodeId, RobotConfig, RobotId, SafetyConfig,
+};
+pub use server::{Configuration, FormationMember, OnRobotLost, ServerConfig, SyncGates};
+pub use vamr::{ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams};
+
+/// The first broken rule of a configuration: which file, which key, which rule.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigError {
+    /// The file, as given by the caller (normally relative to the configuration directory).
+    pub file: String,
+    /// 1-based line of the offending key, when known.
+    pub line: Option<usize>,
+    /// Dotted key path (`devices.drives.left.node_id`); empty for a file-level problem.
+    pub key: String,
+    /// The rule, in words, with the offending value.
+    pub rule: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if !self.key.is_empty() {
+            write!(f, ": {}", self.key)?;
+        }
+        write!(f, ": {}", self.rule)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// A broken cross-field rule inside one file, before the file name is attached.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Violation {
+    pub key: String,
+    pub rule: String,
+}
+
+/// `Ok(())` when `holds`, else a [`Violation`] of `key`.
+pub(crate) fn rule(holds: bool, key: impl Into<String>, rule: impl Into<String>) -> Result<(), Violation> {
+    if holds { Ok(()) } else { Err(Violation { key: key.into(), rule: rule.into() }) }
+}
+
+/// A configuration file type: deserialised, then checked for rules across its fields.
+pub trait ConfigFileType: DeserializeOwned {
+    /// Rules that relate several fields of this file.
+    fn validate(&self) -> Result<(), Violation>;
+}
+
+/// Parse and validate one file of type `T`. `file` names it in errors.
+pub fn parse_file<T: ConfigFileType>(file: &str, text: &str) -> Result<T, ConfigError> {
+    let error = |line, key: String, rule: String| ConfigError { file: file.to_owned(), line, key, rule };
+    let de = toml::Deserializer::parse(text)
+        .map_err(|e| error(span_line(text, e.span()), String::new(), syntax_rule(&e)))?;
+    let value: T = serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        let key = if key == "." { String::new() } else { key };
+        let inner = e.into_inner();
+        error(span_line(text, inner.span()), key, inner.message().to_owned())
+    })?;
+    value.validate().map_err(|v| error(key_line(text, &v.key), v.key, v.rule))?;
+    Ok(value)
+}
+
+fn syntax_rule(e: &toml::de::Error) -> String {
+    format!("not valid TOML: {}", e.message().trim_end())
+}
+
+fn span_line(text: &str, span: Option<std::ops::Range<usize>>) -> Option<usize> {
+    let start = span?.start.min(text.len());
+    Some(text.as_bytes()[..start].iter().filter(|&&b| b == b'\n').count() + 1)
+}
+
+/// Best-effort line of a dotted key for cross-field errors: the line where its last segment is
+/// assigned, searching after the line of its table header if there is one.
+fn key_line(text: &str, key: &str) -> Option<usize> {
+    let (table, leaf) = match key.rsplit_once('.') {
+        Some((t, l)) => (Some(t), l),
+        None => (None, key),
+    };
+    let leaf = leaf.split('[').next().unwrap_or(leaf);
+    let mut in_table = table.is_none();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.starts_with('[') {
+            let name = line.trim_matches(|c| c == '[' || c == ']').trim();
+            in_table = Some(name) == table;
+            continue;
+        }
+        if in_table && line.split_once('=').is_some_and(|(k, _)| k.trim() == leaf) {
+            return Some(i + 1);
+        }
+    }
+    None
+}
+
+/// What a file in a configuration directory is, judged by its path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FileKind {
+    Robot,
+    Server,
+    Vamr,
+    Amcl,
+    /// Documentation (`*.md`): skipped.
+    Documentation,
+}
+
+impl FileKind {
+    /// Classify a path relative to the configuration directory (`/`-separated).
+    pub fn of(path: &str) -> Result<FileKind, String> {
+        if path.ends_with(".md") {
+            return Ok(FileKind::Documentation);
+        }
+        match path {
+            "server.toml" => Ok(FileKind::Server),
+            "vamr.toml" => Ok(FileKind::Vamr),
+            "amcl.toml" => Ok(FileKind::Amcl),
+            p if p.starts_with("robot-") && p.ends_with(".toml") && !p.contains('/') => Ok(FileKind::Robot),
+            _ => Err(
+                "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml \
+                      or *.md documentation"
+                    .to_owned(),
+            ),
+        }
+    }
+}
+
+/// One file of a configuration set: its path relative to the set's root and its text.
+#[derive(Debug, Clone)]
+pub struct ConfigFile {
+    pub path: String,
+    pub text: String,
+}
+
+/// A complete, validated configuration: every robot, the server, and the algorithm parameters.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Robots sorted by id.
+    pub robots: Vec<RobotConfig>,
+    pub server: ServerConfig,
+    pub vamr: VamrParams,
+    pub amcl: AmclParams,
+}
+
+impl Config {
+    /// Parse and validate a whole set. Files are taken in path order and the first broken rule is
+    /// returned, so the same set always gives the same error.
+    pub fn from_files(mut files: Vec<ConfigFile>) -> Result<Config, ConfigError> {
+        files.sort_by(|a, b| a.path.cmp(&b.path));
+        let mut robots: Vec<(String, RobotConfig)> = Vec::new();
+        let (mut server, mut vamr, mut amcl) = (None, None, None);
+        for f in &files {
+            let kind = FileKind::of(&f.path).map_err(|rule| ConfigError {
+                file: f.path.clone(),
+                line: None,
+                key: String::new(),
+                rule,
+            })?;
+            match kind {
+                FileKind::Documentation => {}
+                FileKind::Server => server = Some(parse_file::<ServerConfig>(&f.path, &f.text)?),
+                FileKind::Vamr => vamr = Some(parse_file::<VamrParams>(&f.path, &f.text)?),
+                FileKind::Amcl => amcl = Some(parse_file::<AmclParams>(&f.path, &f.text)?),
+                FileKind::Robot => {
+                    let robot = parse_file::<RobotConfig>(&f.path, &f.text)?;
+                    let stem = f.path.trim_end_matches(".toml");
+                    if robot.id.as_str() != stem {
+                        return Err(ConfigError {
+                            file: f.path.clone(),
+                            line: key_line(&f.text, "id"),
+                            key: "id".to_owned(),
+                            rule: format!("must equal the file name `{stem}` (got `{}`)", robot.id.as_str()),
+                        });
+                    }
+                    robots.push((f.path.clone(), robot));
+                }
+            }
+        }
+        let missing = |file: &str| ConfigError {
+            file: file.to_owned(),
+            line: None,
+            key: String::new(),
+            rule: "missing: a configuration needs this file".to_owned(),
+        };
+        let server = server.ok_or_else(|| missing("server.toml"))?;
+        let vamr = vamr.ok_or_else(|| missing("vamr.toml"))?;
+        let amcl = amcl.ok_or_else(|| missing("amcl.toml"))?;
+        let robots: Vec<RobotConfig> = robots.into_iter().map(|(_, r)| r).collect();
+        let server_text = files.iter().find(|f| f.path == "server.toml").map_or("", |f| f.text.as_str());
+        for (i, member) in server.robots.iter().enumerate() {
+            if !robots.iter().any(|r| r.id == member.id) {
+                let key = format!("robots[{i}].id");
+                return Err(ConfigError {
+                    file: "server.toml".to_owned(),
+                    line: nth_key_line(server_text, "id", i),
+                    key,
+                    rule: format!(
+                        "names robot `{}`, but there is no robot file with that id (expected {}.toml)",
+                        member.id.as_str(),
+                        member.id.as_str()
+                    ),
+                });
+            }
+        }
+        Ok(Config { robots, server, vamr, amcl })
+    }
+
+    /// The robot with this id.
+    #[must_use]
+    pub fn robot(&self, id: &str) -> Option<&RobotConfig> {
+        self.robots.iter().find(|r| r.id.as_str() == id)
+    }
+}
+
+/// Line of the `n`-th assignment of `key` (for arrays of tables).
+fn nth_key_line(text: &str, key: &str, n: usize) -> Option<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.split_once('=').is_some_and(|(k, _)| k.trim() == key))
+        .nth(n)
+        .map(|(i, _)| i + 1)
+}

@@ -1,0 +1,98 @@
+//! `server.toml`: the formation, the fusion gates and the T1–T4 switch.
+
+use serde::Deserialize;
+
+use super::value::{Millis, Positive};
+use super::{ConfigFileType, RobotId, Violation, rule};
+
+/// The four configurations of the paper's ablation (Table 12, spec §9).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+pub enum Configuration {
+    /// Each robot's own AMCL; the centre is the midpoint of the two AMCL poses.
+    T1,
+    /// AMCL relative position + searched relative heading.
+    T2,
+    /// Tracked relative position + AMCL relative heading.
+    T3,
+    /// Tracked relative position + searched relative heading: the complete method.
+    T4,
+}
+
+/// One robot of the formation.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FormationMember {
+    pub id: RobotId,
+    /// Fusion weight `w_i` of Eq. 16 (1 for both robots in the paper).
+    pub weight: Positive,
+}
+
+/// Packet gates of Eq. 15 and the end-to-end latency threshold of Table 2.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SyncGates {
+    /// `Δt_sync,max`: largest spread of the scans' stamps in one fused packet.
+    pub max_stamp_spread_ms: Millis,
+    /// `τ_age,max`: largest age of a scan when it reaches the server.
+    pub max_age_ms: Millis,
+    /// `T_E2E,max`: an update slower than this end to end is counted as late.
+    pub e2e_threshold_ms: Millis,
+}
+
+/// What the formation does while one robot's data is missing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnRobotLost {
+    /// Command zero velocity to every robot until the lost one returns.
+    Stop,
+    /// Keep the last formation reference but do not advance the plan.
+    Hold,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServerConfig {
+    pub configuration: Configuration,
+    /// The robots of the formation, in order.
+    pub robots: Vec<FormationMember>,
+    pub sync: SyncGates,
+    pub on_robot_lost: OnRobotLost,
+}
+
+impl ConfigFileType for ServerConfig {
+    fn validate(&self) -> Result<(), Violation> {
+        rule(
+            self.robots.len() >= 2,
+            "robots",
+            format!("a formation needs at least 2 robots (got {})", self.robots.len()),
+        )?;
+        for (i, member) in self.robots.iter().enumerate() {
+            if let Some(j) = self.robots[..i].iter().position(|m| m.id == member.id) {
+                return Err(Violation {
+                    key: format!("robots[{i}].id"),
+                    rule: format!("robot `{}` is already listed as robots[{j}]", member.id),
+                });
+            }
+        }
+        let s = &self.sync;
+        rule(
+            s.max_stamp_spread_ms < s.max_age_ms,
+            "sync.max_stamp_spread_ms",
+            format!(
+                "must be less than sync.max_age_ms ({} ms >= {} ms)",
+                s.max_stamp_spread_ms.ms(),
+                s.max_age_ms.ms()
+            ),
+        )?;
+        rule(
+            s.max_age_ms < s.e2e_threshold_ms,
+            "sync.max_age_ms",
+            format!(
+                "must be less than sync.e2e_threshold_ms ({} ms >= {} ms)",
+                s.max_age_ms.ms(),
+                s.e2e_threshold_ms.ms()
+            ),
+        )?;
+        Ok(())
+    }
+}

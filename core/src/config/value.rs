@@ -1,0 +1,146 @@
+//! Validated scalar types for configuration fields.
+//!
+//! Each type checks its rule while the file is deserialised, so a bad value is reported with the
+//! key path and line where it stands (`kinematics.wheel_radius_m: must be > 0 (got -0.05)`).
+//! TOML accepts `nan` and `inf` as floats; none of these types does.
+
+use std::time::Duration;
+
+use serde::Deserialize;
+
+macro_rules! bounded_f64 {
+    ($(#[$meta:meta])* $name:ident, $rule:literal, $ok:expr) => {
+        $(#[$meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, PartialOrd, Deserialize)]
+        #[serde(try_from = "f64")]
+        pub struct $name(f64);
+
+        impl $name {
+            /// Check `value` against the rule of this type.
+            pub fn new(value: f64) -> Result<Self, String> {
+                let ok: fn(f64) -> bool = $ok;
+                if value.is_finite() && ok(value) {
+                    Ok(Self(value))
+                } else {
+                    Err(format!(concat!("must be ", $rule, " (got {})"), value))
+                }
+            }
+
+            #[must_use]
+            pub fn get(self) -> f64 {
+                self.0
+            }
+        }
+
+        impl TryFrom<f64> for $name {
+            type Error = String;
+            fn try_from(value: f64) -> Result<Self, String> {
+                Self::new(value)
+            }
+        }
+    };
+}
+
+bounded_f64!(
+    /// A finite number > 0.
+    Positive, "> 0", |v| v > 0.0
+);
+bounded_f64!(
+    /// A finite number ≥ 0.
+    NonNegative, ">= 0", |v| v >= 0.0
+);
+bounded_f64!(
+    /// A finite number in [0, 1].
+    Fraction, "in [0, 1]", |v| (0.0..=1.0).contains(&v)
+);
+bounded_f64!(
+    /// A finite number in (0, 1), e.g. a probability that must not be certain.
+    OpenFraction, "in (0, 1)", |v| v > 0.0 && v < 1.0
+);
+bounded_f64!(
+    /// Any finite number.
+    Finite, "a finite number", |_| true
+);
+
+/// A duration given in whole milliseconds, > 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
+#[serde(try_from = "i64")]
+pub struct Millis(u32);
+
+impl Millis {
+    pub fn new(ms: i64) -> Result<Self, String> {
+        match u32::try_from(ms) {
+            Ok(v) if v > 0 => Ok(Millis(v)),
+            _ => Err(format!("must be a whole number of milliseconds in 1..={} (got {ms})", u32::MAX)),
+        }
+    }
+
+    #[must_use]
+    pub fn ms(self) -> u32 {
+        self.0
+    }
+
+    #[must_use]
+    pub fn duration(self) -> Duration {
+        Duration::from_millis(u64::from(self.0))
+    }
+}
+
+impl TryFrom<i64> for Millis {
+    type Error = String;
+    fn try_from(ms: i64) -> Result<Self, String> {
+        Millis::new(ms)
+    }
+}
+
+/// A whole count ≥ 1 (window lengths, particle counts, beams).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
+#[serde(try_from = "i64")]
+pub struct Count(u32);
+
+impl Count {
+    pub fn new(n: i64) -> Result<Self, String> {
+        match u32::try_from(n) {
+            Ok(v) if v > 0 => Ok(Count(v)),
+            _ => Err(format!("must be a whole number in 1..={} (got {n})", u32::MAX)),
+        }
+    }
+
+    #[must_use]
+    pub fn get(self) -> u32 {
+        self.0
+    }
+
+    /// As an index-sized count.
+    #[must_use]
+    pub fn usize(self) -> usize {
+        self.0 as usize
+    }
+}
+
+impl TryFrom<i64> for Count {
+    type Error = String;
+    fn try_from(n: i64) -> Result<Self, String> {
+        Count::new(n)
+    }
+}
+
+/// Capped exponential backoff between reconnection attempts.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Backoff {
+    /// Wait before the first retry.
+    pub initial_ms: Millis,
+    /// The cap: the wait doubles after each failure up to this.
+    pub max_ms: Millis,
+}
+
+impl Backoff {
+    pub(crate) fn check(&self, key: &str) -> Result<(), super::Violation> {
+        super::rule(
+            self.initial_ms <= self.max_ms,
+            format!("{key}.initial_ms"),
+            format!("must not exceed {key}.max_ms ({} ms > {} ms)", self.initial_ms.ms(), self.max_ms.ms()),
+        )
+    }
+}

@@ -1,0 +1,126 @@
+//! `vamr.toml`: the Virtual-AMR pipeline parameters (paper Table 2, spec §2–6).
+
+use serde::Deserialize;
+
+use super::value::{Count, Fraction, OpenFraction, Positive};
+use super::{ConfigFileType, Violation, rule};
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VamrParams {
+    pub preprocess: PreprocessParams,
+    pub contour: ContourParams,
+    pub tracker: TrackerParams,
+    pub heading: HeadingParams,
+    pub fusion: FusionParams,
+}
+
+/// Spec §2. Windows are in beams; the beam count and step come from each scan.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PreprocessParams {
+    /// Median filter window (Table 2: 11), odd.
+    pub median_window_beams: Count,
+    /// Smoothing window of Eq. 3 (Table 2: 11 inclusive samples).
+    pub smoothing_window_beams: Count,
+}
+
+/// Spec §3.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContourParams {
+    /// Points fitted on each side of a candidate corner (Table 2: N = 10).
+    pub line_fit_points: Count,
+    /// How far a fitted corner angle may be from the outline's corner angle.
+    pub corner_angle_tolerance_deg: Positive,
+    /// Largest RMS distance of the fitted points from their lines.
+    pub max_fit_rms_m: Positive,
+}
+
+/// Spec §4: the constant-velocity Kalman tracker (Eq. 8–10).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackerParams {
+    /// σ_a of the white-noise-acceleration Q (0.05 m/s²; Q is built from the true Δt).
+    pub accel_sigma_mps2: Positive,
+    /// R = diag(r, r) (Table 2: 4.0e-4 m²).
+    pub measurement_var_m2: Positive,
+    /// P0 position terms (Table 2: 2.5e-3 m²).
+    pub initial_position_var_m2: Positive,
+    /// P0 velocity terms (Table 2: 1.0e-2 m²/s²).
+    pub initial_velocity_var_m2ps2: Positive,
+    /// ROI half-widths (h_x0, h_y0) of Eq. 10 (Table 2: 0.25 m, 0.25 m).
+    pub roi_half_width_m: [Positive; 2],
+    /// γ of Eq. 10 (Table 2: 2.0), applied to the position standard deviation.
+    pub roi_gamma: Positive,
+    /// N_miss,max: consecutive invalid synchronised packets before the track is lost (Table 2: 3).
+    pub max_missed_packets: Count,
+    /// Mahalanobis gate as a chi-square probability with 2 degrees of freedom.
+    pub gate_probability: OpenFraction,
+}
+
+/// Spec §5: the relative-heading search (Eq. 11–12).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeadingParams {
+    /// ε_d of Eq. 11 (Table 2: 3 mm).
+    pub distance_gate_m: Positive,
+    /// Δθ, the angular increment (Table 2: 0.1°).
+    pub step_deg: Positive,
+    /// Nearest-neighbour search half-width in beam indices (Table 2: ±10).
+    pub neighbour_window_beams: Count,
+    /// Half-width of the refined search around the previous estimate (the paper does not give it).
+    pub refine_window_deg: Positive,
+    /// A best score below this is a failed estimate.
+    pub min_score: Fraction,
+}
+
+/// Spec §6: body masks and the virtual scan.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FusionParams {
+    /// The chassis polygon is grown by this much before masking body returns.
+    pub mask_inflation_m: Positive,
+    /// Angular bin of the virtual scan; absent → the finest step among the source scans.
+    #[serde(default)]
+    pub virtual_bin_deg: Option<Positive>,
+}
+
+impl ConfigFileType for VamrParams {
+    fn validate(&self) -> Result<(), Violation> {
+        let median = self.preprocess.median_window_beams.get();
+        rule(
+            median % 2 == 1,
+            "preprocess.median_window_beams",
+            format!("must be odd so the window has a centre beam (got {median})"),
+        )?;
+        rule(
+            self.contour.line_fit_points.get() >= 2,
+            "contour.line_fit_points",
+            format!("a line needs at least 2 points (got {})", self.contour.line_fit_points.get()),
+        )?;
+        let h = &self.heading;
+        rule(
+            h.step_deg.get() <= 10.0,
+            "heading.step_deg",
+            format!("must be at most 10° (got {}°)", h.step_deg.get()),
+        )?;
+        rule(
+            h.refine_window_deg.get() >= h.step_deg.get() && h.refine_window_deg.get() <= 180.0,
+            "heading.refine_window_deg",
+            format!(
+                "must lie between heading.step_deg and 180° (got {}° with a {}° step)",
+                h.refine_window_deg.get(),
+                h.step_deg.get()
+            ),
+        )?;
+        if let Some(bin) = self.fusion.virtual_bin_deg {
+            rule(
+                bin.get() <= 10.0,
+                "fusion.virtual_bin_deg",
+                format!("must be at most 10° (got {}°)", bin.get()),
+            )?;
+        }
+        Ok(())
+    }
+}

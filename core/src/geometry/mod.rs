@@ -1,0 +1,5 @@
+//! Planar geometry shared by the pipeline, the simulator and the configuration.
+
+mod polygon;
+
+pub use polygon::{Polygon, PolygonError};

@@ -1,0 +1,12 @@
+//! `amr-core`: the math of the Virtual-AMR controller.
+//!
+//! Pure and deterministic: no IO, no async, no clock, no threads, no global state. Time and
+//! randomness come in as arguments. Everything here can be tested with plain values.
+//!
+//! - [`se2`]: the one rigid-transform type of the project.
+//! - [`geometry`]: planar polygons (chassis outlines).
+//! - [`config`]: the configuration schema, parsed from TOML text and validated into domain types.
+
+pub mod config;
+pub mod geometry;
+pub mod se2;
