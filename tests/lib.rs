@@ -4,13 +4,14 @@
 //!
 //! ```toml
 //! # file: robot-a.toml                 the file of config/ it changes
-//! # mode: overlay                      overlay (default) | replace | add
+//! # mode: overlay                      overlay (default) | replace | add | delete
 //! # remove: kinematics.wheel_radius_m  (optional, repeatable) delete this key first
 //! # expect: robot-a.toml: kinematics.wheel_radius_m: must be > 0 (got -0.05)
 //! ```
 //!
 //! `overlay` merges the fixture's tables into the shipped file (its keys win); `replace` swaps the
-//! file's text for the fixture's body; `add` puts the body in as a new file. `expect` is exactly what
+//! file's text for the fixture's body; `add` puts the body in as a new file; `delete` removes the
+//! file. `expect` is exactly what
 //! `amr config check` prints after `error: `, without the line number.
 
 use std::path::{Path, PathBuf};
@@ -112,6 +113,9 @@ pub fn apply(fixture: &Fixture) -> Result<Vec<ConfigFile>, String> {
     match (fixture.mode.as_str(), existing) {
         ("add", None) => files.push(ConfigFile { path: fixture.file.clone(), text: fixture.body.clone() }),
         ("replace", Some(i)) => files[i].text = fixture.body.clone(),
+        ("delete", Some(i)) => {
+            files.remove(i);
+        }
         ("overlay", Some(i)) => {
             let mut base: toml::Table = toml::from_str(&files[i].text).map_err(|e| e.to_string())?;
             for key in &fixture.remove {

@@ -117,7 +117,8 @@ impl ConfigFileType for AmclParams {
             (slow == 0.0) == (fast == 0.0),
             "recovery_alpha_slow",
             format!(
-                "recovery_alpha_slow and recovery_alpha_fast are both 0 (off) or both > 0 (got {slow} and {fast})"
+                "must be 0 together with recovery_alpha_fast (random injection off) or both > 0 \
+                 (got {slow} and {fast})"
             ),
         )?;
         rule(

@@ -104,27 +104,35 @@ fn span_line(text: &str, span: Option<std::ops::Range<usize>>) -> Option<usize> 
     Some(text.as_bytes()[..start].iter().filter(|&&b| b == b'\n').count() + 1)
 }
 
-/// Best-effort line of a dotted key for cross-field errors: the line where its last segment is
-/// assigned, searching after the line of its table header if there is one.
+/// Line of a key path such as `devices.drives.right.node_id` or `robots[1].id`, found through
+/// toml's span-keeping parse so it works for dotted keys, inline tables and arrays of tables alike.
 fn key_line(text: &str, key: &str) -> Option<usize> {
-    let (table, leaf) = match key.rsplit_once('.') {
-        Some((t, l)) => (Some(t), l),
-        None => (None, key),
-    };
-    let leaf = leaf.split('[').next().unwrap_or(leaf);
-    let mut in_table = table.is_none();
-    for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.starts_with('[') {
-            let name = line.trim_matches(|c| c == '[' || c == ']').trim();
-            in_table = Some(name) == table;
-            continue;
+    use toml::de::{DeTable, DeValue};
+    let root = DeTable::parse(text).ok()?;
+    let mut table = root.get_ref();
+    let mut span = None;
+    let segments: Vec<&str> = key.split('.').collect();
+    for (i, segment) in segments.iter().enumerate() {
+        let mut parts = segment.split('[');
+        let name = parts.next()?;
+        let (k, mut value) = table.iter().find(|(k, _)| k.get_ref().as_ref() == name)?;
+        span = Some(k.span());
+        for index in parts {
+            let index: usize = index.trim_end_matches(']').parse().ok()?;
+            match value.get_ref() {
+                DeValue::Array(items) => value = items.get(index)?,
+                _ => return None,
+            }
+            span = Some(value.span());
         }
-        if in_table && line.split_once('=').is_some_and(|(k, _)| k.trim() == leaf) {
-            return Some(i + 1);
+        if i + 1 < segments.len() {
+            match value.get_ref() {
+                DeValue::Table(t) => table = t,
+                _ => return None,
+            }
         }
     }
-    None
+    span_line(text, span)
 }
 
 /// What a file in a configuration directory is, judged by its path.
@@ -225,7 +233,7 @@ impl Config {
                 let key = format!("robots[{i}].id");
                 return Err(ConfigError {
                     file: "server.toml".to_owned(),
-                    line: nth_key_line(server_text, "id", i),
+                    line: key_line(server_text, &key),
                     key,
                     rule: format!(
                         "names robot `{}`, but there is no robot file with that id (expected {}.toml)",
@@ -245,11 +253,43 @@ impl Config {
     }
 }
 
-/// Line of the `n`-th assignment of `key` (for arrays of tables).
-fn nth_key_line(text: &str, key: &str, n: usize) -> Option<usize> {
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| l.split_once('=').is_some_and(|(k, _)| k.trim() == key))
-        .nth(n)
-        .map(|(i, _)| i + 1)
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DOC: &str = "id = 1\n[devices.drives]\nleft = { node_id = 1 }\n\n[[robots]]\nid = \"a\"\n[[robots]]\nid = \"b\"\n[tracker]\nroi = [0.25,\n  -0.25]\n";
+
+    #[test]
+    fn key_lines_through_tables_inline_tables_and_arrays() {
+        assert_eq!(key_line(DOC, "id"), Some(1));
+        assert_eq!(key_line(DOC, "devices.drives.left.node_id"), Some(3));
+        assert_eq!(key_line(DOC, "robots[0].id"), Some(6));
+        assert_eq!(key_line(DOC, "robots[1].id"), Some(8));
+        assert_eq!(key_line(DOC, "tracker.roi[1]"), Some(11));
+        assert_eq!(key_line(DOC, "tracker.nothing"), None);
+        assert_eq!(key_line("not = [toml", "not"), None);
+    }
+
+    #[test]
+    fn error_display_names_file_line_key_and_rule() {
+        let e = ConfigError {
+            file: "a.toml".into(),
+            line: Some(3),
+            key: "x.y".into(),
+            rule: "must be > 0".into(),
+        };
+        assert_eq!(e.to_string(), "a.toml:3: x.y: must be > 0");
+        let file_level =
+            ConfigError { file: "b.toml".into(), line: None, key: String::new(), rule: "missing".into() };
+        assert_eq!(file_level.to_string(), "b.toml: missing");
+    }
+
+    #[test]
+    fn classification() {
+        assert_eq!(FileKind::of("robot-a.toml"), Ok(FileKind::Robot));
+        assert_eq!(FileKind::of("server.toml"), Ok(FileKind::Server));
+        assert_eq!(FileKind::of("maps/README.md"), Ok(FileKind::Documentation));
+        assert!(FileKind::of("robots/robot-a.toml").is_err());
+        assert!(FileKind::of("robot-a.yaml").is_err());
+    }
 }

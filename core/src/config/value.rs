@@ -62,10 +62,43 @@ bounded_f64!(
     Finite, "a finite number", |_| true
 );
 
+/// Reads a TOML integer, naming what it should be when it is something else (a float, a string).
+struct WholeNumber(&'static str);
+
+impl serde::de::Visitor<'_> for WholeNumber {
+    type Value = i64;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.0)
+    }
+
+    fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<i64, E> {
+        Ok(v)
+    }
+
+    fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<i64, E> {
+        i64::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
+    }
+}
+
+fn whole_number<'de, D: serde::Deserializer<'de>, T>(
+    deserializer: D,
+    what: &'static str,
+    check: fn(i64) -> Result<T, String>,
+) -> Result<T, D::Error> {
+    let v = deserializer.deserialize_i64(WholeNumber(what))?;
+    check(v).map_err(serde::de::Error::custom)
+}
+
 /// A duration given in whole milliseconds, > 0.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
-#[serde(try_from = "i64")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Millis(u32);
+
+impl<'de> Deserialize<'de> for Millis {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        whole_number(deserializer, "a whole number of milliseconds", Millis::new)
+    }
+}
 
 impl Millis {
     pub fn new(ms: i64) -> Result<Self, String> {
@@ -86,17 +119,15 @@ impl Millis {
     }
 }
 
-impl TryFrom<i64> for Millis {
-    type Error = String;
-    fn try_from(ms: i64) -> Result<Self, String> {
-        Millis::new(ms)
+/// A whole count ≥ 1 (window lengths, particle counts, beams).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Count(u32);
+
+impl<'de> Deserialize<'de> for Count {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        whole_number(deserializer, "a whole number", Count::new)
     }
 }
-
-/// A whole count ≥ 1 (window lengths, particle counts, beams).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
-#[serde(try_from = "i64")]
-pub struct Count(u32);
 
 impl Count {
     pub fn new(n: i64) -> Result<Self, String> {
@@ -115,13 +146,6 @@ impl Count {
     #[must_use]
     pub fn usize(self) -> usize {
         self.0 as usize
-    }
-}
-
-impl TryFrom<i64> for Count {
-    type Error = String;
-    fn try_from(n: i64) -> Result<Self, String> {
-        Count::new(n)
     }
 }
 
