@@ -1,4 +1,5 @@
 //! The `amr` binary as a user runs it.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::path::Path;
 use std::process::{Command, Output};
