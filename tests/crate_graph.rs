@@ -1,0 +1,50 @@
+//! The crate graph points one way (`../shared/ARCHITECTURE.md`): core and drivers depend on nothing
+//! of ours, actors and hil-mocks only on core and drivers, the tests on everything but host, and
+//! nothing at all depends on host.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+const OURS: [&str; 6] = ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "host", "hil-tests"];
+
+fn our_deps(member_dir: &str) -> (String, BTreeSet<String>) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(member_dir).join("Cargo.toml");
+    let manifest: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let name = manifest["package"]["name"].as_str().unwrap().to_owned();
+    let mut deps = BTreeSet::new();
+    for section in ["dependencies", "dev-dependencies", "build-dependencies"] {
+        if let Some(table) = manifest.get(section).and_then(toml::Value::as_table) {
+            deps.extend(table.keys().filter(|k| OURS.contains(&k.as_str())).cloned());
+        }
+    }
+    (name, deps)
+}
+
+#[test]
+fn dependencies_point_one_way() {
+    let workspace: toml::Table = toml::from_str(
+        &std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../Cargo.toml")).unwrap(),
+    )
+    .unwrap();
+    let members: Vec<&str> =
+        workspace["workspace"]["members"].as_array().unwrap().iter().map(|m| m.as_str().unwrap()).collect();
+    assert_eq!(members.len(), OURS.len(), "a new member needs a rule here");
+
+    let allowed = |name: &str| -> &[&str] {
+        match name {
+            "amr-core" | "amr-drivers" => &[],
+            "amr-actors" | "hil-mocks" => &["amr-core", "amr-drivers"],
+            "hil-tests" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks"],
+            // host is the wiring: it may use every library, and its tests use the fixtures crate.
+            "host" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "hil-tests"],
+            other => panic!("unknown member {other}"),
+        }
+    };
+    for dir in members {
+        let (name, deps) = our_deps(dir);
+        let extra: Vec<&String> = deps.iter().filter(|d| !allowed(&name).contains(&d.as_str())).collect();
+        assert!(extra.is_empty(), "{name} ({dir}/) must not depend on {extra:?}");
+        assert!(!deps.contains("host"), "{name} depends on host");
+    }
+}
