@@ -4,3 +4,6 @@
 //! plan (`../shared/spec/devices.md` §4). It is built from the same sans-IO codecs as the drivers in
 //! `amr-drivers`, used from the device's side. The world (`world`) and the mocks (`tim551`,
 //! `teco_drive`, `lpms`) arrive with their issues.
+
+pub mod lpms;
+pub mod tim551;

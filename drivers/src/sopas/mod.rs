@@ -1,0 +1,1 @@
+//! SICK TiM551 / TiM5xx over SOPAS (CoLa-A and CoLa-B): codec, scan decoder, session, tokio shell.
