@@ -6,7 +6,11 @@
 //! - [`se2`]: the one rigid-transform type of the project.
 //! - [`geometry`]: planar polygons (chassis outlines).
 //! - [`config`]: the configuration schema, parsed from TOML text and validated into domain types.
+//! - [`scan`]: range scans with per-beam validity.
+//! - [`vamr`]: the Virtual-AMR measurement-construction pipeline (paper §4).
 
 pub mod config;
 pub mod geometry;
+pub mod scan;
 pub mod se2;
+pub mod vamr;

@@ -23,6 +23,10 @@ pub struct PreprocessParams {
     pub median_window_beams: Count,
     /// Smoothing window of Eq. 3 (Table 2: 11 inclusive samples).
     pub smoothing_window_beams: Count,
+    /// Neighbouring beams whose ranges differ by more than this belong to different objects: the
+    /// smoothing never averages across such a jump (the paper does not say; blending a robot's edge
+    /// with the wall behind it would invent points in free space).
+    pub segment_jump_m: Positive,
 }
 
 /// Spec §3.
