@@ -15,6 +15,25 @@ pub struct Scan {
     ranges_m: Vec<f64>,
 }
 
+/// Where the beams of a scan point: `count` beams `step_rad` apart, centred on `mid_angle_rad`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BeamGeometry {
+    pub mid_angle_rad: f64,
+    pub step_rad: f64,
+    pub count: usize,
+}
+
+impl BeamGeometry {
+    /// The index of the beam nearest to `angle_rad` (wrapped around the middle of the sweep), which
+    /// lies outside `0..count` for angles outside the sweep.
+    #[must_use]
+    pub fn nearest_beam(&self, angle_rad: f64) -> i64 {
+        let rel = crate::se2::normalize_angle(angle_rad - self.mid_angle_rad);
+        let half = (self.count.max(1) - 1) as f64 / 2.0;
+        (rel / self.step_rad + half).round() as i64
+    }
+}
+
 /// A valid beam as a point, with the beam index it came from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BeamPoint {
@@ -83,10 +102,18 @@ impl Scan {
     /// sweep), or `None` if it falls outside the sweep by more than half a step.
     #[must_use]
     pub fn beam_index(&self, angle_rad: f64) -> Option<usize> {
-        let rel = crate::se2::normalize_angle(angle_rad - self.angle_min_rad - std::f64::consts::PI)
-            + std::f64::consts::PI;
-        let f = (rel / self.angle_increment_rad).round();
-        if f >= 0.0 && (f as usize) < self.len() { Some(f as usize) } else { None }
+        usize::try_from(self.geometry().nearest_beam(angle_rad)).ok().filter(|&i| i < self.len())
+    }
+
+    /// The beam layout alone, for lookups without the ranges.
+    #[must_use]
+    pub fn geometry(&self) -> BeamGeometry {
+        let n = self.len();
+        BeamGeometry {
+            mid_angle_rad: self.angle_min_rad + self.angle_increment_rad * (n.max(1) - 1) as f64 / 2.0,
+            step_rad: self.angle_increment_rad,
+            count: n,
+        }
     }
 
     /// Eq. 2: beam `i` as a point in the sensor frame, if valid.

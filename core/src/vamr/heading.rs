@@ -11,7 +11,7 @@
 //! exhaustive sweep's exactly ([`search_exhaustive`] is kept as the reference and the tests compare
 //! them on random scenes).
 
-use crate::scan::{BeamPoint, Scan};
+use crate::scan::{BeamGeometry, BeamPoint, Scan};
 use crate::se2::{Se2, normalize_angle};
 use std::f64::consts::{PI, TAU};
 
@@ -21,9 +21,7 @@ pub struct TargetScan {
     /// Point of each beam (base frame), `None` where the beam has no point.
     by_beam: Vec<Option<[f64; 2]>>,
     base_to_lidar: Se2,
-    /// Angle of the middle of the sweep and the step, to find the beam a point falls on.
-    mid_angle_rad: f64,
-    step_rad: f64,
+    geometry: BeamGeometry,
     /// The points, sorted by their distance from the translation, for the arc search.
     points: Vec<[f64; 2]>,
 }
@@ -39,12 +37,10 @@ impl TargetScan {
                 *slot = Some(b.p);
             }
         }
-        let n = scan.len().max(1) as f64;
         TargetScan {
             by_beam,
             base_to_lidar: lidar_to_base.inverse(),
-            mid_angle_rad: scan.angle_min_rad + scan.angle_increment_rad * (n - 1.0) / 2.0,
-            step_rad: scan.angle_increment_rad,
+            geometry: scan.geometry(),
             points: points.iter().map(|b| b.p).collect(),
         }
     }
@@ -52,9 +48,7 @@ impl TargetScan {
     /// The (possibly out-of-range) beam index a base-frame point falls on.
     fn beam_of(&self, q: [f64; 2]) -> i64 {
         let l = self.base_to_lidar.transform_point(q);
-        let rel = normalize_angle(l[1].atan2(l[0]) - self.mid_angle_rad);
-        let half = (self.by_beam.len() as f64 - 1.0) / 2.0;
-        (rel / self.step_rad + half).round() as i64
+        self.geometry.nearest_beam(l[1].atan2(l[0]))
     }
 }
 
