@@ -1,1 +1,23 @@
 //! LP-Research LPMS-B2 over LPBUS: codec, session, tokio-serial shell.
+//!
+//! - [`frame`]: LPBUS framing with LRC and resynchronisation (sans-IO).
+//! - [`command`]: the B2 command set, requests and replies.
+//! - [`data`]: config register and sensor-data payloads in float and 16-bit modes.
+//! - [`session`]: the start-up sequence, watchdog and reopen backoff as a pure state machine.
+//! - [`serial`]: the tokio shell over tokio-serial (or any `AsyncRead + AsyncWrite`).
+//!
+//! Protocol facts: `shared/spec/devices.md` §3 and `shared/research/lpms-and-canopen.md` Part A.
+
+pub mod command;
+pub mod data;
+pub mod error;
+pub mod frame;
+pub mod serial;
+pub mod session;
+
+pub use command::{Command, CommandId, FirmwareVersion, Reply};
+pub use data::{ConfigRegister, DataMode, OutputMask, SensorData};
+pub use error::{DeviceError, LinkError, LpmsError, ProtocolError};
+pub use frame::{Frame, FrameDecoder, FrameError};
+pub use serial::{Health, ImuMessage, ImuSample, LpmsConfig, open_serial, run, run_serial, spawn_serial};
+pub use session::{DeviceInfo, Event, Session, SessionConfig};
