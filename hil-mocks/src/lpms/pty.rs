@@ -1,0 +1,352 @@
+//! The mock LPMS-B2 behind a pseudo-terminal, so the driver opens it through tokio-serial exactly
+//! as it opens `/dev/rfcomm0` on the robot.
+//!
+//! Replug with ptys: a pty's slave path (`/dev/pts/N`) vanishes when the mock closes the master, and
+//! a new pair gets a new N. So the driver is pointed at a stable symlink (`link_path`) that the mock
+//! re-points atomically (symlink to a temporary name, then rename) on every replug — the same way
+//! udev gives an RFCOMM device a stable name. While unplugged the symlink does not exist, so the
+//! driver's reopen attempts fail with "not found" until the replug.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use amr_drivers::lpms::command::CommandId;
+use thiserror::Error;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{mpsc, oneshot};
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, MissedTickBehavior};
+use tokio_serial::{SerialPort, SerialStream};
+
+use super::device::{DeviceSettings, DeviceStats, MockDevice};
+use super::motion::{ConstantYawRate, MotionSource};
+
+/// A write to the pty that does not finish in this time is dropped (nobody is reading the slave:
+/// a real Bluetooth link loses data the same way).
+const WRITE_TIMEOUT: Duration = Duration::from_millis(100);
+/// How long to wait before reading the master again when no one holds the slave open.
+const NO_PEER_RETRY: Duration = Duration::from_millis(10);
+
+/// How to start the mock.
+#[derive(Debug, Clone, Default)]
+pub struct MockImuOptions {
+    /// Where the stable symlink to the current pty goes; `None` picks a fresh path in the temp dir.
+    pub link_path: Option<PathBuf>,
+    /// Power-up settings (stream rate, outputs, data mode, id, identity strings).
+    pub device: DeviceSettings,
+}
+
+impl MockImuOptions {
+    /// Options for `amr mock imu --rate <hz>`: power up streaming at `rate_hz`.
+    pub fn with_rate(rate_hz: u32) -> Self {
+        Self { device: DeviceSettings { stream_hz: rate_hz, ..DeviceSettings::default() }, ..Self::default() }
+    }
+}
+
+/// A fault the mock injects on command (devices.md §4).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Fault {
+    /// Write these bytes to the link now, between frames.
+    Garbage(Vec<u8>),
+    /// Send the next `n` frames (replies or data) with a wrong LRC.
+    WrongLrc(u32),
+    /// Answer the next `times` requests of `command` with NACK.
+    Nack {
+        /// The command to refuse.
+        command: CommandId,
+        /// How many times.
+        times: u32,
+    },
+    /// Swallow the next `n` replies (not data).
+    DropReplies(u32),
+    /// Send nothing at all (neither replies nor data) while `true`; requests are still executed.
+    Silence(bool),
+}
+
+/// Errors of the mock.
+#[derive(Debug, Error)]
+pub enum MockImuError {
+    /// Creating the pty or the symlink failed.
+    #[error("mock IMU pty: {0}")]
+    Io(#[from] std::io::Error),
+    /// The pty has no slave name.
+    #[error("mock IMU pty has no slave path")]
+    NoSlavePath,
+    /// The mock task has stopped.
+    #[error("mock IMU task has stopped")]
+    Stopped,
+}
+
+/// Counters of the running mock.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MockImuStats {
+    /// Device counters (commands seen, NACKs, data packets produced).
+    pub device: DeviceStats,
+    /// Data packets written to the pty completely.
+    pub packets_written: u64,
+    /// Writes dropped (timeout or error).
+    pub writes_dropped: u64,
+    /// Current pty slave path, if plugged.
+    pub pty_path: Option<PathBuf>,
+    /// Plug-ins so far (1 after start).
+    pub plugs: u32,
+}
+
+enum Control {
+    Fault(Fault),
+    Unplug(oneshot::Sender<()>),
+    Replug(oneshot::Sender<Result<PathBuf, MockImuError>>),
+}
+
+/// Handle to a running mock; dropping it stops the mock and removes the symlink.
+#[derive(Debug)]
+pub struct MockImuHandle {
+    link_path: PathBuf,
+    control: mpsc::Sender<Control>,
+    stats: Arc<Mutex<MockImuStats>>,
+    task: JoinHandle<()>,
+}
+
+impl std::fmt::Debug for Control {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Fault(x) => write!(f, "Fault({x:?})"),
+            Self::Unplug(_) => write!(f, "Unplug"),
+            Self::Replug(_) => write!(f, "Replug"),
+        }
+    }
+}
+
+impl MockImuHandle {
+    /// The stable path to point the driver at.
+    pub fn tty_path(&self) -> &Path {
+        &self.link_path
+    }
+
+    /// A snapshot of the counters.
+    pub fn stats(&self) -> MockImuStats {
+        self.stats.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// Injects a fault.
+    pub async fn inject(&self, fault: Fault) -> Result<(), MockImuError> {
+        self.control.send(Control::Fault(fault)).await.map_err(|_| MockImuError::Stopped)
+    }
+
+    /// Closes the pty (the driver's port reports an error) and removes the symlink; returns once done.
+    pub async fn unplug(&self) -> Result<(), MockImuError> {
+        let (tx, rx) = oneshot::channel();
+        self.control.send(Control::Unplug(tx)).await.map_err(|_| MockImuError::Stopped)?;
+        rx.await.map_err(|_| MockImuError::Stopped)
+    }
+
+    /// Opens a new pty and re-points the symlink to it; returns the new slave path once it is there.
+    pub async fn replug(&self) -> Result<PathBuf, MockImuError> {
+        let (tx, rx) = oneshot::channel();
+        self.control.send(Control::Replug(tx)).await.map_err(|_| MockImuError::Stopped)?;
+        rx.await.map_err(|_| MockImuError::Stopped)?
+    }
+
+    /// Stops the mock and removes the symlink.
+    pub fn shutdown(self) {
+        drop(self);
+    }
+}
+
+impl Drop for MockImuHandle {
+    fn drop(&mut self) {
+        self.task.abort();
+        let _ = std::fs::remove_file(&self.link_path);
+    }
+}
+
+fn default_link_path() -> PathBuf {
+    static NEXT: AtomicU64 = AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    std::env::temp_dir().join(format!("amr-mock-imu-{}-{n}", std::process::id()))
+}
+
+/// Opens a pty pair, points `link_path` at the slave and returns the master. The mock does not keep
+/// the slave open: the driver is the only one holding it, as with a real tty.
+fn plug(link_path: &Path) -> Result<(SerialStream, PathBuf), MockImuError> {
+    let (master, slave) = SerialStream::pair().map_err(std::io::Error::from)?;
+    let slave_path = PathBuf::from(slave.name().ok_or(MockImuError::NoSlavePath)?);
+    drop(slave);
+    let tmp = link_path.with_extension("new");
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(&slave_path, &tmp)?;
+    std::fs::rename(&tmp, link_path)?;
+    tracing::info!(link = %link_path.display(), pty = %slave_path.display(), "mock LPMS plugged in");
+    Ok((master, slave_path))
+}
+
+/// Starts the mock IMU with the motion source `motion`; returns once the tty path exists.
+pub async fn start_mock_imu(
+    options: MockImuOptions,
+    motion: Box<dyn MotionSource>,
+) -> Result<MockImuHandle, MockImuError> {
+    let link_path = options.link_path.clone().unwrap_or_else(default_link_path);
+    let (master, pty_path) = plug(&link_path)?;
+    let stats =
+        Arc::new(Mutex::new(MockImuStats { pty_path: Some(pty_path), plugs: 1, ..MockImuStats::default() }));
+    let (control, control_rx) = mpsc::channel(16);
+    let task = tokio::spawn(
+        Runner {
+            device: MockDevice::new(options.device),
+            motion,
+            master: Some(master),
+            link_path: link_path.clone(),
+            stats: stats.clone(),
+            silent: false,
+            started: Instant::now(),
+        }
+        .run(control_rx),
+    );
+    Ok(MockImuHandle { link_path, control, stats, task })
+}
+
+/// Starts the mock the way `amr mock imu --rate <hz>` will: a slowly turning body
+/// (0.2 rad/s, 0.005 rad/s bias, 0.002 rad/s noise, seed 1).
+pub async fn start_default_mock_imu(rate_hz: u32) -> Result<MockImuHandle, MockImuError> {
+    start_mock_imu(MockImuOptions::with_rate(rate_hz), Box::new(ConstantYawRate::new(0.2, 0.005, 0.002, 1)))
+        .await
+}
+
+struct Runner {
+    device: MockDevice,
+    motion: Box<dyn MotionSource>,
+    master: Option<SerialStream>,
+    link_path: PathBuf,
+    stats: Arc<Mutex<MockImuStats>>,
+    silent: bool,
+    started: Instant,
+}
+
+impl Runner {
+    fn stats(&self) -> std::sync::MutexGuard<'_, MockImuStats> {
+        self.stats.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    async fn write(&mut self, bytes: &[u8]) -> bool {
+        if self.silent || bytes.is_empty() {
+            return false;
+        }
+        let Some(master) = self.master.as_mut() else { return false };
+        let done = tokio::time::timeout(WRITE_TIMEOUT, async {
+            master.write_all(bytes).await?;
+            master.flush().await
+        })
+        .await;
+        let ok = matches!(done, Ok(Ok(())));
+        if !ok {
+            self.stats().writes_dropped += 1;
+        }
+        ok
+    }
+
+    fn new_interval(&self) -> tokio::time::Interval {
+        let period = self.device.stream_period();
+        let mut iv = tokio::time::interval_at(Instant::now() + period, period);
+        iv.set_missed_tick_behavior(MissedTickBehavior::Burst);
+        iv
+    }
+
+    async fn run(mut self, mut control: mpsc::Receiver<Control>) {
+        let mut buf = vec![0u8; 1024];
+        let mut interval = self.new_interval();
+        let mut period = self.device.stream_period();
+        let mut streaming = self.device.is_streaming();
+        let mut read_paused_until: Option<Instant> = None;
+        loop {
+            let can_read = self.master.is_some() && read_paused_until.is_none();
+            let stream_now = streaming && self.master.is_some();
+            tokio::select! {
+                ctl = control.recv() => match ctl {
+                    None => return,
+                    Some(c) => self.control(c).await,
+                },
+                read = async {
+                    match self.master.as_mut() {
+                        Some(m) => m.read(&mut buf).await,
+                        None => std::future::pending().await,
+                    }
+                }, if can_read => match read {
+                    Ok(n) if n > 0 => {
+                        let t_s = self.started.elapsed().as_secs_f64();
+                        let motion = &mut self.motion;
+                        let out = self.device.handle_bytes(buf.get(..n).unwrap_or_default(), &mut || motion.motion_at(t_s));
+                        self.publish_device_stats();
+                        self.write(&out).await;
+                    }
+                    // EIO / EOF: no one holds the slave open right now; look again shortly.
+                    _ => read_paused_until = Some(Instant::now() + NO_PEER_RETRY),
+                },
+                () = async {
+                    match read_paused_until {
+                        Some(t) => tokio::time::sleep_until(t).await,
+                        None => std::future::pending().await,
+                    }
+                } => read_paused_until = None,
+                _ = interval.tick(), if stream_now => {
+                    let motion = self.motion.motion_at(self.started.elapsed().as_secs_f64());
+                    let packet = self.device.next_data_packet(&motion);
+                    if self.write(&packet).await {
+                        self.stats().packets_written += 1;
+                    }
+                    self.publish_device_stats();
+                }
+            }
+            // Follow mode and rate changes made by commands.
+            let now_streaming = self.device.is_streaming();
+            let now_period = self.device.stream_period();
+            if now_streaming != streaming || now_period != period {
+                streaming = now_streaming;
+                period = now_period;
+                interval = self.new_interval();
+            }
+        }
+    }
+
+    fn publish_device_stats(&mut self) {
+        let device = self.device.stats().clone();
+        self.stats().device = device;
+    }
+
+    async fn control(&mut self, c: Control) {
+        match c {
+            Control::Fault(Fault::Garbage(bytes)) => {
+                let was_silent = std::mem::replace(&mut self.silent, false);
+                self.write(&bytes).await;
+                self.silent = was_silent;
+            }
+            Control::Fault(Fault::WrongLrc(n)) => self.device.faults_mut().corrupt_lrc += n,
+            Control::Fault(Fault::Nack { command, times }) => {
+                self.device.faults_mut().nack.push((command, times))
+            }
+            Control::Fault(Fault::DropReplies(n)) => self.device.faults_mut().drop_replies += n,
+            Control::Fault(Fault::Silence(on)) => self.silent = on,
+            Control::Unplug(done) => {
+                self.master = None;
+                let _ = std::fs::remove_file(&self.link_path);
+                self.device.reset_link();
+                self.stats().pty_path = None;
+                tracing::info!(link = %self.link_path.display(), "mock LPMS unplugged");
+                let _ = done.send(());
+            }
+            Control::Replug(done) => {
+                self.master = None;
+                self.device.reset_link();
+                let result = plug(&self.link_path).map(|(master, path)| {
+                    self.master = Some(master);
+                    let mut s = self.stats();
+                    s.pty_path = Some(path.clone());
+                    s.plugs += 1;
+                    path
+                });
+                let _ = done.send(result);
+            }
+        }
+    }
+}
