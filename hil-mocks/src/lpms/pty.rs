@@ -95,7 +95,7 @@ pub struct MockImuStats {
 }
 
 enum Control {
-    Fault(Fault),
+    Fault(Fault, oneshot::Sender<()>),
     Unplug(oneshot::Sender<()>),
     Replug(oneshot::Sender<Result<PathBuf, MockImuError>>),
 }
@@ -112,7 +112,7 @@ pub struct MockImuHandle {
 impl std::fmt::Debug for Control {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Fault(x) => write!(f, "Fault({x:?})"),
+            Self::Fault(x, _) => write!(f, "Fault({x:?})"),
             Self::Unplug(_) => write!(f, "Unplug"),
             Self::Replug(_) => write!(f, "Replug"),
         }
@@ -130,9 +130,11 @@ impl MockImuHandle {
         self.stats.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
-    /// Injects a fault.
+    /// Injects a fault; returns once the mock has applied it.
     pub async fn inject(&self, fault: Fault) -> Result<(), MockImuError> {
-        self.control.send(Control::Fault(fault)).await.map_err(|_| MockImuError::Stopped)
+        let (tx, rx) = oneshot::channel();
+        self.control.send(Control::Fault(fault, tx)).await.map_err(|_| MockImuError::Stopped)?;
+        rx.await.map_err(|_| MockImuError::Stopped)
     }
 
     /// Closes the pty (the driver's port reports an error) and removes the symlink; returns once done.
@@ -316,17 +318,21 @@ impl Runner {
 
     async fn control(&mut self, c: Control) {
         match c {
-            Control::Fault(Fault::Garbage(bytes)) => {
-                let was_silent = std::mem::replace(&mut self.silent, false);
-                self.write(&bytes).await;
-                self.silent = was_silent;
+            Control::Fault(fault, done) => {
+                tracing::info!(?fault, "mock LPMS fault");
+                match fault {
+                    Fault::Garbage(bytes) => {
+                        let was_silent = std::mem::replace(&mut self.silent, false);
+                        self.write(&bytes).await;
+                        self.silent = was_silent;
+                    }
+                    Fault::WrongLrc(n) => self.device.faults_mut().corrupt_lrc += n,
+                    Fault::Nack { command, times } => self.device.faults_mut().nack.push((command, times)),
+                    Fault::DropReplies(n) => self.device.faults_mut().drop_replies += n,
+                    Fault::Silence(on) => self.silent = on,
+                }
+                let _ = done.send(());
             }
-            Control::Fault(Fault::WrongLrc(n)) => self.device.faults_mut().corrupt_lrc += n,
-            Control::Fault(Fault::Nack { command, times }) => {
-                self.device.faults_mut().nack.push((command, times))
-            }
-            Control::Fault(Fault::DropReplies(n)) => self.device.faults_mut().drop_replies += n,
-            Control::Fault(Fault::Silence(on)) => self.silent = on,
             Control::Unplug(done) => {
                 self.master = None;
                 let _ = std::fs::remove_file(&self.link_path);
