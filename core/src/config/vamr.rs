@@ -77,6 +77,9 @@ pub struct HeadingParams {
     pub refine_window_deg: Positive,
     /// A best score below this is a failed estimate.
     pub min_score: Fraction,
+    /// A best score less than this many times the runner-up (the best more than 1° away) is a
+    /// failed estimate: the peak is not distinct.
+    pub min_peak_ratio: Positive,
 }
 
 /// Spec §6: body masks and the virtual scan.
@@ -117,6 +120,11 @@ impl ConfigFileType for VamrParams {
                 h.refine_window_deg.get(),
                 h.step_deg.get()
             ),
+        )?;
+        rule(
+            h.min_peak_ratio.get() >= 1.0,
+            "heading.min_peak_ratio",
+            format!("must be at least 1 (got {})", h.min_peak_ratio.get()),
         )?;
         if let Some(bin) = self.fusion.virtual_bin_deg {
             rule(

@@ -99,6 +99,31 @@ impl Polygon {
         )
     }
 
+    /// Shortest distance from `p` to the outline (0 on an edge), inside or outside.
+    #[must_use]
+    pub fn distance_to_boundary(&self, p: [f64; 2]) -> f64 {
+        let n = self.vertices.len();
+        (0..n)
+            .map(|i| point_segment_distance(p, self.vertices[i], self.vertices[(i + 1) % n]))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Inside, or within `margin_m` of the outline: the polygon grown by a disc of that radius.
+    #[must_use]
+    pub fn contains_inflated(&self, p: [f64; 2], margin_m: f64) -> bool {
+        self.contains(p) || self.distance_to_boundary(p) <= margin_m
+    }
+
+    /// Interior angle at vertex `k` (radians, in (0, 2π)).
+    #[must_use]
+    pub fn interior_angle(&self, k: usize) -> f64 {
+        let n = self.vertices.len();
+        let (prev, v, next) = (self.vertices[(k + n - 1) % n], self.vertices[k], self.vertices[(k + 1) % n]);
+        let a = (next[1] - v[1]).atan2(next[0] - v[0]);
+        let b = (prev[1] - v[1]).atan2(prev[0] - v[0]);
+        (b - a).rem_euclid(std::f64::consts::TAU)
+    }
+
     /// Whether a point lies inside (even-odd rule; points exactly on an edge may go either way).
     #[must_use]
     pub fn contains(&self, p: [f64; 2]) -> bool {
@@ -124,6 +149,15 @@ impl TryFrom<Vec<[f64; 2]>> for Polygon {
     fn try_from(vertices: Vec<[f64; 2]>) -> Result<Self, PolygonError> {
         Polygon::new(vertices)
     }
+}
+
+/// Distance from `p` to the segment `a`–`b`.
+#[must_use]
+pub(crate) fn point_segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = ex * ex + ey * ey;
+    let t = if len2 > 0.0 { (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
 }
 
 fn signed_area(v: &[[f64; 2]]) -> f64 {
@@ -189,6 +223,12 @@ mod tests {
         assert!(p.contains([0.19, -0.19]));
         assert!(!p.contains([0.21, 0.0]));
         assert_eq!(p.bounds(), (-0.2, -0.2, 0.2, 0.2));
+        assert!((p.distance_to_boundary([0.0, 0.0]) - 0.2).abs() < 1e-12);
+        assert!((p.distance_to_boundary([0.5, 0.6]) - 0.3f64.hypot(0.4)).abs() < 1e-12);
+        assert!(p.contains_inflated([0.24, 0.0], 0.05) && !p.contains_inflated([0.26, 0.0], 0.05));
+        for k in 0..4 {
+            assert!((p.interior_angle(k) - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        }
     }
 
     #[test]
@@ -227,5 +267,7 @@ mod tests {
         assert!((l.area() - 3.0).abs() < 1e-12);
         assert!(l.contains([0.5, 1.5]));
         assert!(!l.contains([1.5, 1.5]));
+        // The reflex corner at (1, 1) is 270°.
+        assert!((l.interior_angle(3) - 1.5 * std::f64::consts::PI).abs() < 1e-12);
     }
 }

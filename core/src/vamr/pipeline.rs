@@ -1,0 +1,263 @@
+//! One fused update: sync gate → preprocessing → relative poses (by the configured T1–T4 sources)
+//! → virtual frame → body masks → virtual scan (spec §6, §9).
+//!
+//! Robot 0 is the reference: it tracks every other robot's centre in its own scan, and each other
+//! robot's heading is searched against robot 0's scan. With two robots this is the paper's A and B.
+
+use crate::config::{Configuration, VamrParams};
+use crate::geometry::Polygon;
+use crate::scan::Scan;
+use crate::se2::Se2;
+
+use super::contour::{ContourInput, ContourMeasurement, recognize};
+use super::frame::{PacketTimes, SyncFailure, robots_in_virtual, sync_gate, virtual_frame};
+use super::fusion::{FusionInput, VirtualScan, fuse};
+use super::heading::{AngleGrid, HeadingProblem, SearchScratch, TargetScan, search};
+use super::preprocess::{Preprocessed, preprocess};
+use super::tracker::{TrackOutcome, Tracker};
+
+/// One robot's packet for a fused update.
+#[derive(Debug, Clone, Copy)]
+pub struct RobotPacket<'a> {
+    pub scan: &'a Scan,
+    pub times: PacketTimes,
+    pub lidar_to_base: Se2,
+    pub chassis: &'a Polygon,
+    /// Fusion weight `w_i` (Eq. 16).
+    pub weight: f64,
+    /// The robot's own AMCL pose `T_{B_i}^M`, where the configuration takes relative position or
+    /// heading from AMCL (T1–T3).
+    pub amcl_pose: Option<Se2>,
+}
+
+/// Where a relative pose component came from in this update.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    Amcl,
+    Tracker,
+    /// The heading search ran a full (-180°, 180°] sweep.
+    FullSearch,
+    /// The heading search ran around the previous estimate.
+    RefinedSearch,
+    /// The search failed (score below `min_score`); the previous estimate was kept.
+    PreviousHeading,
+}
+
+/// What happened for one non-reference robot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairReport {
+    pub contour: Option<ContourMeasurement>,
+    pub track: Option<TrackOutcome>,
+    pub position_source: Source,
+    pub heading_source: Source,
+    pub heading_score: Option<f64>,
+    pub heading_margin: Option<f64>,
+}
+
+/// The result of one fused update.
+#[derive(Debug, Clone)]
+pub struct FusedUpdate {
+    /// `T_{B_i}^{B_0}` (the first is the identity).
+    pub relative: Vec<Se2>,
+    /// `T_V^{B_0}`.
+    pub v_in_reference: Se2,
+    /// `T_{B_i}^V`.
+    pub bases_in_v: Vec<Se2>,
+    /// The virtual scan (T2–T4); T1 localises each robot on its own scan instead.
+    pub virtual_scan: Option<VirtualScan>,
+    /// One per non-reference robot.
+    pub pairs: Vec<PairReport>,
+}
+
+/// Why an update produced no fused measurement.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum UpdateError {
+    #[error("the packets fail the sync gate: {0:?}")]
+    Sync(SyncFailure),
+    #[error("the pipeline was built for {expected} robots, got {got}")]
+    RobotCount { expected: usize, got: usize },
+    #[error("no relative position for robot {robot}: {why}")]
+    NoPosition { robot: usize, why: &'static str },
+    #[error("no relative heading for robot {robot}: {why}")]
+    NoHeading { robot: usize, why: &'static str },
+}
+
+/// The pipeline's state across updates: one tracker and one heading per non-reference robot.
+#[derive(Debug)]
+pub struct Pipeline {
+    params: VamrParams,
+    configuration: Configuration,
+    max_spread_s: f64,
+    max_age_s: f64,
+    trackers: Vec<Tracker>,
+    headings: Vec<Option<f64>>,
+    scratch: SearchScratch,
+}
+
+impl Pipeline {
+    #[must_use]
+    pub fn new(
+        robots: usize,
+        params: VamrParams,
+        configuration: Configuration,
+        max_spread_s: f64,
+        max_age_s: f64,
+    ) -> Self {
+        let others = robots.saturating_sub(1);
+        Pipeline {
+            trackers: vec![Tracker::new(params.tracker); others],
+            headings: vec![None; others],
+            params,
+            configuration,
+            max_spread_s,
+            max_age_s,
+            scratch: SearchScratch::default(),
+        }
+    }
+
+    #[must_use]
+    pub fn configuration(&self) -> Configuration {
+        self.configuration
+    }
+
+    /// Switch T1–T4 between updates (trackers and headings are kept).
+    pub fn set_configuration(&mut self, configuration: Configuration) {
+        self.configuration = configuration;
+    }
+
+    /// One synchronised set of packets, robot 0 first.
+    pub fn update(&mut self, packets: &[RobotPacket<'_>]) -> Result<FusedUpdate, UpdateError> {
+        let expected = self.trackers.len() + 1;
+        if packets.len() != expected {
+            return Err(UpdateError::RobotCount { expected, got: packets.len() });
+        }
+        let t_s = packets[0].times.stamp_s;
+        let times: Vec<PacketTimes> = packets.iter().map(|p| p.times).collect();
+        if let Err(e) = sync_gate(&times, self.max_spread_s, self.max_age_s) {
+            // Not fused, and a miss for every track (spec §6).
+            for tracker in &mut self.trackers {
+                if matches!(tracker.update(t_s, None), TrackOutcome::Lost) {
+                    self.headings.fill(None);
+                }
+            }
+            return Err(UpdateError::Sync(e));
+        }
+        let (position_from_tracker, heading_from_search) = match self.configuration {
+            Configuration::T1 => (false, false),
+            Configuration::T2 => (false, true),
+            Configuration::T3 => (true, false),
+            Configuration::T4 => (true, true),
+        };
+        let pre: Vec<Preprocessed> =
+            packets.iter().map(|p| preprocess(p.scan, &p.lidar_to_base, &self.params.preprocess)).collect();
+        let reference = &packets[0];
+        let target = heading_from_search
+            .then(|| TargetScan::new(reference.scan, &reference.lidar_to_base, &pre[0].smoothed_points));
+        let mut relative = vec![Se2::IDENTITY];
+        let mut pairs = Vec::new();
+        for i in 1..packets.len() {
+            let other = &packets[i];
+            let from_amcl = match (reference.amcl_pose, other.amcl_pose) {
+                (Some(a), Some(b)) => Some(a.inverse() * b),
+                _ => None,
+            };
+            let mut report = PairReport {
+                contour: None,
+                track: None,
+                position_source: Source::Amcl,
+                heading_source: Source::Amcl,
+                heading_score: None,
+                heading_margin: None,
+            };
+            let position = if position_from_tracker {
+                let tracker = &mut self.trackers[i - 1];
+                let contour = recognize(
+                    ContourInput {
+                        scan: reference.scan,
+                        filtered: &pre[0].filtered_points,
+                        lidar_to_base: reference.lidar_to_base,
+                        chassis: other.chassis,
+                        roi: tracker.roi(t_s),
+                        jump_m: self.params.preprocess.segment_jump_m.get(),
+                    },
+                    &self.params.contour,
+                );
+                let outcome = tracker.update(t_s, contour.map(|c| c.center));
+                if matches!(outcome, TrackOutcome::Lost) {
+                    // Re-acquire: full ROI and full heading search next time.
+                    self.headings[i - 1] = None;
+                }
+                report.contour = contour;
+                report.track = Some(outcome);
+                report.position_source = Source::Tracker;
+                tracker
+                    .state()
+                    .map(|s| s.position())
+                    .ok_or(UpdateError::NoPosition { robot: i, why: "no track" })?
+            } else {
+                let rel = from_amcl.ok_or(UpdateError::NoPosition { robot: i, why: "no AMCL poses" })?;
+                [rel.x, rel.y]
+            };
+            let theta = if let Some(target) = &target {
+                let h = &self.params.heading;
+                let (grid, mode) = match self.headings[i - 1] {
+                    Some(prev) => (
+                        AngleGrid::around(prev, h.refine_window_deg.get(), h.step_deg.get()),
+                        Source::RefinedSearch,
+                    ),
+                    None => (AngleGrid::full(h.step_deg.get()), Source::FullSearch),
+                };
+                let problem = HeadingProblem {
+                    source: &pre[i].smoothed_points,
+                    target,
+                    translation: position,
+                    distance_gate_m: h.distance_gate_m.get(),
+                    window_beams: h.neighbour_window_beams.usize(),
+                };
+                let estimate = search(&problem, &grid, &mut self.scratch);
+                report.heading_score = estimate.as_ref().map(|e| e.score);
+                report.heading_margin = estimate.as_ref().map(|e| e.margin());
+                let distinct = |e: &super::heading::HeadingEstimate| {
+                    e.score >= h.min_score.get() && e.score >= h.min_peak_ratio.get() * e.runner_up
+                };
+                match estimate.filter(distinct) {
+                    Some(e) => {
+                        self.headings[i - 1] = Some(e.theta_rad);
+                        report.heading_source = mode;
+                        e.theta_rad
+                    }
+                    None => {
+                        report.heading_source = Source::PreviousHeading;
+                        self.headings[i - 1]
+                            .ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })?
+                    }
+                }
+            } else {
+                from_amcl.ok_or(UpdateError::NoHeading { robot: i, why: "no AMCL poses" })?.theta
+            };
+            relative.push(Se2::new(position[0], position[1], theta));
+            pairs.push(report);
+        }
+        let weighted: Vec<(Se2, f64)> = relative.iter().zip(packets).map(|(t, p)| (*t, p.weight)).collect();
+        let v_in_reference = virtual_frame(&weighted);
+        let bases_in_v = robots_in_virtual(&v_in_reference, &weighted);
+        let virtual_scan = (self.configuration != Configuration::T1).then(|| {
+            let inputs: Vec<FusionInput<'_>> = packets
+                .iter()
+                .zip(&bases_in_v)
+                .map(|(p, b)| FusionInput {
+                    scan: p.scan,
+                    lidar_to_base: p.lidar_to_base,
+                    chassis: p.chassis,
+                    base_in_v: *b,
+                })
+                .collect();
+            fuse(
+                &inputs,
+                self.params.fusion.mask_inflation_m.get(),
+                self.params.fusion.virtual_bin_deg.map(|d| d.get().to_radians()),
+            )
+        });
+        Ok(FusedUpdate { relative, v_in_reference, bases_in_v, virtual_scan, pairs })
+    }
+}

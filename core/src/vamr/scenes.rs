@@ -1,0 +1,295 @@
+//! Synthetic two-robot scenes built by ray casting (walls, clutter, two chassis): the pipeline
+//! against the true geometry, noise-free.
+
+use super::contour::{ContourInput, recognize};
+use super::frame::PacketTimes;
+use super::heading::{AngleGrid, HeadingProblem, SearchScratch, TargetScan, search};
+use super::pipeline::{Pipeline, RobotPacket, Source};
+use super::preprocess::preprocess;
+use super::shipped_params;
+use crate::config::Configuration;
+use crate::geometry::{Polygon, cast_ray};
+use crate::scan::Scan;
+use crate::se2::{Se2, angle_diff};
+use proptest::prelude::*;
+
+struct World {
+    static_parts: Vec<Polygon>,
+    chassis: Polygon,
+    mount: Se2,
+    geom: Scan,
+}
+
+impl World {
+    /// The paper's site: a 10 m × 3.1 m room, plus a few features so the heading is observable.
+    fn site() -> Self {
+        World {
+            static_parts: vec![
+                Polygon::centered_rectangle(10.0, 3.1).unwrap(),
+                Polygon::new(vec![[2.0, 1.55], [2.3, 1.1], [2.6, 1.55]]).unwrap(),
+                Polygon::new(vec![[-3.0, -1.55], [-1.8, -1.55], [-1.8, -1.35], [-3.0, -1.35]]).unwrap(),
+                Polygon::new(vec![[-1.2, 1.55], [-0.8, 1.25], [-0.4, 1.55]]).unwrap(),
+            ],
+            chassis: Polygon::centered_rectangle(0.40, 0.40).unwrap(),
+            mount: Se2::from_degrees(0.175, 0.0, 0.0),
+            geom: Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271]),
+        }
+    }
+
+    /// Robot `i`'s scan with every robot at `poses` (its own body is below the scan plane).
+    fn scan(&self, poses: &[Se2], i: usize) -> Scan {
+        let mut scene: Vec<(Se2, &Polygon)> = self.static_parts.iter().map(|p| (Se2::IDENTITY, p)).collect();
+        scene.extend(poses.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, p)| (*p, &self.chassis)));
+        let lidar = poses[i] * self.mount;
+        let ranges = (0..self.geom.len())
+            .map(|b| {
+                cast_ray([lidar.x, lidar.y], lidar.theta + self.geom.angle(b), 10.0, &scene)
+                    .unwrap_or(f64::NAN)
+            })
+            .collect();
+        self.geom.with_ranges(ranges)
+    }
+}
+
+/// Pairs (A, B) in the world: side by side, B ahead and turned, B behind and turned, corner-on.
+fn layouts() -> Vec<(Se2, Se2)> {
+    vec![
+        (Se2::from_degrees(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 0.0)),
+        (Se2::from_degrees(-1.0, 0.2, 3.0), Se2::from_degrees(-0.2, -0.5, 33.0)),
+        (Se2::from_degrees(1.5, -0.4, -10.0), Se2::from_degrees(1.9, 0.45, -75.0)),
+        (Se2::from_degrees(-2.5, 0.0, 0.0), Se2::from_degrees(-1.4, 0.15, 45.0)),
+        (Se2::from_degrees(3.0, 0.5, 180.0), Se2::from_degrees(2.2, -0.35, 172.5)),
+    ]
+}
+
+#[test]
+fn contour_finds_the_neighbour_centre_within_1cm() {
+    let w = World::site();
+    let params = shipped_params();
+    for (a, b) in layouts() {
+        let scan = w.scan(&[a, b], 0);
+        let pre = preprocess(&scan, &w.mount, &params.preprocess);
+        let m = recognize(
+            ContourInput {
+                scan: &scan,
+                filtered: &pre.filtered_points,
+                lidar_to_base: w.mount,
+                chassis: &w.chassis,
+                roi: None,
+                jump_m: params.preprocess.segment_jump_m.get(),
+            },
+            &params.contour,
+        )
+        .unwrap_or_else(|| panic!("no contour for {a:?} / {b:?}"));
+        let truth = a.inverse() * b;
+        let err = (m.center[0] - truth.x).hypot(m.center[1] - truth.y);
+        assert!(err < 0.01, "{:?}: centre error {:.4} m ({m:?})", (a, b), err);
+    }
+}
+
+#[test]
+fn heading_search_finds_the_relative_heading_within_0_2_deg() {
+    let w = World::site();
+    let params = shipped_params();
+    let mut scratch = SearchScratch::default();
+    for (a, b) in layouts() {
+        let (sa, sb) = (w.scan(&[a, b], 0), w.scan(&[a, b], 1));
+        let (pa, pb) =
+            (preprocess(&sa, &w.mount, &params.preprocess), preprocess(&sb, &w.mount, &params.preprocess));
+        let truth = a.inverse() * b;
+        let target = TargetScan::new(&sa, &w.mount, &pa.smoothed_points);
+        let problem = HeadingProblem {
+            source: &pb.smoothed_points,
+            target: &target,
+            translation: [truth.x, truth.y],
+            distance_gate_m: params.heading.distance_gate_m.get(),
+            window_beams: params.heading.neighbour_window_beams.usize(),
+        };
+        let e = search(&problem, &AngleGrid::full(params.heading.step_deg.get()), &mut scratch).unwrap();
+        let err = angle_diff(e.theta_rad, truth.theta).to_degrees();
+        assert!(
+            err.abs() <= 0.2,
+            "{:?}: heading error {err:.3}° (score {:.3}, runner-up {:.3})",
+            (a, b),
+            e.score,
+            e.runner_up
+        );
+    }
+}
+
+fn packets<'a>(w: &'a World, scans: &'a [Scan], poses: &[Se2], amcl: bool) -> Vec<RobotPacket<'a>> {
+    scans
+        .iter()
+        .zip(poses)
+        .map(|(s, p)| RobotPacket {
+            scan: s,
+            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+            lidar_to_base: w.mount,
+            chassis: &w.chassis,
+            weight: 1.0,
+            amcl_pose: amcl.then_some(*p),
+        })
+        .collect()
+}
+
+#[test]
+fn t4_masks_every_body_return_and_sees_walls_each_scan_misses() {
+    let w = World::site();
+    let params = shipped_params();
+    for (a, b) in layouts() {
+        let poses = [a, b];
+        let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
+        let mut pipeline = Pipeline::new(2, params.clone(), Configuration::T4, 0.05, 0.1);
+        let out = pipeline.update(&packets(&w, &scans, &poses, false)).unwrap();
+        let truth = a.inverse() * b;
+        assert!(
+            out.relative[1].approx_eq(&truth, 0.01, 0.2f64.to_radians()),
+            "{:?} vs {truth:?}",
+            out.relative[1]
+        );
+        assert_eq!(out.pairs[0].heading_source, Source::FullSearch);
+        let vs = out.virtual_scan.unwrap();
+        // V in the world, from A's true pose and the estimated T_V^{B_A}.
+        let v_world = a * out.v_in_reference;
+        let mut seen = [
+            std::collections::BTreeSet::new(),
+            std::collections::BTreeSet::new(),
+            std::collections::BTreeSet::new(),
+        ];
+        let cell = |p: [f64; 2]| ((p[0] / 0.1).floor() as i64, (p[1] / 0.1).floor() as i64);
+        for (p_v, _) in &vs.points {
+            let p = v_world.transform_point(*p_v);
+            for pose in &poses {
+                let local = pose.inverse().transform_point(p);
+                assert!(
+                    !w.chassis.contains(local) && w.chassis.distance_to_boundary(local) > 0.005,
+                    "a body return survived the mask at {p:?}"
+                );
+            }
+            // Every fused point lies on the static world (within the pose estimate's error).
+            let on_static =
+                w.static_parts.iter().map(|s| s.distance_to_boundary(p)).fold(f64::INFINITY, f64::min);
+            assert!(on_static < 0.03, "fused point {p:?} is {on_static:.3} m from any wall");
+            seen[2].insert(cell(p));
+        }
+        for (i, pose) in poses.iter().enumerate() {
+            for bp in scans[i].points_in(&(*pose * w.mount)) {
+                let on_static =
+                    w.static_parts.iter().map(|s| s.distance_to_boundary(bp.p)).fold(f64::INFINITY, f64::min);
+                if on_static < 1e-6 {
+                    seen[i].insert(cell(bp.p));
+                }
+            }
+        }
+        let (only_a, only_b) = (seen[2].difference(&seen[0]).count(), seen[2].difference(&seen[1]).count());
+        assert!(
+            only_a > 0 && only_b > 0,
+            "{:?}: the virtual scan adds {only_a} cells to A's and {only_b} to B's",
+            (a, b)
+        );
+        // Side by side each robot sees the other's flank; in every layout at least one body is seen.
+        assert!(vs.masked.iter().sum::<usize>() > 0, "{:?}", vs.masked);
+        if (a, b) == layouts()[0] {
+            assert!(vs.masked.iter().all(|&m| m > 0), "each robot saw the other's body: {:?}", vs.masked);
+        }
+        assert!(vs.scan.valid_count() > 200);
+    }
+}
+
+#[test]
+fn t1_to_t4_run_on_the_same_inputs() {
+    let w = World::site();
+    let params = shipped_params();
+    let (a, b) = layouts()[1];
+    let poses = [a, b];
+    let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
+    let truth = a.inverse() * b;
+    for (cfg, pos, head, has_virtual) in [
+        (Configuration::T1, Source::Amcl, Source::Amcl, false),
+        (Configuration::T2, Source::Amcl, Source::FullSearch, true),
+        (Configuration::T3, Source::Tracker, Source::Amcl, true),
+        (Configuration::T4, Source::Tracker, Source::FullSearch, true),
+    ] {
+        let mut pipeline = Pipeline::new(2, params.clone(), cfg, 0.05, 0.1);
+        let out = pipeline.update(&packets(&w, &scans, &poses, true)).unwrap();
+        assert_eq!((out.pairs[0].position_source, out.pairs[0].heading_source), (pos, head), "{cfg:?}");
+        assert_eq!(out.virtual_scan.is_some(), has_virtual, "{cfg:?}");
+        assert!(
+            out.relative[1].approx_eq(&truth, 0.01, 0.2f64.to_radians()),
+            "{cfg:?}: {:?}",
+            out.relative[1]
+        );
+        // The second update refines around the first heading.
+        let again = pipeline.update(&packets(&w, &scans, &poses, true)).unwrap();
+        if matches!(cfg, Configuration::T2 | Configuration::T4) {
+            assert_eq!(again.pairs[0].heading_source, Source::RefinedSearch);
+        }
+    }
+    // Without AMCL poses T1–T3 cannot run; T4 needs none.
+    let mut t1 = Pipeline::new(2, params.clone(), Configuration::T1, 0.05, 0.1);
+    assert!(t1.update(&packets(&w, &scans, &poses, false)).is_err());
+    let mut t4 = Pipeline::new(2, params, Configuration::T4, 0.05, 0.1);
+    assert!(t4.update(&packets(&w, &scans, &poses, false)).is_ok());
+}
+
+#[test]
+fn stale_packets_are_not_fused_and_count_as_misses() {
+    let w = World::site();
+    let (a, b) = layouts()[0];
+    let poses = [a, b];
+    let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
+    let mut pipeline = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    pipeline.update(&packets(&w, &scans, &poses, false)).unwrap();
+    let mut late = packets(&w, &scans, &poses, false);
+    for (k, p) in late.iter_mut().enumerate() {
+        p.times = PacketTimes { stamp_s: 0.1 * (k as f64 + 1.0), received_s: 0.21 };
+    }
+    late[1].times.stamp_s = 0.2;
+    late[0].times.stamp_s = 0.1;
+    // Spread 100 ms > 50 ms.
+    assert!(matches!(pipeline.update(&late), Err(super::pipeline::UpdateError::Sync(_))));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(8))]
+
+    /// Moving the whole scene rigidly (walls, clutter, both robots) changes nothing in what the robots
+    /// see, so the estimated relative pose is the same.
+    #[test]
+    fn relative_pose_is_invariant_to_moving_the_whole_scene(gx in -20.0..20.0f64, gy in -20.0..20.0f64, gt in -180.0..180.0f64, k in 0usize..5) {
+        let g = Se2::from_degrees(gx, gy, gt);
+        let base = World::site();
+        let moved = World {
+            static_parts: base.static_parts.iter().map(|p| Polygon::new(p.vertices().iter().map(|v| g.transform_point(*v)).collect()).unwrap()).collect(),
+            ..World::site()
+        };
+        let (a, b) = layouts()[k];
+        let run = |w: &World, poses: [Se2; 2]| {
+            let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
+            let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+            p.update(&packets(w, &scans, &poses, false)).map(|u| u.relative[1])
+        };
+        let here = run(&base, [a, b]).unwrap();
+        let there = run(&moved, [g * a, g * b]).unwrap();
+        prop_assert!(here.approx_eq(&there, 0.002, 0.1f64.to_radians() + 1e-9), "{:?} vs {:?}", here, there);
+    }
+
+    /// The virtual scan of a robot fused with itself is its own scan: the same points, and with bins
+    /// that match its beams, the same ranges.
+    #[test]
+    fn virtual_scan_of_a_robot_with_itself_is_its_own_scan(ranges in prop::collection::vec(prop_oneof![0.4..9.0f64, Just(f64::NAN)], 360)) {
+        let bin = 1f64.to_radians();
+        let own = Scan::new(-std::f64::consts::PI + bin / 2.0, bin, 0.05, 10.0, ranges);
+        let chassis = Polygon::centered_rectangle(0.4, 0.4).unwrap();
+        let me = super::fusion::FusionInput { scan: &own, lidar_to_base: Se2::IDENTITY, chassis: &chassis, base_in_v: Se2::IDENTITY };
+        let fused = super::fusion::fuse(&[me, me], 0.05, Some(bin));
+        let alone = super::fusion::fuse(&[me], 0.05, Some(bin));
+        prop_assert_eq!(fused.points.len(), 2 * alone.points.len());
+        prop_assert_eq!(fused.scan.len(), own.len());
+        for i in 0..own.len() {
+            let (a, b) = (fused.scan.ranges_m()[i], own.ranges_m()[i]);
+            // Returns inside the inflated outline (up to 0.2·√2 + 0.05 ≈ 0.33 m) would be masked; r ≥ 0.4 here.
+            prop_assert!((a.is_nan() && b.is_nan()) || (a - b).abs() < 1e-12, "bin {}: {} vs {}", i, a, b);
+        }
+    }
+}
