@@ -9,6 +9,9 @@ use amr_drivers::lpms::data::{
 use amr_drivers::lpms::frame::{Frame, FrameDecoder, MAX_PAYLOAD_LEN, START};
 use proptest::prelude::*;
 
+/// Output bit, values sent, values decoded, 16-bit divisor.
+type FieldPair = (OutputMask, Option<Vec<f32>>, Option<Vec<f32>>, f32);
+
 fn drain(d: &mut FrameDecoder) -> (Vec<Frame>, usize) {
     let mut frames = Vec::new();
     let mut errors = 0;
@@ -163,7 +166,7 @@ proptest! {
         prop_assert_eq!(payload.len(), payload_len(mask, mode));
         let back = decode_sensor_data(&payload, mask, mode).unwrap();
         prop_assert_eq!(back.timestamp_ticks, ticks);
-        let pairs: Vec<(OutputMask, Option<Vec<f32>>, Option<Vec<f32>>, f32)> = vec![
+        let pairs: Vec<FieldPair> = vec![
             (OutputMask::GYRO, data.gyro_radps.map(Vec::from), back.gyro_radps.map(Vec::from), 1000.0),
             (OutputMask::ACC, data.acc_g.map(Vec::from), back.acc_g.map(Vec::from), 1000.0),
             (OutputMask::MAG, data.mag_ut.map(Vec::from), back.mag_ut.map(Vec::from), 100.0),

@@ -164,18 +164,20 @@ async fn streams_100_hz_for_30_s_of_sensor_time_without_losing_a_packet() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn garbage_and_bad_checksums_are_skipped_without_a_reconnect() {
+async fn garbage_bad_checksums_and_truncated_frames_are_skipped_without_a_reconnect() {
     let mock = mock(100).await;
     let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024);
     wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
     let (m, _) = wait_for(&mut rx, Duration::from_secs(2), |m| sample_ticks(m).is_some()).await;
     let before = sample_ticks(&m).unwrap();
 
-    // A fake header promising 64 bytes, stray start bytes, then three data packets with a bad LRC.
+    // A fake header promising 64 bytes, stray start bytes, then three data packets with a bad LRC
+    // and two cut in half.
     let mut garbage = vec![0x3A, 0x01, 0x00, 0x09, 0x00, 0x40, 0x00, 0xFF, 0x3A, 0x3A, 0x0D, 0x0A];
     garbage.extend((0u8..40).map(|i| i.wrapping_mul(37)));
     mock.inject(Fault::Garbage(garbage)).await.unwrap();
     mock.inject(Fault::WrongLrc(3)).await.unwrap();
+    mock.inject(Fault::Truncate(2)).await.unwrap();
 
     let mut prev = before;
     let mut missing = 0;
@@ -199,8 +201,8 @@ async fn garbage_and_bad_checksums_are_skipped_without_a_reconnect() {
             received_after += 1;
         }
     }
-    // Exactly the three corrupted packets are lost; the garbage costs none.
-    assert_eq!(missing, 3);
+    // Exactly the three corrupted and two truncated packets are lost; the garbage costs none.
+    assert_eq!(missing, 5);
     assert!(bad_lrc >= 3, "bad LRC reports: {bad_lrc}");
 }
 

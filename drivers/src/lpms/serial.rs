@@ -144,6 +144,7 @@ where
     F: Future<Output = std::io::Result<T>>,
     T: AsyncRead + AsyncWrite + Unpin,
 {
+    let write_timeout = config.reply_timeout;
     let mut session = Session::new(config, now());
     let mut port: Option<T> = None;
     let mut buf = vec![0u8; 4096];
@@ -155,12 +156,21 @@ where
             while let Some(bytes) = session.poll_transmit() {
                 progressed = true;
                 if let Some(p) = port.as_mut() {
-                    let written = async {
+                    // A dead Bluetooth link can block writes: bound them by the reply timeout.
+                    let written = tokio::time::timeout(write_timeout, async {
                         p.write_all(&bytes).await?;
                         p.flush().await
-                    };
-                    if let Err(e) = written.await {
-                        session.link_failed(now(), LinkError::io(&e));
+                    });
+                    match written.await {
+                        Ok(Ok(())) => {}
+                        Ok(Err(e)) => session.link_failed(now(), LinkError::io(&e)),
+                        Err(_) => session.link_failed(
+                            now(),
+                            LinkError::Io {
+                                kind: std::io::ErrorKind::TimedOut,
+                                message: "write timed out".into(),
+                            },
+                        ),
                     }
                 }
             }

@@ -61,6 +61,8 @@ pub struct DeviceFaults {
     pub drop_replies: u32,
     /// Frames (replies or data) still to be sent with a wrong LRC.
     pub corrupt_lrc: u32,
+    /// Frames (replies or data) still to be cut to half their length (after the LRC faults).
+    pub truncate: u32,
 }
 
 /// Counters and the commands received, for tests.
@@ -246,6 +248,9 @@ impl MockDevice {
             self.faults.corrupt_lrc -= 1;
             let lrc_at = bytes.len() - 4;
             bytes[lrc_at] ^= 0x5A;
+        } else if self.faults.truncate > 0 {
+            self.faults.truncate -= 1;
+            bytes.truncate(bytes.len() / 2);
         }
         bytes
     }

@@ -59,6 +59,8 @@ pub enum Fault {
         /// How many times.
         times: u32,
     },
+    /// Send the next `n` frames cut to half their length (applied after any pending `WrongLrc`).
+    Truncate(u32),
     /// Swallow the next `n` replies (not data).
     DropReplies(u32),
     /// Send nothing at all (neither replies nor data) while `true`; requests are still executed.
@@ -327,6 +329,7 @@ impl Runner {
                         self.silent = was_silent;
                     }
                     Fault::WrongLrc(n) => self.device.faults_mut().corrupt_lrc += n,
+                    Fault::Truncate(n) => self.device.faults_mut().truncate += n,
                     Fault::Nack { command, times } => self.device.faults_mut().nack.push((command, times)),
                     Fault::DropReplies(n) => self.device.faults_mut().drop_replies += n,
                     Fault::Silence(on) => self.silent = on,
