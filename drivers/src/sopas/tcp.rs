@@ -1,0 +1,183 @@
+//! The tokio shell: runs a [`Session`] over `tokio::net::TcpStream`, reconnects when it asks, and
+//! publishes scans with host timestamps, health and errors on a channel. All protocol decisions
+//! live in the session; this file only moves bytes and waits.
+
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+use super::error::{LinkError, SopasError};
+use super::session::{DeviceInfo, DialectChoice, Event, Mode, Profile, Session, SessionConfig, StampedScan};
+
+/// Settings of one LiDAR connection (this crate does not depend on amr-core; the actors map their
+/// config onto this).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LidarConfig {
+    pub host: String,
+    /// 2112 on a TiM5xx (notes §1.3).
+    pub port: u16,
+    pub dialect: DialectChoice,
+    pub profile: Profile,
+    pub mode: Mode,
+    pub reply_timeout: Duration,
+    pub scan_timeout: Duration,
+    pub backoff_initial: Duration,
+    pub backoff_max: Duration,
+    /// sick_tim and sick_scan_xd both give a connect 5 s.
+    pub connect_timeout: Duration,
+}
+
+impl Default for LidarConfig {
+    fn default() -> Self {
+        let s = SessionConfig::default();
+        Self {
+            host: "192.168.0.1".into(),
+            port: 2112,
+            dialect: s.dialect,
+            profile: s.profile,
+            mode: s.mode,
+            reply_timeout: s.reply_timeout,
+            scan_timeout: s.scan_timeout,
+            backoff_initial: s.backoff_initial,
+            backoff_max: s.backoff_max,
+            connect_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+impl LidarConfig {
+    fn session_config(&self) -> SessionConfig {
+        SessionConfig {
+            profile: self.profile,
+            dialect: self.dialect,
+            mode: self.mode,
+            reply_timeout: self.reply_timeout,
+            scan_timeout: self.scan_timeout,
+            backoff_initial: self.backoff_initial,
+            backoff_max: self.backoff_max,
+            ..SessionConfig::default()
+        }
+    }
+}
+
+/// Connection health (ARCHITECTURE.md: `Starting | Ok | Degraded | Lost`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Health {
+    /// Connected, start-up running.
+    Starting,
+    /// Start-up done.
+    Ok(DeviceInfo),
+    /// Connection lost; reconnecting after `retry_in`.
+    Lost { retry_in: Duration },
+}
+
+/// What the shell publishes.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LidarMessage {
+    Scan(Box<StampedScan>),
+    Health(Health),
+    /// A device error (`sFA`) or a broken frame / timeout / link, kept in its layer.
+    Error(SopasError),
+}
+
+/// Runs the connection until the receiver is dropped.
+pub async fn run_tcp(config: LidarConfig, tx: mpsc::Sender<LidarMessage>) {
+    let mut session = Session::new(config.session_config(), Instant::now().into_std());
+    let mut stream: Option<TcpStream> = None;
+    let mut buf = vec![0u8; 8192];
+    loop {
+        let now = Instant::now().into_std();
+        if stream.is_none() && session.needs_connection(now) {
+            let addr = format!("{}:{}", config.host, config.port);
+            match tokio::time::timeout(config.connect_timeout, TcpStream::connect(&addr)).await {
+                Ok(Ok(s)) => {
+                    let _ = s.set_nodelay(true);
+                    tracing::info!(%addr, "sopas connected");
+                    stream = Some(s);
+                    session.handle_connected(Instant::now().into_std());
+                    if tx.send(LidarMessage::Health(Health::Starting)).await.is_err() {
+                        return;
+                    }
+                }
+                Ok(Err(e)) => session.handle_connect_failed(
+                    Instant::now().into_std(),
+                    LinkError::Connect { addr, msg: e.to_string() },
+                ),
+                Err(_) => session.handle_connect_failed(
+                    Instant::now().into_std(),
+                    LinkError::Connect { addr, msg: "timed out".into() },
+                ),
+            }
+        }
+        if let Some(s) = stream.as_mut() {
+            while let Some(bytes) = session.poll_transmit() {
+                if let Err(e) = s.write_all(&bytes).await {
+                    session.handle_disconnected(Instant::now().into_std(), LinkError::Io(e.to_string()));
+                    break;
+                }
+            }
+        }
+        while let Some(event) = session.poll_event() {
+            let msg = match event {
+                Event::Scan(scan) => LidarMessage::Scan(scan),
+                Event::Ready(info) => LidarMessage::Health(Health::Ok(info)),
+                Event::DeviceError(e) => LidarMessage::Error(e.into()),
+                Event::ProtocolError(e) => LidarMessage::Error(e.into()),
+                Event::LoginRefused | Event::DialectDetected(_) => continue,
+                Event::Reconnect { reason, delay } => {
+                    tracing::warn!(?reason, "sopas dropping the connection");
+                    stream = None;
+                    LidarMessage::Health(Health::Lost { retry_in: delay })
+                }
+            };
+            if tx.send(msg).await.is_err() {
+                return;
+            }
+        }
+        let deadline = session.poll_timeout().map(Instant::from_std);
+        let sleep = async {
+            match deadline {
+                Some(d) => tokio::time::sleep_until(d).await,
+                None => std::future::pending().await,
+            }
+        };
+        match stream.as_mut() {
+            Some(s) => {
+                tokio::select! {
+                    r = s.read(&mut buf) => {
+                        let now = Instant::now().into_std();
+                        match r {
+                            Ok(0) => {
+                                stream = None;
+                                session.handle_disconnected(now, LinkError::Closed);
+                            }
+                            Ok(n) => session.handle_bytes(now, &buf[..n]),
+                            Err(e) => {
+                                stream = None;
+                                session.handle_disconnected(now, LinkError::Io(e.to_string()));
+                            }
+                        }
+                    }
+                    () = sleep => session.handle_timeout(Instant::now().into_std()),
+                    () = tx.closed() => return,
+                }
+            }
+            None => {
+                tokio::select! {
+                    () = sleep => session.handle_timeout(Instant::now().into_std()),
+                    () = tx.closed() => return,
+                }
+            }
+        }
+    }
+}
+
+/// Spawns [`run_tcp`] and returns its handle with the receiving end of the channel.
+pub fn spawn_tcp(config: LidarConfig, capacity: usize) -> (JoinHandle<()>, mpsc::Receiver<LidarMessage>) {
+    let (tx, rx) = mpsc::channel(capacity.max(1));
+    (tokio::spawn(run_tcp(config, tx)), rx)
+}
