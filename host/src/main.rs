@@ -1,5 +1,6 @@
 //! `amr`: the one binary of the project. Each subcommand is wiring around the library crates.
 
+mod bench;
 mod config_cmd;
 
 use std::path::PathBuf;
@@ -32,6 +33,27 @@ enum Command {
     /// Inspect the configuration (robots, devices, server, algorithm parameters).
     #[command(subcommand)]
     Config(ConfigCommand),
+    /// Measure the algorithms (medians over repeated runs; nothing is asserted).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// Per-stage times of the Virtual-AMR pipeline (paper Table 4 layout) at 2 × 271 and 2 × 655
+    /// points on a synthetic two-robot scene, with the paper-faithful KD-tree heading search as the
+    /// baseline measured in the same run. Uses vamr.toml from the configuration.
+    Vamr {
+        /// Print JSON instead of a Markdown table.
+        #[arg(long)]
+        json: bool,
+        /// Fewer repetitions (for a quick look; the medians are noisier).
+        #[arg(long)]
+        quick: bool,
+        /// Configuration directory (default: ./config, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 #[derive(Debug, Subcommand)]
@@ -53,6 +75,7 @@ fn main() -> ExitCode {
 
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
+        Command::Bench(BenchCommand::Vamr { json, quick, config }) => bench_vamr(json, quick, config),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -64,6 +87,18 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+fn bench_vamr(json: bool, quick: bool, config: Option<PathBuf>) -> anyhow::Result<()> {
+    let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+    tracing::info!(quick, "benchmarking the Virtual-AMR pipeline");
+    let report = bench::run(&config.vamr, quick)?;
+    let text = if json { serde_json::to_string_pretty(&report)? + "\n" } else { bench::markdown(&report) };
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    {
+        print!("{text}");
+    }
+    Ok(())
 }
 
 #[cfg(test)]

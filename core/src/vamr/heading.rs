@@ -421,3 +421,48 @@ mod tests {
         }
     }
 }
+
+/// The paper's KD-tree search as its text describes it (§4.3): a k-d tree over `S_j`, queried for the
+/// nearest neighbour of every source point at every grid step. Kept only as the baseline of the
+/// benchmark; its nearest neighbour is global (no ±W beam window), so its scores can differ slightly
+/// from Eq. 11 as specified.
+#[cfg(feature = "kdtree-baseline")]
+pub mod kdtree_baseline {
+    use super::{AngleGrid, BeamPoint};
+    use kiddo::SquaredEuclidean;
+    use kiddo::immutable::float::kdtree::ImmutableKdTree;
+
+    /// The best angle and its score.
+    #[must_use]
+    pub fn search(
+        source: &[BeamPoint],
+        target: &[[f64; 2]],
+        translation: [f64; 2],
+        gate_m: f64,
+        grid: &AngleGrid,
+    ) -> Option<(f64, f64)> {
+        if source.is_empty() || target.is_empty() {
+            return None;
+        }
+        let tree: ImmutableKdTree<f64, u32, 2, 32> = ImmutableKdTree::new_from_slice(target);
+        let gate2 = gate_m * gate_m;
+        let mut best = (0usize, 0usize);
+        for s in 0..grid.count {
+            let (sn, cs) = grid.angle(s).sin_cos();
+            let hits = source
+                .iter()
+                .filter(|b| {
+                    let q = [
+                        cs * b.p[0] - sn * b.p[1] + translation[0],
+                        sn * b.p[0] + cs * b.p[1] + translation[1],
+                    ];
+                    tree.nearest_one::<SquaredEuclidean>(&q).distance < gate2
+                })
+                .count();
+            if hits > best.1 {
+                best = (s, hits);
+            }
+        }
+        Some((grid.angle(best.0), best.1 as f64 / source.len() as f64))
+    }
+}

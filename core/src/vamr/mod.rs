@@ -6,6 +6,7 @@ pub mod fusion;
 pub mod heading;
 pub mod pipeline;
 pub mod preprocess;
+pub mod synthetic;
 pub mod tracker;
 
 #[cfg(test)]

@@ -8,47 +8,15 @@ use super::pipeline::{Pipeline, RobotPacket, Source};
 use super::preprocess::preprocess;
 use super::shipped_params;
 use crate::config::Configuration;
-use crate::geometry::{Polygon, cast_ray};
+use crate::geometry::Polygon;
 use crate::scan::Scan;
 use crate::se2::{Se2, angle_diff};
 use proptest::prelude::*;
 
-struct World {
-    static_parts: Vec<Polygon>,
-    chassis: Polygon,
-    mount: Se2,
-    geom: Scan,
-}
+type World = super::synthetic::Site;
 
-impl World {
-    /// The paper's site: a 10 m × 3.1 m room, plus a few features so the heading is observable.
-    fn site() -> Self {
-        World {
-            static_parts: vec![
-                Polygon::centered_rectangle(10.0, 3.1).unwrap(),
-                Polygon::new(vec![[2.0, 1.55], [2.3, 1.1], [2.6, 1.55]]).unwrap(),
-                Polygon::new(vec![[-3.0, -1.55], [-1.8, -1.55], [-1.8, -1.35], [-3.0, -1.35]]).unwrap(),
-                Polygon::new(vec![[-1.2, 1.55], [-0.8, 1.25], [-0.4, 1.55]]).unwrap(),
-            ],
-            chassis: Polygon::centered_rectangle(0.40, 0.40).unwrap(),
-            mount: Se2::from_degrees(0.175, 0.0, 0.0),
-            geom: Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271]),
-        }
-    }
-
-    /// Robot `i`'s scan with every robot at `poses` (its own body is below the scan plane).
-    fn scan(&self, poses: &[Se2], i: usize) -> Scan {
-        let mut scene: Vec<(Se2, &Polygon)> = self.static_parts.iter().map(|p| (Se2::IDENTITY, p)).collect();
-        scene.extend(poses.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, p)| (*p, &self.chassis)));
-        let lidar = poses[i] * self.mount;
-        let ranges = (0..self.geom.len())
-            .map(|b| {
-                cast_ray([lidar.x, lidar.y], lidar.theta + self.geom.angle(b), 10.0, &scene)
-                    .unwrap_or(f64::NAN)
-            })
-            .collect();
-        self.geom.with_ranges(ranges)
-    }
+fn site() -> World {
+    World::paper(271).unwrap()
 }
 
 /// Pairs (A, B) in the world: side by side, B ahead and turned, B behind and turned, corner-on.
@@ -64,7 +32,7 @@ fn layouts() -> Vec<(Se2, Se2)> {
 
 #[test]
 fn contour_finds_the_neighbour_centre_within_1cm() {
-    let w = World::site();
+    let w = site();
     let params = shipped_params();
     for (a, b) in layouts() {
         let scan = w.scan(&[a, b], 0);
@@ -89,7 +57,7 @@ fn contour_finds_the_neighbour_centre_within_1cm() {
 
 #[test]
 fn heading_search_finds_the_relative_heading_within_0_2_deg() {
-    let w = World::site();
+    let w = site();
     let params = shipped_params();
     let mut scratch = SearchScratch::default();
     for (a, b) in layouts() {
@@ -134,7 +102,7 @@ fn packets<'a>(w: &'a World, scans: &'a [Scan], poses: &[Se2], amcl: bool) -> Ve
 
 #[test]
 fn t4_masks_every_body_return_and_sees_walls_each_scan_misses() {
-    let w = World::site();
+    let w = site();
     let params = shipped_params();
     for (a, b) in layouts() {
         let poses = [a, b];
@@ -198,7 +166,7 @@ fn t4_masks_every_body_return_and_sees_walls_each_scan_misses() {
 
 #[test]
 fn t1_to_t4_run_on_the_same_inputs() {
-    let w = World::site();
+    let w = site();
     let params = shipped_params();
     let (a, b) = layouts()[1];
     let poses = [a, b];
@@ -234,7 +202,7 @@ fn t1_to_t4_run_on_the_same_inputs() {
 
 #[test]
 fn stale_packets_are_not_fused_and_count_as_misses() {
-    let w = World::site();
+    let w = site();
     let (a, b) = layouts()[0];
     let poses = [a, b];
     let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
@@ -258,10 +226,10 @@ proptest! {
     #[test]
     fn relative_pose_is_invariant_to_moving_the_whole_scene(gx in -20.0..20.0f64, gy in -20.0..20.0f64, gt in -180.0..180.0f64, k in 0usize..5) {
         let g = Se2::from_degrees(gx, gy, gt);
-        let base = World::site();
+        let base = site();
         let moved = World {
             static_parts: base.static_parts.iter().map(|p| Polygon::new(p.vertices().iter().map(|v| g.transform_point(*v)).collect()).unwrap()).collect(),
-            ..World::site()
+            ..site()
         };
         let (a, b) = layouts()[k];
         let run = |w: &World, poses: [Se2; 2]| {

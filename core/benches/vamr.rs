@@ -1,0 +1,86 @@
+//! `cargo bench -p amr-core --features kdtree-baseline`: the heading search (ours and the paper's
+//! KD-tree baseline) and the whole pipeline without AMCL, at 2 × 271 and 2 × 655 points.
+//! `amr bench vamr` prints the same stages as a table in the paper's Table 4 layout.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs, reason = "benchmark code")]
+
+use std::hint::black_box;
+
+use amr_core::config::{Configuration, VamrParams, parse_file};
+use amr_core::se2::Se2;
+use amr_core::vamr::frame::PacketTimes;
+use amr_core::vamr::heading::{
+    AngleGrid, HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search,
+};
+use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
+use amr_core::vamr::preprocess::preprocess;
+use amr_core::vamr::synthetic::Site;
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+
+fn params() -> VamrParams {
+    parse_file("vamr.toml", include_str!("../../config/vamr.toml")).unwrap()
+}
+
+fn bench(c: &mut Criterion) {
+    let params = params();
+    let h = params.heading;
+    for beams in [271usize, 655] {
+        let site = Site::paper(beams).unwrap();
+        let poses = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
+        let scans = [site.scan(&poses, 0), site.scan(&poses, 1)];
+        let pa = preprocess(&scans[0], &site.mount, &params.preprocess);
+        let pb = preprocess(&scans[1], &site.mount, &params.preprocess);
+        let target = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
+        let truth = poses[0].inverse() * poses[1];
+        let problem = HeadingProblem {
+            source: &pb.smoothed_points,
+            target: &target,
+            translation: [truth.x, truth.y],
+            distance_gate_m: h.distance_gate_m.get(),
+            window_beams: h.neighbour_window_beams.usize(),
+        };
+        let full = AngleGrid::full(h.step_deg.get());
+        let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());
+        let mut scratch = SearchScratch::default();
+        let mut g = c.benchmark_group("heading");
+        g.bench_with_input(BenchmarkId::new("full", beams), &beams, |b, _| {
+            b.iter(|| search(black_box(&problem), &full, &mut scratch))
+        });
+        g.bench_with_input(BenchmarkId::new("refined", beams), &beams, |b, _| {
+            b.iter(|| search(black_box(&problem), &refined, &mut scratch))
+        });
+        let target_pts: Vec<[f64; 2]> = pa.smoothed_points.iter().map(|b| b.p).collect();
+        g.sample_size(10);
+        g.bench_with_input(BenchmarkId::new("kdtree-baseline-full", beams), &beams, |b, _| {
+            b.iter(|| {
+                kdtree_baseline::search(
+                    &pb.smoothed_points,
+                    &target_pts,
+                    problem.translation,
+                    h.distance_gate_m.get(),
+                    &full,
+                )
+            })
+        });
+        g.finish();
+
+        let packets: Vec<RobotPacket<'_>> = scans
+            .iter()
+            .map(|s| RobotPacket {
+                scan: s,
+                times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+                lidar_to_base: site.mount,
+                chassis: &site.chassis,
+                weight: 1.0,
+                amcl_pose: None,
+            })
+            .collect();
+        let mut pipeline = Pipeline::new(2, params.clone(), Configuration::T4, 0.05, 0.1);
+        pipeline.update(&packets).unwrap();
+        c.bench_with_input(BenchmarkId::new("pipeline-t4-refined", beams), &beams, |b, _| {
+            b.iter(|| pipeline.update(black_box(&packets)))
+        });
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
