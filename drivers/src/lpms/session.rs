@@ -51,8 +51,10 @@ impl Default for SessionConfig {
             reply_timeout: Duration::from_millis(200),
             command_attempts: 5,
             data_timeout: Duration::from_secs(1),
-            backoff_initial: Duration::from_millis(100),
-            backoff_max: Duration::from_secs(5),
+            // Reopening a missing tty is one failed open(): cheap enough to retry twice a second, so
+            // a sensor that comes back is streaming again within about a second.
+            backoff_initial: Duration::from_millis(50),
+            backoff_max: Duration::from_millis(500),
         }
     }
 }
