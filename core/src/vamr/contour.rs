@@ -322,11 +322,17 @@ pub fn recognize(input: ContourInput<'_>, params: &ContourParams) -> Option<Cont
         }
         let mut pieces = Vec::new();
         split(&pts, 0, pts.len() - 1, thresh, &mut pieces);
-        // Split points belong to both neighbours; give each to the later piece only.
+        // A split point is the sample nearest a corner and may lie on either face: fit neither
+        // neighbour with it.
+        let last_piece = pieces.len() - 1;
         let segs: Vec<Segment> = pieces
             .iter()
             .enumerate()
-            .filter_map(|(i, &(a, b))| fit(&pts, if i == 0 { a } else { a + 1 }, b))
+            .filter_map(|(i, &(a, b))| {
+                let first = if i == 0 { a } else { a + 1 };
+                let last = if i == last_piece { b } else { b - 1 };
+                (first < last).then(|| fit(&pts, first, last)).flatten()
+            })
             .filter(|s| s.rms <= params.max_fit_rms_m.get())
             .collect();
         for (feature, center, heading) in rec.hypotheses(&beams, &segs) {
@@ -348,4 +354,93 @@ pub fn recognize(input: ContourInput<'_>, params: &ContourParams) -> Option<Cont
         }
     }
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vamr::shipped_params;
+
+    #[test]
+    fn total_least_squares_handles_the_vertical_line_that_eq_4_cannot() {
+        // x = 0.5 for every point: Eq. 4's denominator N Σx² − (Σx)² is 0.
+        let pts: Vec<[f64; 2]> = (0..10).map(|i| [0.5, 0.1 * f64::from(i)]).collect();
+        let s = fit(&pts, 0, 9).unwrap();
+        assert!(s.dir[0].abs() < 1e-12 && (s.dir[1] - 1.0).abs() < 1e-12, "{:?}", s.dir);
+        assert!(s.rms < 1e-12);
+        assert!((s.len() - 0.9).abs() < 1e-12);
+        // For a non-vertical line TLS and Eq. 4 agree on exact data: y = 2x + 1 has slope a = 2.
+        let pts: Vec<[f64; 2]> = (0..10).map(|i| [0.1 * f64::from(i), 0.2 * f64::from(i) + 1.0]).collect();
+        let s = fit(&pts, 0, 9).unwrap();
+        assert!((s.dir[1] / s.dir[0] - 2.0).abs() < 1e-12);
+        // Eq. 7's θ_l = atan2(a, 1).
+        assert!((angle_of(s.dir) - 2f64.atan2(1.0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn corner_to_centre_by_hand() {
+        // The paper's default outline: a 0.40 m square. Its corner is d_c = 0.2·√2 from the centre,
+        // along the corner's bisector. Place the square at (1.0, 0.3) turned 60° (the line of sight is
+        // at 16.7°, so a corner points at the sensor and both faces show) and look from the origin
+        // with beams spaced 0.5° apart.
+        let chassis = Polygon::centered_rectangle(0.4, 0.4).unwrap();
+        let pose = Se2::from_degrees(1.0, 0.3, 60.0);
+        let beams = Scan::new(-30f64.to_radians(), 0.5f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 121]);
+        let scene = [(pose, &chassis)];
+        let ranges = (0..beams.len())
+            .map(|i| crate::geometry::cast_ray([0.0, 0.0], beams.angle(i), 10.0, &scene).unwrap_or(f64::NAN))
+            .collect();
+        let scan = beams.with_ranges(ranges);
+        let params = shipped_params();
+        let m = recognize(
+            ContourInput {
+                scan: &scan,
+                filtered: &scan.points_in(&Se2::IDENTITY),
+                lidar_to_base: Se2::IDENTITY,
+                chassis: &chassis,
+                roi: None,
+                jump_m: 0.1,
+            },
+            &params.contour,
+        )
+        .unwrap();
+        assert!(matches!(m.feature, Feature::Corner { .. }), "{m:?}");
+        assert!((m.center[0] - 1.0).abs() < 1e-9 && (m.center[1] - 0.3).abs() < 1e-9, "{m:?}");
+        // The square's orientation is found modulo its 90° symmetry.
+        let quarter = (m.heading_rad - 60f64.to_radians()).rem_euclid(std::f64::consts::FRAC_PI_2);
+        assert!(
+            quarter < 1e-9 || std::f64::consts::FRAC_PI_2 - quarter < 1e-9,
+            "{}",
+            m.heading_rad.to_degrees()
+        );
+        assert!(m.rms_m < 1e-9);
+    }
+
+    #[test]
+    fn a_long_wall_is_not_a_robot_and_the_roi_excludes_others() {
+        let chassis = Polygon::centered_rectangle(0.4, 0.4).unwrap();
+        let wall = Polygon::centered_rectangle(6.0, 2.0).unwrap();
+        let beams = Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271]);
+        let scene = [(Se2::IDENTITY, &wall), (Se2::from_degrees(1.0, 0.0, 10.0), &chassis)];
+        let ranges = (0..beams.len())
+            .map(|i| crate::geometry::cast_ray([0.0, 0.0], beams.angle(i), 10.0, &scene).unwrap_or(f64::NAN))
+            .collect();
+        let scan = beams.with_ranges(ranges);
+        let params = shipped_params();
+        let input = |roi| ContourInput {
+            scan: &scan,
+            filtered: &[],
+            lidar_to_base: Se2::IDENTITY,
+            chassis: &chassis,
+            roi,
+            jump_m: 0.1,
+        };
+        let pts = scan.points_in(&Se2::IDENTITY);
+        let with = |roi| recognize(ContourInput { filtered: &pts, ..input(roi) }, &params.contour);
+        let found = with(None).unwrap();
+        assert!((found.center[0] - 1.0).abs() < 0.01 && found.center[1].abs() < 0.01, "{found:?}");
+        // An ROI elsewhere (the room's corner) finds nothing: walls do not fit a 0.4 m outline.
+        let roi = Roi { center: [2.8, 0.8], half_width: [0.3, 0.3] };
+        assert_eq!(with(Some(roi)), None);
+    }
 }

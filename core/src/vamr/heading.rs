@@ -398,7 +398,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(24))]
+        #![proptest_config(ProptestConfig::with_cases(64))]
         /// The fast search scores every grid step exactly as the exhaustive sweep does, for random
         /// poses, gates, windows and grids (full and refined).
         #[test]
