@@ -18,6 +18,15 @@ pub enum DeviceError {
         /// The command that was refused.
         command: CommandId,
     },
+    /// The config register read back after start-up differs from the settings sent (outputs, data
+    /// mode or rate); the data is decoded with the reported register.
+    #[error("LPMS config register is {reported:#010x}, settings sent describe {requested:#010x}")]
+    ConfigNotApplied {
+        /// Register value the settings describe (0 if the rate is not a B2 rate).
+        requested: u32,
+        /// Register value the sensor reported.
+        reported: u32,
+    },
 }
 
 /// The link to the sensor is unusable; the session asks the shell to close and reopen it.

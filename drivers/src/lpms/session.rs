@@ -337,13 +337,15 @@ impl Session {
                     self.config.data_mode,
                     self.config.stream_hz,
                 );
-                if wanted.map(|w| (w.outputs(), w.data_mode()))
-                    != Some((self.active.outputs(), self.active.data_mode()))
-                {
-                    tracing::warn!(
-                        reported = self.active.0,
-                        "LPMS config register differs from the settings sent; decoding with the reported one"
-                    );
+                let layout = |r: ConfigRegister| (r.outputs(), r.data_mode(), r.stream_hz());
+                if wanted.map(layout) != Some(layout(self.active)) {
+                    // LPBUS ACKs name no command, so a late ACK can be taken for the next SET; the
+                    // register read back is the truth. Decode with it and say so.
+                    tracing::warn!(reported = self.active.0, "LPMS config differs from the settings sent");
+                    self.events.push_back(Event::DeviceError(DeviceError::ConfigNotApplied {
+                        requested: wanted.map_or(0, |w| w.0),
+                        reported: self.active.0,
+                    }));
                 }
                 let info = DeviceInfo {
                     imu_id: self.imu_id.unwrap_or(u32::from(self.config.imu_id)),
@@ -607,5 +609,38 @@ mod tests {
         s.handle_bytes(t0, &Frame::new(1, 9, vec![0; good_len - 2]).encode().unwrap());
         assert!(matches!(drain(&mut s).as_slice(), [Event::ProtocolError(ProtocolError::Data(_))]));
         assert_eq!(s.stats().samples, 0);
+    }
+
+    #[test]
+    fn a_config_that_was_not_applied_is_reported_and_the_reported_layout_is_used() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::default(), t0);
+        s.handle_timeout(t0);
+        assert_eq!(drain(&mut s), vec![Event::OpenLink]);
+        s.link_up(t0);
+        // The sensor keeps gyro-only 16-bit output at 50 Hz whatever it is told.
+        let reported = ConfigRegister::from_settings(OutputMask::GYRO, DataMode::Int16, 50).unwrap();
+        for _ in 0..9 {
+            let cmds = sent_commands(&mut s);
+            let r = match cmds[0] {
+                Command::GetConfig => Reply::Config(reported),
+                Command::GetImuId => Reply::ImuId(1),
+                Command::GetFirmwareVersion => {
+                    Reply::FirmwareVersion(FirmwareVersion { major: 2, minor: 0, build: 5 })
+                }
+                _ => Reply::Ack,
+            };
+            reply(&mut s, t0, r);
+        }
+        let events = drain(&mut s);
+        assert!(matches!(
+            events.as_slice(),
+            [Event::DeviceError(DeviceError::ConfigNotApplied { reported: r, .. }), Event::Ready(_)] if *r == reported.0
+        ));
+        let sample =
+            SensorData { timestamp_ticks: 8, gyro_radps: Some([0.0, 0.0, 1.5]), ..Default::default() };
+        let payload = encode_sensor_data(&sample, OutputMask::GYRO, DataMode::Int16);
+        s.handle_bytes(t0, &Frame::new(1, 9, payload).encode().unwrap());
+        assert_eq!(drain(&mut s), vec![Event::Sample(sample)]);
     }
 }
