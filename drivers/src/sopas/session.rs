@@ -39,7 +39,8 @@ pub enum Profile {
 pub enum DialectChoice {
     /// Probe CoLa-B, then CoLa-A, and keep what the device speaks.
     Auto,
-    /// Probe this dialect first and switch the device to it with `sWN EIHstCola` if needed.
+    /// Probe this dialect first (then the other) and switch the device to it with
+    /// `sWN EIHstCola` if it answered in the other.
     Fixed(Dialect),
 }
 
@@ -66,8 +67,9 @@ pub struct SessionConfig {
     pub backoff_max: Duration,
     /// Attempts per start-up command (after `sFA` or a reply timeout) before reconnecting.
     pub attempts_per_command: u32,
-    /// Resolution the `Full` profile writes to LMPoutputRange (2710 = 1°, TiM55x).
-    pub output_resolution_1e4deg: u32,
+    /// Resolution the `Full` profile writes to LMPoutputRange (0x2710 = 1° on a TiM55x); `None`
+    /// writes back what the device reported, as sick_scan_xd does in its start-up log.
+    pub output_resolution_1e4deg: Option<u32>,
     /// Pairs in the tick → host time fit.
     pub clock_window: usize,
 }
@@ -83,7 +85,7 @@ impl Default for SessionConfig {
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
             attempts_per_command: 3,
-            output_resolution_1e4deg: 0x2710,
+            output_resolution_1e4deg: None,
             clock_window: 32,
         }
     }
@@ -145,6 +147,8 @@ enum Step {
     Send(Command),
     /// `sWN EIHstCola` to the configured (or detected) dialect, resolved when sent.
     SwitchDialect,
+    /// `sWN LMPoutputRange` with the configured resolution or the one just read, resolved when sent.
+    WriteOutputRange,
 }
 
 #[derive(Debug, Clone)]
@@ -235,9 +239,7 @@ impl Session {
                 Step::Send(C::Read(Variable::PowerOnCount)),
                 Step::Send(C::Read(Variable::LocationName)),
                 Step::Send(C::Read(Variable::OutputRange)),
-                Step::Send(C::WriteOutputRange(OutputRange::full_field(
-                    self.config.output_resolution_1e4deg,
-                ))),
+                Step::WriteOutputRange,
                 Step::Send(C::Read(Variable::OutputRange)),
                 Step::Send(C::WriteScanDataConfig(ScanDataConfig::SICK_SCAN_XD)),
                 Step::Send(C::Read(Variable::ScanDataConfig)),
@@ -262,6 +264,14 @@ impl Session {
         match self.steps.get(step)? {
             Step::Send(c) => Some(c.clone()),
             Step::SwitchDialect => Some(Command::SetDialect(self.target_dialect())),
+            Step::WriteOutputRange => {
+                let range = match (self.config.output_resolution_1e4deg, &self.info.output_range) {
+                    (Some(res), _) => OutputRange::full_field(res),
+                    (None, Some(read)) if !read.sectors.is_empty() => read.clone(),
+                    (None, _) => OutputRange::full_field(0x2710),
+                };
+                Some(Command::WriteOutputRange(range))
+            }
         }
     }
 
@@ -442,11 +452,7 @@ impl Session {
             State::Disconnected { .. } => {}
             State::Startup { step, attempt, deadline, probe_switched } if now >= deadline => {
                 let command = self.command_at(step).map(|c| c.label()).unwrap_or_default();
-                if step == 0
-                    && !self.detected
-                    && !probe_switched
-                    && self.config.dialect == DialectChoice::Auto
-                {
+                if step == 0 && !self.detected && !probe_switched {
                     self.dialect = self.dialect.other();
                     tracing::info!(dialect = ?self.dialect, "no reply to the probe; trying the other dialect");
                     if let Some(cmd) = self.command_at(0) {
