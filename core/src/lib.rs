@@ -7,10 +7,14 @@
 //! - [`geometry`]: planar polygons (chassis outlines).
 //! - [`config`]: the configuration schema, parsed from TOML text and validated into domain types.
 //! - [`scan`]: range scans with per-beam validity.
+//! - [`map`]: occupancy grids in the ROS map_server format, distance transforms.
+//! - [`rng`]: the seedable generator behind every random draw.
 //! - [`vamr`]: the Virtual-AMR measurement-construction pipeline (paper §4).
 
 pub mod config;
 pub mod geometry;
+pub mod map;
+pub mod rng;
 pub mod scan;
 pub mod se2;
 pub mod vamr;
