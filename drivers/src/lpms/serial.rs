@@ -224,13 +224,20 @@ where
         }
         let deadline = session.poll_timeout().map(tokio::time::Instant::from_std);
         let fallback = tokio::time::Instant::now() + Duration::from_millis(100);
+        // Bytes already waiting are read before a timer is acted on: a driver task that was
+        // starved for a while must not declare the sensor silent while its data sits in the buffer.
         tokio::select! {
+            biased;
             read = read_some(&mut port, &mut buf), if port.is_some() => match read {
                 Ok(0) => session.link_failed(now(), LinkError::Io {
                     kind: std::io::ErrorKind::UnexpectedEof,
                     message: "port closed".into(),
                 }),
-                Ok(n) => session.handle_bytes(now(), buf.get(..n).unwrap_or_default()),
+                Ok(n) => {
+                    session.handle_bytes(now(), buf.get(..n).unwrap_or_default());
+                    // Timers still run when bytes never stop coming (e.g. a flood of garbage).
+                    session.handle_timeout(now());
+                }
                 Err(e) => session.link_failed(now(), LinkError::io(&e)),
             },
             () = tokio::time::sleep_until(deadline.unwrap_or(fallback)) => session.handle_timeout(now()),
