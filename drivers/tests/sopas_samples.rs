@@ -118,7 +118,7 @@ fn check(name: &str, event: bool, t: &ScanTelegram) {
 }
 
 #[test]
-fn tim561_colaa_framed_and_verbatim_match_oracle() {
+fn sopas_tim561_colaa_framed_and_verbatim_match_oracle() {
     let name = "01_tim561_colaA_sRA_LMDscandata.framed.bin";
     let (event, t) = telegram(decode_capture(&read(name)).unwrap());
     check(name, event, &t);
@@ -129,7 +129,7 @@ fn tim561_colaa_framed_and_verbatim_match_oracle() {
 }
 
 #[test]
-fn tim571_colaa_reconstructed_matches_oracle_and_literal_is_rejected() {
+fn sopas_tim571_colaa_reconstructed_matches_oracle_and_literal_is_rejected() {
     let name = "02_tim571_colaA_sRA_LMDscandata.reconstructed.bin";
     let (event, t) = telegram(decode_capture(&read(name)).unwrap());
     check(name, event, &t);
@@ -138,7 +138,7 @@ fn tim571_colaa_reconstructed_matches_oracle_and_literal_is_rejected() {
 }
 
 #[test]
-fn tim781s_colab_frames_match_oracle_and_hex_copies_agree() {
+fn sopas_tim781s_colab_frames_match_oracle_and_hex_copies_agree() {
     for name in ["03_tim781s_colaB_sSN_LMDscandata.frame1.bin", "03_tim781s_colaB_sSN_LMDscandata.frame2.bin"]
     {
         let bytes = read(name);
@@ -162,7 +162,7 @@ fn tim781s_colab_frames_match_oracle_and_hex_copies_agree() {
 }
 
 #[test]
-fn both_dialects_decode_to_the_same_scan() {
+fn sopas_both_dialects_decode_to_the_same_scan() {
     let (_, t) = telegram(decode_capture(&read("03_tim781s_colaB_sSN_LMDscandata.frame1.bin")).unwrap());
     let reply = Reply::ScanData { event: true, telegram: Box::new(t.clone()) };
     let ascii = encode_frame(Dialect::ColaA, &reply.encode(Dialect::ColaA).unwrap());
@@ -185,7 +185,7 @@ fn ascii_reencode(t: &ScanTelegram) -> Vec<u8> {
 }
 
 #[test]
-fn a_count_that_does_not_match_the_payload_is_an_error() {
+fn sopas_a_count_that_does_not_match_the_payload_is_an_error() {
     let bytes = read("01_tim561_colaA_sRA_LMDscandata.framed.bin");
     let text = String::from_utf8(bytes[1..bytes.len() - 1].to_vec()).unwrap();
     // 811 (0x32B) values announced; claim one more, and one fewer.
@@ -208,7 +208,7 @@ fn hex_line(line: &str) -> Vec<u8> {
 }
 
 #[test]
-fn command_encodings_match_command_vectors() {
+fn sopas_command_encodings_match_command_vectors() {
     let text = String::from_utf8(read("04_command_vectors.txt")).unwrap();
     let lines: Vec<&str> = text.lines().collect();
     // Section A (SICK OI): ASCII and binary frames of sRN / sEN LMDscandata.
