@@ -269,7 +269,14 @@ impl Runner {
             tokio::select! {
                 ctl = control.recv() => match ctl {
                     None => return,
-                    Some(c) => self.control(c).await,
+                    Some(c) => {
+                        let was_plugged = self.master.is_some();
+                        self.control(c).await;
+                        if !was_plugged && self.master.is_some() {
+                            // No burst of the ticks missed while unplugged.
+                            interval = self.new_interval();
+                        }
+                    }
                 },
                 read = async {
                     match self.master.as_mut() {
