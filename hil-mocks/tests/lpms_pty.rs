@@ -304,4 +304,41 @@ mod lpms {
         wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         wait_for(&mut rx, Duration::from_secs(10), |m| sample_ticks(m).is_some()).await;
     }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn the_default_mock_streams_on_power_up_behind_its_symlink() {
+        use amr_drivers::lpms::data::decode_sensor_data;
+        use amr_drivers::lpms::{FrameDecoder, open_serial};
+        use tokio::io::AsyncReadExt;
+
+        let mock = hil_mocks::lpms::start_default_mock_imu(200).await.unwrap();
+        let target = std::fs::read_link(mock.tty_path()).unwrap();
+        assert_eq!(Some(target), mock.stats().pty_path);
+        let mut port =
+            open_serial(&mock.tty_path().to_string_lossy(), amr_drivers::lpms::serial::DEFAULT_BAUD).unwrap();
+        let (outputs, mode) = (DeviceSettings::default().outputs, DeviceSettings::default().data_mode);
+        let mut dec = FrameDecoder::new();
+        let mut ticks = Vec::new();
+        let mut buf = [0u8; 512];
+        // Bytes written before we opened the tty may be stale; look at 20 consecutive packets.
+        for _ in 0..1000 {
+            if ticks.len() >= 21 {
+                break;
+            }
+            let n = timeout(Duration::from_secs(10), port.read(&mut buf)).await.unwrap().unwrap();
+            dec.push(&buf[..n]);
+            while let Some(f) = dec.next_frame() {
+                let f = f.unwrap();
+                assert_eq!((f.id, f.cmd), (1, 9));
+                ticks.push(decode_sensor_data(&f.data, outputs, mode).unwrap().timestamp_ticks);
+            }
+        }
+        let tail = &ticks[ticks.len() - 20..];
+        for w in tail.windows(2) {
+            assert_eq!(w[1].wrapping_sub(w[0]), 2, "200 Hz is 2 ticks of 2.5 ms: {ticks:?}");
+        }
+        let path = mock.tty_path().to_path_buf();
+        drop(mock);
+        assert!(std::fs::symlink_metadata(path).is_err(), "dropping the handle removes the symlink");
+    }
 }

@@ -352,4 +352,31 @@ mod tests {
         assert!(matches!(dec.next_frame(), Some(Err(_))));
         assert_eq!(d.stats().nacks, 1);
     }
+
+    #[test]
+    fn identity_status_and_polled_data_answer_in_command_mode() {
+        let mut d = MockDevice::new(DeviceSettings::default());
+        assert_eq!(ask(&mut d, Command::GotoCommandMode), vec![Reply::Ack]);
+        assert_eq!(ask(&mut d, Command::GetStatus), vec![Reply::Status(0)]);
+        assert_eq!(
+            ask(&mut d, Command::GetSerialNumber),
+            vec![Reply::SerialNumber("MOCK-LPMSB2-0001".into())]
+        );
+        assert_eq!(ask(&mut d, Command::GetDeviceName), vec![Reply::DeviceName("LPMSB2-MOCK".into())]);
+        assert_eq!(
+            ask(&mut d, Command::GetFirmwareVersion),
+            vec![Reply::FirmwareVersion(FirmwareVersion { major: 2, minor: 0, build: 5 })]
+        );
+        let replies = ask(&mut d, Command::GetSensorData);
+        let [Reply::SensorData(payload)] = replies.as_slice() else {
+            panic!("expected one data reply: {replies:?}")
+        };
+        let s = decode_sensor_data(payload, d.config().outputs(), d.config().data_mode()).unwrap();
+        assert_eq!(s.gyro_radps, Some([0.0, 0.0, 0.25]));
+        assert_eq!(s.acc_g, Some([0.0, 0.0, 1.0]));
+        assert_eq!(ask(&mut d, Command::WriteRegisters), vec![Reply::Ack]);
+        assert_eq!(ask(&mut d, Command::ResetOrientationOffset), vec![Reply::Ack]);
+        assert_eq!(ask(&mut d, Command::GotoStreamMode), vec![Reply::Ack]);
+        assert!(d.is_streaming());
+    }
 }
