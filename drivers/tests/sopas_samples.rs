@@ -325,3 +325,50 @@ fn unescape(s: &str) -> Vec<u8> {
     }
     out
 }
+
+/// A TiM551 (1°, 271 points, 0x36, 8-bit RSSI1) telegram synthesised from the documented layout:
+/// the header is the TiM551 response image quoted in the notes §3.1 (no complete TiM551 capture
+/// exists, data/sopas/README.md "Caveats"); the values are ours.
+#[test]
+fn sopas_synthesised_tim551_ascii_telegram_decodes_with_271_points() {
+    let dist: Vec<String> = (0..271).map(|i| format!("{:X}", 500 + 10 * i)).collect();
+    let rssi: Vec<String> = (0..271).map(|i| format!("{:X}", i % 256)).collect();
+    let text = format!(
+        "sRA LMDscandata 1 1 F510AB 0 0 5932 5933 5B87697D 5B88808C 0 0 1 0 0 5DC 36 0 1 DIST1 3F800000 \
+         00000000 FFF92230 2710 10F {} 1 RSSI1 3F800000 00000000 FFF92230 2710 10F {} 0 1 B not defined 0 0 0",
+        dist.join(" "),
+        rssi.join(" ")
+    );
+    let framed = encode_frame(Dialect::ColaA, text.as_bytes());
+    let (event, t) = telegram(decode_capture(&framed).unwrap());
+    assert!(!event);
+    assert_eq!(t.serial, 0xF510AB);
+    assert_eq!((t.telegram_counter, t.scan_counter), (0x5932, 0x5933));
+    assert_eq!(t.time_since_startup_us, 0x5B87697D);
+    assert_eq!(t.time_of_transmission_us, 0x5B88808C);
+    assert_eq!(t.output_status, [1, 0]);
+    assert_eq!(t.measurement_frequency_hecto_hz, 0x36);
+    assert_eq!(t.channels_8bit.len(), 1);
+    assert_eq!(t.device_name.as_deref(), Some("not defined"));
+    let scan = Scan::from_telegram(&t).unwrap();
+    assert_eq!(scan.ranges_m.len(), 271);
+    assert_eq!(scan.ranges_m[270], (500.0 + 2700.0) / 1000.0);
+    assert_eq!(scan.rssi.as_ref().unwrap()[255], 255);
+    assert!((scan.angle_min_rad + 135f64.to_radians()).abs() < 1e-12);
+    assert!((scan.angles_rad[270] - 135f64.to_radians()).abs() < 1e-9);
+    assert!((scan.angles_rad[135]).abs() < 1e-12, "beam 135 looks straight ahead");
+    assert_eq!(scan.measurement_frequency_hz, 5400.0);
+    // The scan prints as JSON for `amr tools sopas-decode`.
+    let json = serde_json::to_value(&scan).unwrap();
+    assert_eq!(json["ranges_m"].as_array().unwrap().len(), 271);
+    assert_eq!(json["scan_counter"], 0x5933);
+    // An RSSI channel with a different count than DIST decodes as a telegram but is no scan.
+    let short_rssi = format!(
+        "sRA LMDscandata 1 1 F510AB 0 0 5932 5933 5B87697D 5B88808C 0 0 1 0 0 5DC 36 0 1 DIST1 3F800000 \
+         00000000 FFF92230 2710 10F {} 1 RSSI1 3F800000 00000000 FFF92230 2710 10E {} 0 1 B not defined 0 0 0",
+        dist.join(" "),
+        rssi[..270].join(" ")
+    );
+    let (_, t) = telegram(decode_capture(short_rssi.as_bytes()).unwrap());
+    assert!(matches!(Scan::from_telegram(&t), Err(amr_drivers::sopas::DecodeError::CountMismatch { .. })));
+}

@@ -115,8 +115,15 @@ pub async fn run_tcp(config: LidarConfig, tx: mpsc::Sender<LidarMessage>) {
         }
         if let Some(s) = stream.as_mut() {
             while let Some(bytes) = session.poll_transmit() {
-                if let Err(e) = s.write_all(&bytes).await {
-                    session.handle_disconnected(Instant::now().into_std(), LinkError::Io(e.to_string()));
+                // Bounded: a device that stops reading must not wedge the shell.
+                let written = tokio::time::timeout(config.reply_timeout, s.write_all(&bytes)).await;
+                let failed = match written {
+                    Ok(Ok(())) => None,
+                    Ok(Err(e)) => Some(e.to_string()),
+                    Err(_) => Some("write timed out".to_string()),
+                };
+                if let Some(msg) = failed {
+                    session.handle_disconnected(Instant::now().into_std(), LinkError::Io(msg));
                     break;
                 }
             }
@@ -127,7 +134,14 @@ pub async fn run_tcp(config: LidarConfig, tx: mpsc::Sender<LidarMessage>) {
                 Event::Ready(info) => LidarMessage::Health(Health::Ok(info)),
                 Event::DeviceError(e) => LidarMessage::Error(e.into()),
                 Event::ProtocolError(e) => LidarMessage::Error(e.into()),
-                Event::LoginRefused | Event::DialectDetected(_) => continue,
+                Event::LoginRefused => {
+                    tracing::warn!("sopas login refused (sAN SetAccessMode 0); continuing without it");
+                    continue;
+                }
+                Event::DialectDetected(dialect) => {
+                    tracing::info!(?dialect, "sopas dialect detected");
+                    continue;
+                }
                 Event::Reconnect { reason, delay } => {
                     tracing::warn!(?reason, "sopas dropping the connection");
                     stream = None;
