@@ -88,7 +88,11 @@ mod lpms {
         let mut log = Vec::new();
         let mut samples = Vec::new();
         let mut readies = 0;
-        while readies < 2 || samples.len() < 8 {
+        // Bounded: a few dozen messages are expected, 10 000 means something loops.
+        for _ in 0..10_000 {
+            if readies >= 2 && samples.len() >= 8 {
+                break;
+            }
             let msg = timeout(Duration::from_secs(30), rx.recv()).await.unwrap().unwrap();
             match &msg {
                 ImuMessage::Sample(s) => samples.push(s.clone()),
@@ -101,6 +105,7 @@ mod lpms {
             }
         }
 
+        assert!(readies >= 2 && samples.len() >= 8, "{readies} starts, {} samples", samples.len());
         // Backoff between failed opens: 100, 200, then capped at 250 ms.
         let a = attempts.lock().unwrap().clone();
         let gaps: Vec<Duration> = a.windows(2).take(3).map(|w| w[1] - w[0]).collect();

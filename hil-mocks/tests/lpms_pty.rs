@@ -200,7 +200,11 @@ mod lpms {
         let mut missing = 0;
         let mut bad_lrc = 0;
         let mut received_after = 0;
-        while received_after < 100 {
+        // At most 1000 samples (10 s at 100 Hz): the faults are applied within the first few.
+        for _ in 0..1000 {
+            if received_after >= 100 {
+                break;
+            }
             let (m, seen) = wait_for(&mut rx, Duration::from_secs(10), |m| sample_ticks(m).is_some()).await;
             for s in &seen {
                 assert!(!matches!(s, ImuMessage::Health(Health::Lost)), "link dropped: {seen:?}");
@@ -218,6 +222,7 @@ mod lpms {
                 received_after += 1;
             }
         }
+        assert_eq!(received_after, 100, "the faults never showed");
         // Exactly the three corrupted and two truncated packets are lost; the garbage costs none.
         assert_eq!(missing, 5);
         assert!(bad_lrc >= 3, "bad LRC reports: {bad_lrc}");
