@@ -7,6 +7,21 @@
 //! - [`serial`]: the tokio shell over tokio-serial (or any `AsyncRead + AsyncWrite`).
 //!
 //! Protocol facts: `shared/spec/devices.md` §3 and `shared/research/lpms-and-canopen.md` Part A.
+//!
+//! ```no_run
+//! # async fn imu() {
+//! use amr_drivers::lpms::{ImuMessage, LpmsConfig, spawn_serial};
+//! let config = LpmsConfig { path: "/dev/rfcomm0".into(), stream_hz: 100, ..LpmsConfig::default() };
+//! let (mut rx, _task) = spawn_serial(config, 256);
+//! while let Some(msg) = rx.recv().await {
+//!     match msg {
+//!         ImuMessage::Sample(s) => tracing::trace!(yaw_rate = ?s.data.gyro_radps, "imu"),
+//!         ImuMessage::Error(e) => tracing::warn!(%e, "imu"),
+//!         ImuMessage::Ready(_) | ImuMessage::Health(_) => {}
+//!     }
+//! }
+//! # }
+//! ```
 
 pub mod command;
 pub mod data;
