@@ -82,6 +82,9 @@ pub fn encode_frame(dialect: Dialect, payload: &[u8]) -> Vec<u8> {
 #[derive(Debug, Clone)]
 pub struct Framer {
     buf: Vec<u8>,
+    /// Bytes before `head` are consumed; compacted lazily so a resync through a long run of
+    /// bytes stays linear in their number.
+    head: usize,
     max_len: usize,
     skipped_bytes: u64,
 }
@@ -95,17 +98,26 @@ impl Default for Framer {
 impl Framer {
     /// A framer that rejects payloads longer than `max_len`.
     pub fn new(max_len: usize) -> Self {
-        Self { buf: Vec::new(), max_len, skipped_bytes: 0 }
+        Self { buf: Vec::new(), head: 0, max_len, skipped_bytes: 0 }
     }
 
     /// Appends received bytes.
     pub fn push(&mut self, bytes: &[u8]) {
+        if self.head > 0 && self.head >= self.buf.len() / 2 {
+            self.buf.drain(..self.head);
+            self.head = 0;
+        }
         self.buf.extend_from_slice(bytes);
+    }
+
+    fn pending(&self) -> &[u8] {
+        &self.buf[self.head.min(self.buf.len())..]
     }
 
     /// Forgets everything buffered (after a reconnect).
     pub fn clear(&mut self) {
         self.buf.clear();
+        self.head = 0;
     }
 
     /// Bytes skipped so far as not belonging to any frame.
@@ -114,25 +126,29 @@ impl Framer {
     }
 
     fn skip(&mut self, n: usize) {
-        let n = n.min(self.buf.len());
-        self.buf.drain(..n);
+        let n = n.min(self.pending().len());
+        self.head += n;
         self.skipped_bytes += n as u64;
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.head += n.min(self.pending().len());
     }
 
     /// The next complete frame, an error for a broken one (its first byte is dropped and the
     /// search goes on at the next call), or `None` when more bytes are needed.
     pub fn next_frame(&mut self) -> Option<Result<Frame, FrameError>> {
         loop {
-            let start = match self.buf.iter().position(|&b| b == STX) {
+            let start = match self.pending().iter().position(|&b| b == STX) {
                 Some(i) => i,
                 None => {
-                    let n = self.buf.len();
+                    let n = self.pending().len();
                     self.skip(n);
                     return None;
                 }
             };
             self.skip(start);
-            let second = *self.buf.get(1)?;
+            let second = *self.pending().get(1)?;
             if second == STX {
                 match self.try_cola_b() {
                     Step::NeedMore => return None,
@@ -148,11 +164,12 @@ impl Framer {
     }
 
     fn try_cola_b(&mut self) -> Step {
-        let have = self.buf.len().min(4);
-        if self.buf[..have] != MAGIC[..have] {
+        let buf = self.pending();
+        let have = buf.len().min(4);
+        if buf[..have] != MAGIC[..have] {
             return Step::Resync;
         }
-        let Some(len_bytes) = self.buf.get(4..8) else { return Step::NeedMore };
+        let Some(len_bytes) = buf.get(4..8) else { return Step::NeedMore };
         let mut be = [0u8; 4];
         be.copy_from_slice(len_bytes);
         let len = u32::from_be_bytes(be) as usize;
@@ -165,12 +182,13 @@ impl Framer {
             return Step::Done(Err(FrameError::TooLong { len, max: self.max_len }));
         }
         let total = 8 + len + 1;
-        if self.buf.len() < total {
+        let buf = self.pending();
+        if buf.len() < total {
             return Step::NeedMore;
         }
-        let payload = &self.buf[8..8 + len];
+        let payload = &buf[8..8 + len];
         let actual = xor_checksum(payload);
-        let expected = self.buf[8 + len];
+        let expected = buf[8 + len];
         if actual != expected {
             // Drop only the first byte: if the length field was the broken part, the frames it
             // swallowed are found again by the rescan.
@@ -178,24 +196,25 @@ impl Framer {
             return Step::Done(Err(FrameError::Checksum { expected, actual }));
         }
         let payload = payload.to_vec();
-        self.buf.drain(..total);
+        self.consume(total);
         Step::Done(Ok(Frame { dialect: Dialect::ColaB, payload }))
     }
 
     fn try_cola_a(&mut self) -> Option<Result<Frame, FrameError>> {
-        let end = self.buf.iter().skip(1).position(|&b| b == ETX || b == STX).map(|i| i + 1);
+        let buf = self.pending();
+        let end = buf.iter().skip(1).position(|&b| b == ETX || b == STX).map(|i| i + 1);
         match end {
-            Some(i) if self.buf[i] == ETX => {
-                let payload = self.buf[1..i].to_vec();
-                self.buf.drain(..=i);
+            Some(i) if buf[i] == ETX => {
+                let payload = buf[1..i].to_vec();
+                self.consume(i + 1);
                 Some(Ok(Frame { dialect: Dialect::ColaA, payload }))
             }
             Some(i) => {
                 self.skip(i);
                 Some(Err(FrameError::Truncated { len: i }))
             }
-            None if self.buf.len() > self.max_len + 2 => {
-                let len = self.buf.len();
+            None if buf.len() > self.max_len + 2 => {
+                let len = buf.len();
                 self.skip(1);
                 Some(Err(FrameError::TooLong { len, max: self.max_len }))
             }
@@ -268,5 +287,22 @@ mod tests {
         let mut f = Framer::new(4);
         f.push(b"\x02sRN LMDscandata");
         assert!(matches!(f.next_frame(), Some(Err(FrameError::TooLong { .. }))));
+    }
+
+    #[test]
+    fn long_runs_of_fake_magic_and_byte_by_byte_input_still_find_the_frame() {
+        let good = encode_frame(Dialect::ColaB, b"sEA LMDscandata \x01");
+        let mut f = Framer::default();
+        for _ in 0..5_000 {
+            f.push(&[2, 2, 2, 2, 0x7F, 0, 0, 0]);
+        }
+        let mut found = Vec::new();
+        for b in &good {
+            f.push(std::slice::from_ref(b));
+            found.extend(drain(&mut f).into_iter().filter_map(Result::ok));
+        }
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].payload, b"sEA LMDscandata \x01");
+        assert_eq!(f.skipped_bytes(), 40_000);
     }
 }
