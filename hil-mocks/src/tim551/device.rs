@@ -235,3 +235,68 @@ impl Device {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use amr_drivers::sopas::{Dialect, Scan};
+
+    use super::super::source::RectRoom;
+    use super::*;
+
+    fn no_poll(_: &Device) -> ScanTelegram {
+        unreachable!("not a poll")
+    }
+
+    #[test]
+    fn writes_need_the_client_login_and_a_matching_resolution() {
+        let mut d = Device::new(Variant::Tim551, 1);
+        let mut conn = Conn::default();
+        let range = Command::WriteOutputRange(OutputRange::full_field(0x2710));
+        assert_eq!(
+            d.answer(&mut conn, &range, no_poll).0,
+            Reply::Error(ErrorCode::VariableWriteAccessDenied)
+        );
+        let wrong = Command::SetAccessMode { level: 3, password_hash: 0x1234_5678 };
+        assert_eq!(d.answer(&mut conn, &wrong, no_poll).0, Reply::AccessMode { granted: false });
+        let login = Command::SetAccessMode { level: 3, password_hash: CLIENT_PASSWORD_HASH };
+        assert_eq!(d.answer(&mut conn, &login, no_poll).0, Reply::AccessMode { granted: true });
+        assert_eq!(d.answer(&mut conn, &range, no_poll).0, Reply::WriteAck("LMPoutputRange".into()));
+        let tim561_range = Command::WriteOutputRange(OutputRange::full_field(0xD05));
+        assert_eq!(
+            d.answer(&mut conn, &tim561_range, no_poll).0,
+            Reply::Error(ErrorCode::LocalConditionFailed)
+        );
+        let (reply, effect) = d.answer(&mut conn, &Command::Reboot, no_poll);
+        assert_eq!((reply, effect), (Reply::Reboot, SideEffect::Reboot));
+        let (reply, effect) = d.answer(&mut conn, &Command::SetDialect(Dialect::ColaA), no_poll);
+        assert_eq!(
+            (reply, effect),
+            (Reply::WriteAck("EIHstCola".into()), SideEffect::SwitchDialect(Dialect::ColaA))
+        );
+    }
+
+    #[test]
+    fn telegrams_have_the_variant_geometry_and_round_trip() {
+        let room = RectRoom::default();
+        let period = Duration::from_nanos(1_000_000_000 / 15);
+        for (variant, n, step) in [(Variant::Tim551, 271, 10_000u16), (Variant::Tim561, 811, 3_333)] {
+            let d = Device::new(variant, 7);
+            let t = d.telegram(&room, 70_000, period, period * 70_001, 3, u32::MAX - 1_000);
+            assert_eq!(t.channels_16bit[0].data.len(), n);
+            assert_eq!(t.channels_16bit[0].step_1e4deg, step);
+            assert_eq!(t.channels_8bit[0].content, "RSSI1");
+            assert_eq!(t.scan_counter, 70_000u64 as u16);
+            assert_eq!(t.scan_frequency_centi_hz, 1500);
+            // 70 000 scans ≈ 4667 s: the tick has wrapped past u32::MAX.
+            assert!(t.time_since_startup_us < 1_000_000_000);
+            for dialect in [Dialect::ColaA, Dialect::ColaB] {
+                let reply = Reply::ScanData { event: true, telegram: Box::new(t.clone()) };
+                let back = Reply::decode(dialect, &reply.encode(dialect).unwrap()).unwrap();
+                assert_eq!(back, reply);
+            }
+            let scan = Scan::from_telegram(&t).unwrap();
+            let ahead = scan.angles_rad.iter().position(|a| a.abs() < 1e-3).unwrap();
+            assert!((scan.ranges_m[ahead] - 4.0).abs() < 1e-3);
+        }
+    }
+}
