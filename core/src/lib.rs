@@ -10,7 +10,9 @@
 //! - [`map`]: occupancy grids in the ROS map_server format, distance transforms.
 //! - [`rng`]: the seedable generator behind every random draw.
 //! - [`vamr`]: the Virtual-AMR measurement-construction pipeline (paper §4).
+//! - [`amcl`]: adaptive Monte Carlo localisation on a likelihood field.
 
+pub mod amcl;
 pub mod config;
 pub mod geometry;
 pub mod map;

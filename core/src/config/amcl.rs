@@ -8,9 +8,23 @@ use super::value::{Count, Finite, Fraction, NonNegative, OpenFraction, Positive}
 use super::{ConfigFileType, Violation, rule};
 use crate::se2::Se2;
 
+/// The laser model (nav2 `laser_model_type`). The beam model is not offered: the virtual scan's
+/// points do not share one origin, so only endpoint models apply (spec §7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum LaserModel {
+    /// nav2's default: weight `1 + Σ pz³`.
+    #[serde(rename = "likelihood_field")]
+    LikelihoodField,
+    /// The product of the beams' `pz` (nav2 `likelihood_field_prob`, without beam skipping): far more
+    /// discriminating.
+    #[serde(rename = "likelihood_field_prob")]
+    LikelihoodFieldProb,
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AmclParams {
+    pub laser_model_type: LaserModel,
     pub min_particles: Count,
     pub max_particles: Count,
     /// KLD-sampling error bound ε (nav2 `pf_err`).

@@ -25,7 +25,7 @@ use std::fmt;
 
 use serde::de::DeserializeOwned;
 
-pub use amcl::{AmclParams, InitialPose};
+pub use amcl::{AmclParams, InitialPose, LaserModel};
 pub use robot::{
     CanConfig, CanTransport, ChassisConfig, CommLossReaction, DeviceSource, DriveConfig, DrivesConfig,
     IMU_BAUD_RATES, IMU_STREAM_RATES_HZ, ImuConfig, ImuDataMode, KinematicsConfig, LidarConfig, LidarDialect,

@@ -1,0 +1,286 @@
+//! Adaptive Monte Carlo localisation (spec §7; nav2_amcl's behaviour and defaults, Beluga's shape):
+//! a short chain of named steps — update thresholds → motion (`motion`) → likelihood-field weighting
+//! (`likelihood`) → normalise and track `w_slow`/`w_fast` → resample with KLD limit and random
+//! injection (`particles`) → cluster estimate.
+//!
+//! The measurement is a set of points in the robot's (or the virtual robot's) base frame, so points
+//! need not share one origin: the virtual scan of several LiDARs localises like a single scan.
+//! Deterministic: every draw comes from the filter's own seeded generator.
+
+pub mod likelihood;
+pub mod motion;
+pub mod particles;
+
+use std::sync::Arc;
+
+use crate::config::AmclParams;
+use crate::rng::Rng;
+use crate::scan::Scan;
+use crate::se2::{Se2, angle_diff};
+
+pub use likelihood::LikelihoodField;
+pub use particles::{Estimate, Particle};
+
+/// What one call of [`Amcl::update`] did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum UpdateOutcome {
+    /// Not initialised: call `init_pose` or `init_global` first.
+    NotInitialised,
+    /// The odometry moved less than `update_min_d`/`update_min_a`: nothing done.
+    Skipped,
+    /// The filter ran (motion, sensor, maybe resampling) and produced an estimate.
+    Updated { resampled: bool },
+}
+
+/// The filter.
+#[derive(Debug, Clone)]
+pub struct Amcl {
+    params: AmclParams,
+    field: Arc<LikelihoodField>,
+    particles: Vec<Particle>,
+    rng: Rng,
+    w_slow: f64,
+    w_fast: f64,
+    last_odom: Option<Se2>,
+    updates: u64,
+    injections: u64,
+    estimate: Option<Estimate>,
+}
+
+/// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
+/// parameters' limits where set, else the scan's own), ready for [`Amcl::update`].
+#[must_use]
+pub fn scan_points(scan: &Scan, lidar_to_base: &Se2, params: &AmclParams) -> Vec<[f64; 2]> {
+    let min_r = params.min_range_m().unwrap_or(scan.range_min_m).max(scan.range_min_m);
+    let max_r = params.max_range_m().unwrap_or(scan.range_max_m).min(scan.range_max_m);
+    (0..scan.len())
+        .filter(|&i| scan.ranges_m()[i] > min_r && scan.ranges_m()[i] < max_r)
+        .filter_map(|i| scan.point(i).map(|p| lidar_to_base.transform_point(p)))
+        .collect()
+}
+
+/// At most `max_beams` points, evenly spread over the given (valid) ones.
+#[must_use]
+pub fn subsample(points: &[[f64; 2]], max_beams: usize) -> Vec<[f64; 2]> {
+    let n = points.len();
+    if n <= max_beams || max_beams < 2 {
+        return points.to_vec();
+    }
+    (0..max_beams).map(|k| points[(k * (n - 1) + (max_beams - 1) / 2) / (max_beams - 1)]).collect()
+}
+
+impl Amcl {
+    /// A filter on `field` with `params`, its generator seeded with `seed`.
+    #[must_use]
+    pub fn new(params: AmclParams, field: Arc<LikelihoodField>, seed: u64) -> Self {
+        Amcl {
+            params,
+            field,
+            particles: Vec::new(),
+            rng: Rng::seed(seed),
+            w_slow: 0.0,
+            w_fast: 0.0,
+            last_odom: None,
+            updates: 0,
+            injections: 0,
+            estimate: None,
+        }
+    }
+
+    #[must_use]
+    pub fn particles(&self) -> &[Particle] {
+        &self.particles
+    }
+
+    /// Resampling steps that injected random poses (augmented MCL), since the filter was built.
+    #[must_use]
+    pub fn injections(&self) -> u64 {
+        self.injections
+    }
+
+    #[must_use]
+    pub fn estimate(&self) -> Option<&Estimate> {
+        self.estimate.as_ref()
+    }
+
+    fn max(&self) -> usize {
+        self.params.max_particles.usize()
+    }
+
+    fn reset_averages(&mut self) {
+        self.w_slow = 0.0;
+        self.w_fast = 0.0;
+        self.last_odom = None;
+    }
+
+    /// Start from `pose` with Gaussian spread (nav2 `initial_pose` / `/initialpose`): `max_particles`
+    /// samples.
+    pub fn init_pose(&mut self, pose: Se2, std_xy_m: f64, std_yaw_rad: f64) {
+        let n = self.max();
+        let w = 1.0 / n as f64;
+        let rng = &mut self.rng;
+        self.particles = (0..n)
+            .map(|_| Particle {
+                pose: Se2::new(
+                    pose.x + rng.gaussian(std_xy_m),
+                    pose.y + rng.gaussian(std_xy_m),
+                    pose.theta + rng.gaussian(std_yaw_rad),
+                ),
+                weight: w,
+            })
+            .collect();
+        self.reset_averages();
+        self.estimate = particles::cluster_estimate(&self.particles);
+    }
+
+    /// Global localisation: `max_particles` poses uniform over the free space and all headings.
+    pub fn init_global(&mut self) {
+        let n = self.max();
+        let w = 1.0 / n as f64;
+        let field = Arc::clone(&self.field);
+        self.particles =
+            (0..n).map(|_| Particle { pose: random_free_pose(&field, &mut self.rng), weight: w }).collect();
+        self.reset_averages();
+        self.estimate = particles::cluster_estimate(&self.particles);
+    }
+
+    /// One scan with the odometry pose at its stamp. `points` are the measurement in the base frame
+    /// (see [`scan_points`]); `force` runs the update without motion (nav2's
+    /// `request_nomotion_update`). The first update after initialisation always runs.
+    pub fn update(&mut self, odom: Se2, points: &[[f64; 2]], force: bool) -> UpdateOutcome {
+        if self.particles.is_empty() {
+            return UpdateOutcome::NotInitialised;
+        }
+        if let Some(last) = self.last_odom {
+            let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
+            let d = self.params.update_min_d.get();
+            let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
+            if !moved && !force {
+                return UpdateOutcome::Skipped;
+            }
+            self.predict(&last, &odom);
+        }
+        self.last_odom = Some(odom);
+        self.weigh(points);
+        self.updates += 1;
+        let resampled = self.updates.is_multiple_of(u64::from(self.params.resample_interval.get()));
+        if resampled {
+            self.resample();
+        }
+        self.estimate = particles::cluster_estimate(&self.particles);
+        UpdateOutcome::Updated { resampled }
+    }
+
+    /// Motion step: every particle moves by a noisy sample of the odometry increment.
+    fn predict(&mut self, old: &Se2, new: &Se2) {
+        let d = motion::delta(old, new, motion::alphas(&self.params));
+        for p in &mut self.particles {
+            motion::sample(&mut p.pose, &d, &mut self.rng);
+        }
+    }
+
+    /// Sensor step: likelihood-field weights over at most `max_beams` points, normalised; the slow
+    /// and fast averages of the mean weight follow (augmented MCL).
+    fn weigh(&mut self, points: &[[f64; 2]]) {
+        let beams = subsample(points, self.params.max_beams.usize());
+        // log(prior · likelihood), then normalised with the largest subtracted first.
+        let logs: Vec<f64> = self
+            .particles
+            .iter()
+            .map(|p| p.weight.ln() + self.field.log_likelihood(&p.pose, &beams))
+            .collect();
+        let top = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let n = self.particles.len() as f64;
+        if !top.is_finite() {
+            for p in &mut self.particles {
+                p.weight = 1.0 / n;
+            }
+            return;
+        }
+        let mut total = 0.0;
+        for (p, l) in self.particles.iter_mut().zip(&logs) {
+            p.weight = (l - top).exp();
+            total += p.weight;
+        }
+        for p in &mut self.particles {
+            p.weight /= total;
+        }
+        // The prior weights sum to 1, so Σ prior·likelihood = e^top·total is the mean likelihood:
+        // Probabilistic Robotics' w_avg. nav2 divides it by N as well, which makes w_slow/w_fast jump
+        // whenever KLD changes the particle count; we do not. If it is not representable (a product
+        // over many points), the averages are left as they are.
+        let w_avg = top.exp() * total;
+        if w_avg > 0.0 && w_avg.is_finite() {
+            let (slow, fast) = (self.params.recovery_alpha_slow.get(), self.params.recovery_alpha_fast.get());
+            self.w_slow = if self.w_slow == 0.0 { w_avg } else { self.w_slow + slow * (w_avg - self.w_slow) };
+            self.w_fast = if self.w_fast == 0.0 { w_avg } else { self.w_fast + fast * (w_avg - self.w_fast) };
+        }
+    }
+
+    /// Resampling step with the KLD limit and augmented-MCL injection from free space.
+    fn resample(&mut self) {
+        let inject = if self.params.recovery_alpha_slow.get() > 0.0 && self.w_slow > 0.0 {
+            (1.0 - self.w_fast / self.w_slow).max(0.0)
+        } else {
+            0.0
+        };
+        let limits = particles::ResampleLimits {
+            min: self.params.min_particles.usize(),
+            max: self.max(),
+            err: self.params.pf_err.get(),
+            z: self.params.pf_z.get(),
+            inject_probability: inject,
+        };
+        let field = Arc::clone(&self.field);
+        self.particles = particles::resample(&self.particles, &limits, &mut self.rng, &mut |rng| {
+            random_free_pose(&field, rng)
+        });
+        // As nav2 and Beluga do: after injecting, both averages restart. (Without the reset,
+        // Probabilistic Robotics' Table 8.3, the injection probability runs up to 1 after a
+        // kidnapping and replaces good particles as fast as it finds them; measured in our tests.)
+        if inject > 0.0 {
+            self.injections += 1;
+            self.w_slow = 0.0;
+            self.w_fast = 0.0;
+        }
+    }
+}
+
+/// A pose uniform over the free cells (uniform within the cell) and all headings.
+fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
+    let free = field.free_cells();
+    if free.is_empty() {
+        return Se2::IDENTITY;
+    }
+    let c = free[rng.below(free.len())];
+    let h = field.resolution_m() / 2.0;
+    Se2::new(
+        c[0] + rng.range(-h, h),
+        c[1] + rng.range(-h, h),
+        rng.range(-std::f64::consts::PI, std::f64::consts::PI),
+    )
+}
+
+#[cfg(test)]
+mod scenarios;
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) fn shipped_params() -> AmclParams {
+        crate::config::parse_file("amcl.toml", include_str!("../../../config/amcl.toml"))
+            .expect("shipped amcl.toml")
+    }
+
+    #[test]
+    fn subsampling_spreads_over_valid_points() {
+        let pts: Vec<[f64; 2]> = (0..271).map(|i| [f64::from(i), 0.0]).collect();
+        let s = subsample(&pts, 60);
+        assert_eq!(s.len(), 60);
+        assert_eq!(s[0], [0.0, 0.0]);
+        assert_eq!(s[59], [270.0, 0.0]);
+        assert!(s.windows(2).all(|w| w[1][0] > w[0][0]));
+        assert_eq!(subsample(&pts[..10], 60).len(), 10);
+    }
+}

@@ -1,0 +1,272 @@
+//! AMCL in a simulated corridor-and-rooms building: scans ray-cast from the true pose, odometry
+//! with drift, the map rasterised from the same walls.
+
+use std::sync::Arc;
+
+use super::{Amcl, LikelihoodField, UpdateOutcome, scan_points, tests::shipped_params};
+use crate::config::AmclParams;
+use crate::config::value::Fraction;
+use crate::geometry::{Polygon, cast_ray};
+use crate::map::{FREE, OCCUPIED, OccupancyGrid, UNKNOWN};
+use crate::rng::Rng;
+use crate::scan::Scan;
+use crate::se2::{Se2, angle_diff};
+
+struct Building {
+    walls: Vec<Polygon>,
+    grid: OccupancyGrid,
+}
+
+fn wall(x0: f64, y0: f64, x1: f64, y1: f64) -> Polygon {
+    Polygon::new(vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]).unwrap()
+}
+
+/// 12 m × 8 m: a corridor along y = 3.5–4.5 with three doors on each side into six rooms, and two
+/// features (a triangle in the top-right room, a box in the bottom-left one) that break the
+/// building's symmetry.
+fn building() -> Building {
+    let t = 0.1;
+    let mut walls = vec![
+        wall(0.0, 0.0, 12.0, t),
+        wall(0.0, 8.0 - t, 12.0, 8.0),
+        wall(0.0, 0.0, t, 8.0),
+        wall(12.0 - t, 0.0, 12.0, 8.0),
+    ];
+    for y in [3.5, 4.5 - t] {
+        let mut x = 0.0;
+        for door in [1.5, 5.5, 9.5] {
+            walls.push(wall(x, y, door, y + t));
+            x = door + 1.0;
+        }
+        walls.push(wall(x, y, 12.0, y + t));
+    }
+    for x in [4.0, 8.0] {
+        walls.push(wall(x, 0.0, x + t, 3.5));
+        walls.push(wall(x, 4.5, x + t, 8.0));
+    }
+    walls.push(Polygon::new(vec![[10.0, 6.0], [11.2, 6.3], [10.4, 7.2]]).unwrap());
+    walls.push(wall(1.0, 1.0, 1.6, 1.4));
+    let res = 0.05;
+    let mut grid = OccupancyGrid::filled(250, 170, res, Se2::new(-0.25, -0.25, 0.0), UNKNOWN);
+    for j in 0..grid.height {
+        for i in 0..grid.width {
+            let c = grid.cell_center(i, j);
+            let inside = (0.0..=12.0).contains(&c[0]) && (0.0..=8.0).contains(&c[1]);
+            if walls.iter().any(|w| w.contains(c)) {
+                grid.set(i, j, OCCUPIED);
+            } else if inside {
+                grid.set(i, j, FREE);
+            }
+        }
+    }
+    Building { walls, grid }
+}
+
+impl Building {
+    /// A 271-beam, 270° scan from `pose` (LiDAR at the base origin), with range noise.
+    fn scan(&self, pose: &Se2, rng: &mut Rng) -> Scan {
+        let geom = Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271]);
+        let scene: Vec<(Se2, &Polygon)> = self.walls.iter().map(|w| (Se2::IDENTITY, w)).collect();
+        let ranges = (0..geom.len())
+            .map(|i| {
+                cast_ray([pose.x, pose.y], pose.theta + geom.angle(i), 10.0, &scene)
+                    .map_or(f64::NAN, |r| r + rng.gaussian(0.01))
+            })
+            .collect();
+        geom.with_ranges(ranges)
+    }
+}
+
+/// True poses every 0.1 m along a path through the corridor and into a room.
+fn path() -> Vec<Se2> {
+    let mut poses = Vec::new();
+    for k in 0..=90 {
+        poses.push(Se2::new(1.0 + 0.1 * f64::from(k), 4.0, 0.0));
+    }
+    for k in 1..=16 {
+        poses.push(Se2::new(10.0, 4.0, f64::from(k) * std::f64::consts::FRAC_PI_2 / 16.0));
+    }
+    for k in 1..=25 {
+        poses.push(Se2::new(10.0, 4.0 + 0.1 * f64::from(k), std::f64::consts::FRAC_PI_2));
+    }
+    poses
+}
+
+/// Odometry that drifts: each true increment with 1 % scale error and a heading bias of 0.3°/m, plus
+/// noise — a plain differential drive on a good floor.
+fn odometry(truth: &[Se2], rng: &mut Rng) -> Vec<Se2> {
+    let mut odom = vec![Se2::new(0.5, -0.3, 0.2)];
+    for w in truth.windows(2) {
+        let inc = w[0].inverse() * w[1];
+        let bias = 0.3f64.to_radians() * inc.x.abs();
+        let noisy = Se2::new(
+            inc.x * (1.01 + rng.gaussian(0.005)),
+            inc.y + rng.gaussian(0.001),
+            inc.theta * 1.01 + bias + rng.gaussian(0.001),
+        );
+        let last = *odom.last().unwrap();
+        odom.push(last * noisy);
+    }
+    odom
+}
+
+struct Run {
+    errors_m: Vec<f64>,
+    heading_errors_rad: Vec<f64>,
+    poses: Vec<Se2>,
+}
+
+fn run(amcl: &mut Amcl, b: &Building, truth: &[Se2], odom: &[Se2], seed: u64, params: &AmclParams) -> Run {
+    let mut rng = Rng::seed(seed);
+    let mut out = Run { errors_m: Vec::new(), heading_errors_rad: Vec::new(), poses: Vec::new() };
+    for (t, o) in truth.iter().zip(odom) {
+        let scan = b.scan(t, &mut rng);
+        let points = scan_points(&scan, &Se2::IDENTITY, params);
+        if let UpdateOutcome::Updated { .. } = amcl.update(*o, &points, false) {
+            let e = amcl.estimate().unwrap().pose;
+            out.errors_m.push((e.x - t.x).hypot(e.y - t.y));
+            out.heading_errors_rad.push(angle_diff(e.theta, t.theta).abs());
+            out.poses.push(e);
+        }
+    }
+    out
+}
+
+/// nav2's defaults assume poor odometry (α = 0.2: σ ≈ 13 cm per 0.3 m step) and a coarse sensor
+/// (σ_hit = 0.2 m); for the odometry and the TiM-like scanner here they are set as a user would.
+fn tuned_params() -> AmclParams {
+    let mut p = shipped_params();
+    let a = crate::config::value::NonNegative::new(0.02).unwrap();
+    (p.alpha1, p.alpha2, p.alpha3, p.alpha4) = (a, a, a, a);
+    // A TiM551 is far better than nav2's generic σ_hit = 0.2 m, and the product model uses it.
+    p.sigma_hit = crate::config::value::Positive::new(0.1).unwrap();
+    p.laser_model_type = crate::config::LaserModel::LikelihoodFieldProb;
+    p.max_beams = crate::config::value::Count::new(120).unwrap();
+    p.max_beams = crate::config::value::Count::new(120).unwrap();
+    p
+}
+
+/// Tracking from a known pose through the corridor and into a room, with 1 % odometry scale error.
+/// Measured (seeded, so exact): 42 updates, worst 5.3 cm, RMS 3.1 cm, worst heading 0.94°. The goal is "within 5 cm";
+/// the worst updates are in the corridor, where only the door jambs fix the position along it. The
+/// bounds below are what holds now, so a regression shows; the 5 cm goal is not yet met.
+#[test]
+fn tracking_from_a_known_pose_stays_close() {
+    let b = building();
+    let params = tuned_params();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let truth = path();
+    let odom = odometry(&truth, &mut Rng::seed(11));
+    let mut amcl = Amcl::new(params.clone(), field, 5);
+    amcl.init_pose(Se2::new(1.05, 3.95, 0.03), 0.1, 0.05);
+    let r = run(&mut amcl, &b, &truth, &odom, 21, &params);
+    assert!(r.errors_m.len() > 30, "{} updates", r.errors_m.len());
+    // After two updates to converge from the initial spread:
+    let settled = &r.errors_m[2..];
+    let worst = settled.iter().copied().fold(0.0, f64::max);
+    let rms = (settled.iter().map(|e| e * e).sum::<f64>() / settled.len() as f64).sqrt();
+    let worst_heading = r.heading_errors_rad[2..].iter().copied().fold(0.0, f64::max);
+    eprintln!(
+        "tracking: {} updates, worst {worst:.4} m, RMS {rms:.4} m, worst heading {:.2}°",
+        settled.len(),
+        worst_heading.to_degrees()
+    );
+    assert!(worst <= 0.06, "worst position error {worst:.3} m over {:?}", r.errors_m);
+    assert!(rms <= 0.04, "RMS position error {rms:.3} m");
+    assert!(worst_heading <= 2f64.to_radians(), "worst heading error {:.2}°", worst_heading.to_degrees());
+}
+
+#[test]
+fn same_seed_same_bits() {
+    let b = building();
+    let params = shipped_params();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let truth = path();
+    let odom = odometry(&truth, &mut Rng::seed(11));
+    let go = |seed| {
+        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), seed);
+        amcl.init_pose(Se2::new(1.05, 3.95, 0.03), 0.1, 0.05);
+        let r = run(&mut amcl, &b, &truth[..40], &odom[..40], 21, &params);
+        (r.poses, amcl.particles().to_vec())
+    };
+    let (a, pa) = go(5);
+    let (b2, pb) = go(5);
+    let bits = |v: &[Se2]| {
+        v.iter().flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.theta.to_bits()]).collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&a), bits(&b2));
+    assert_eq!(pa, pb);
+    let (c, _) = go(6);
+    assert_ne!(bits(&a), bits(&c), "another seed draws other particles");
+}
+
+#[test]
+fn global_localisation_converges() {
+    let b = building();
+    let mut params = shipped_params();
+    params.max_particles = crate::config::value::Count::new(5000).unwrap();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let truth = path();
+    let odom = odometry(&truth, &mut Rng::seed(12));
+    let mut amcl = Amcl::new(params.clone(), field, 9);
+    amcl.init_global();
+    let r = run(&mut amcl, &b, &truth, &odom, 22, &params);
+    let n = r.errors_m.len();
+    let (last_err, last_heading) = (r.errors_m[n - 1], r.heading_errors_rad[n - 1]);
+    assert!(
+        last_err < 0.1 && last_heading < 5f64.to_radians(),
+        "final error {last_err:.3} m, {:.1}°; errors {:?}",
+        last_heading.to_degrees(),
+        r.errors_m
+    );
+}
+
+/// Track in the corridor, then carry the robot into the bottom-right room without telling the
+/// odometry. With α_slow/α_fast the fast average of the weights drops below the slow one and random
+/// poses are injected from the free space; without them nothing is injected.
+///
+/// What this does not show: that the filter then finds the robot again. In this 96 m² building, with
+/// nav2's reset of the averages after each injection, it did not within 200 updates (nor without the
+/// reset, where the injection runs up to replacing every particle). Recovery is an open point.
+#[test]
+fn kidnapping_triggers_random_injection_only_with_recovery_alphas() {
+    let b = building();
+    let mut params = shipped_params();
+    let a = crate::config::value::NonNegative::new(0.02).unwrap();
+    (params.alpha1, params.alpha2, params.alpha3, params.alpha4) = (a, a, a, a);
+    params.recovery_alpha_slow = Fraction::new(0.001).unwrap();
+    params.recovery_alpha_fast = Fraction::new(0.1).unwrap();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let before: Vec<Se2> = (0..30).map(|k| Se2::new(1.0 + 0.1 * f64::from(k), 4.0, 0.0)).collect();
+    let after: Vec<Se2> = (0..40).map(|k| Se2::new(9.0 + 0.02 * f64::from(k), 1.5, 0.0)).collect();
+    let truth: Vec<Se2> = before.iter().chain(&after).copied().collect();
+    // The odometry sees only the motion within each phase, not the jump.
+    let mut odom = odometry(&before, &mut Rng::seed(13));
+    let tail = odometry(&after, &mut Rng::seed(14));
+    let joint = *odom.last().unwrap() * tail[0].inverse();
+    odom.extend(tail.iter().map(|o| joint * *o));
+
+    let go = |params: &AmclParams| {
+        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 17);
+        amcl.init_pose(truth[0], 0.05, 0.02);
+        let mut rng = Rng::seed(23);
+        let mut injections_before = 0;
+        for (k, (t, o)) in truth.iter().zip(&odom).enumerate() {
+            let scan = b.scan(t, &mut rng);
+            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, params), true);
+            if k == before.len() - 1 {
+                let e = amcl.estimate().unwrap().pose;
+                assert!((e.x - t.x).hypot(e.y - t.y) < 0.2, "tracked before the kidnapping: {e:?} vs {t:?}");
+                injections_before = amcl.injections();
+            }
+        }
+        (injections_before, amcl.injections())
+    };
+    let (before_n, after_n) = go(&params);
+    assert!(after_n > before_n, "the kidnapping must trigger injection ({before_n} → {after_n})");
+
+    let mut plain = params.clone();
+    plain.recovery_alpha_slow = Fraction::new(0.0).unwrap();
+    plain.recovery_alpha_fast = Fraction::new(0.0).unwrap();
+    assert_eq!(go(&plain), (0, 0), "no injection without the recovery alphas");
+}
