@@ -347,3 +347,28 @@ fn sopas_protocol_errors_are_reported_and_do_not_break_the_session() {
     assert!(matches!(ev.last(), Some(Event::Scan(_))));
     assert!(s.is_running());
 }
+
+/// The same inputs at the same instants give the same events and the same bytes out.
+#[test]
+fn sopas_session_is_deterministic() {
+    let run = |t0: Instant| {
+        let mut s = Session::new(config(Profile::Full, DialectChoice::Auto), t0);
+        s.handle_connected(t0);
+        let mut log =
+            format!("{:?}", run_startup(&mut s, t0, Some(("sRN ODpwrc", ErrorCode::BufferUnderflow))));
+        for k in 0..20u16 {
+            let now = t0 + Duration::from_millis(67 * u64::from(k));
+            s.handle_bytes(now, &scan_frame(Dialect::ColaB, k, 3_000 + 66_700 * u32::from(k)));
+            s.handle_timeout(now);
+        }
+        s.handle_timeout(t0 + Duration::from_secs(5));
+        for e in events(&mut s) {
+            log.push_str(&format!("{e:?}\n"));
+        }
+        log
+    };
+    let t0 = Instant::now();
+    let a = run(t0);
+    assert_eq!(a, run(t0));
+    assert!(a.contains("BufferUnderflow") && a.contains("ScanTimeout"));
+}

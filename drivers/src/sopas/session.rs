@@ -380,7 +380,10 @@ impl Session {
         }
         let State::Startup { step, attempt, .. } = self.state else {
             if let Reply::Error(code) = reply {
-                let command = "(unsolicited)".to_string();
+                let command = match (&self.state, self.config.mode) {
+                    (State::Running { .. }, Mode::Poll { .. }) => Command::Read(Variable::ScanData).label(),
+                    _ => "(unsolicited)".to_string(),
+                };
                 self.events.push_back(Event::DeviceError(DeviceError { command, code }));
             }
             return;
