@@ -84,7 +84,7 @@ mod lpms {
             outputs: OutputMask::GYRO | OutputMask::QUATERNION,
             ..driver_config(&mock)
         };
-        let (mut rx, _task) = spawn_serial(config, 1024);
+        let (mut rx, _task) = spawn_serial(config, 1024).unwrap();
         let (ready, _) =
             wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         let ImuMessage::Ready(info) = ready else { unreachable!() };
@@ -144,7 +144,7 @@ mod lpms {
     async fn streams_100_hz_for_30_s_of_sensor_time_without_losing_a_packet() {
         let mock = mock(100).await;
         let config = LpmsConfig { outputs: OutputMask::ALL, ..driver_config(&mock) };
-        let (mut rx, _task) = spawn_serial(config, 4096);
+        let (mut rx, _task) = spawn_serial(config, 4096).unwrap();
         wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         let (first, _) = wait_for(&mut rx, Duration::from_secs(10), |m| sample_ticks(m).is_some()).await;
         let first = sample_ticks(&first).unwrap();
@@ -183,7 +183,7 @@ mod lpms {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn garbage_bad_checksums_and_truncated_frames_are_skipped_without_a_reconnect() {
         let mock = mock(100).await;
-        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024);
+        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024).unwrap();
         wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         let (m, _) = wait_for(&mut rx, Duration::from_secs(10), |m| sample_ticks(m).is_some()).await;
         let before = sample_ticks(&m).unwrap();
@@ -231,7 +231,7 @@ mod lpms {
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn unplug_and_replug_recovers_within_a_second_of_the_tty_reappearing() {
         let mock = mock(100).await;
-        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024);
+        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024).unwrap();
         wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         wait_for(&mut rx, Duration::from_secs(10), |m| sample_ticks(m).is_some()).await;
         assert!(mock.stats().pty_path.is_some());
@@ -271,7 +271,7 @@ mod lpms {
     async fn a_nack_is_a_device_error_naming_the_command_and_start_up_recovers_on_the_same_link() {
         let mock = mock(100).await;
         mock.inject(Fault::Nack { command: CommandId::SetStreamFreq, times: 1 }).await.unwrap();
-        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024);
+        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024).unwrap();
         let (err, _) =
             wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Error(_))).await;
         assert_eq!(
@@ -293,7 +293,7 @@ mod lpms {
     async fn a_lost_first_reply_is_retried_and_silence_trips_the_watchdog() {
         let mock = mock(100).await;
         mock.inject(Fault::DropReplies(1)).await.unwrap();
-        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024);
+        let (mut rx, _task) = spawn_serial(driver_config(&mock), 1024).unwrap();
         wait_for(&mut rx, Duration::from_secs(10), |m| matches!(m, ImuMessage::Ready(_))).await;
         let commands = mock.stats().device.commands;
         assert_eq!(&commands[..2], &[CommandId::GotoCommandMode, CommandId::GotoCommandMode]);

@@ -9,10 +9,10 @@
 //! Protocol facts: `shared/spec/devices.md` §3 and `shared/research/lpms-and-canopen.md` Part A.
 //!
 //! ```no_run
-//! # async fn imu() {
+//! # async fn imu() -> Result<(), amr_drivers::lpms::ConfigError> {
 //! use amr_drivers::lpms::{ImuMessage, LpmsConfig, spawn_serial};
 //! let config = LpmsConfig { path: "/dev/rfcomm0".into(), stream_hz: 100, ..LpmsConfig::default() };
-//! let (mut rx, _task) = spawn_serial(config, 256);
+//! let (mut rx, _task) = spawn_serial(config, 256)?;
 //! while let Some(msg) = rx.recv().await {
 //!     match msg {
 //!         ImuMessage::Sample(s) => tracing::trace!(yaw_rate = ?s.data.gyro_radps, "imu"),
@@ -20,6 +20,7 @@
 //!         ImuMessage::Ready(_) | ImuMessage::Health(_) => {}
 //!     }
 //! }
+//! # Ok(())
 //! # }
 //! ```
 
@@ -34,5 +35,7 @@ pub use command::{Command, CommandId, FirmwareVersion, Reply};
 pub use data::{ConfigRegister, DataMode, OutputMask, SensorData};
 pub use error::{DeviceError, LinkError, LpmsError, ProtocolError};
 pub use frame::{Frame, FrameDecoder, FrameError};
-pub use serial::{Health, ImuMessage, ImuSample, LpmsConfig, open_serial, run, run_serial, spawn_serial};
+pub use serial::{
+    ConfigError, Health, ImuMessage, ImuSample, LpmsConfig, open_serial, run, run_serial, spawn_serial,
+};
 pub use session::{DeviceInfo, Event, Session, SessionConfig};

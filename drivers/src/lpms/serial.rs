@@ -61,7 +61,58 @@ impl Default for LpmsConfig {
     }
 }
 
+/// A configuration value the driver cannot work with.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ConfigError {
+    /// The path is empty.
+    #[error("lpms.path is empty")]
+    EmptyPath,
+    /// The rate is not one the B2 streams at (notes A3: 5, 10, 25, 50, 100, 200, 400 Hz).
+    #[error("lpms.stream_hz = {0}: the LPMS-B2 streams at 5, 10, 25, 50, 100, 200 or 400 Hz")]
+    StreamRate(u32),
+    /// A timeout or delay is zero.
+    #[error("lpms.{0} must be positive")]
+    ZeroDuration(&'static str),
+    /// The data timeout does not cover two sample periods, so the watchdog would fire on jitter.
+    #[error("lpms.data_timeout must exceed two sample periods ({min:?})")]
+    DataTimeoutTooShort {
+        /// Two sample periods.
+        min: Duration,
+    },
+    /// The first backoff delay exceeds the cap.
+    #[error("lpms.backoff_initial must not exceed lpms.backoff_max")]
+    BackoffOrder,
+}
+
 impl LpmsConfig {
+    /// Checks the values against what the sensor and the session can do.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.path.is_empty() {
+            return Err(ConfigError::EmptyPath);
+        }
+        if !super::data::STREAM_RATES_HZ[..7].contains(&self.stream_hz) {
+            return Err(ConfigError::StreamRate(self.stream_hz));
+        }
+        for (name, d) in [
+            ("reply_timeout", self.reply_timeout),
+            ("data_timeout", self.data_timeout),
+            ("backoff_initial", self.backoff_initial),
+            ("backoff_max", self.backoff_max),
+        ] {
+            if d.is_zero() {
+                return Err(ConfigError::ZeroDuration(name));
+            }
+        }
+        let min = Duration::from_secs_f64(2.0 / f64::from(self.stream_hz));
+        if self.data_timeout <= min {
+            return Err(ConfigError::DataTimeoutTooShort { min });
+        }
+        if self.backoff_initial > self.backoff_max {
+            return Err(ConfigError::BackoffOrder);
+        }
+        Ok(())
+    }
+
     /// The session part of this configuration.
     pub fn session_config(&self) -> SessionConfig {
         SessionConfig {
@@ -252,11 +303,40 @@ pub async fn run_serial(config: LpmsConfig, tx: mpsc::Sender<ImuMessage>) {
     run(session, || std::future::ready(open_serial(&path, baud)), tx).await;
 }
 
-/// Spawns [`run_serial`] on the current runtime; the task ends when the receiver is dropped.
+/// Validates `config` and spawns [`run_serial`] on the current runtime; the task ends when the
+/// receiver is dropped.
 pub fn spawn_serial(
     config: LpmsConfig,
     capacity: usize,
-) -> (mpsc::Receiver<ImuMessage>, tokio::task::JoinHandle<()>) {
+) -> Result<(mpsc::Receiver<ImuMessage>, tokio::task::JoinHandle<()>), ConfigError> {
+    config.validate()?;
     let (tx, rx) = mpsc::channel(capacity.max(1));
-    (rx, tokio::spawn(run_serial(config, tx)))
+    Ok((rx, tokio::spawn(run_serial(config, tx))))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_names_the_broken_value() {
+        assert_eq!(LpmsConfig::default().validate(), Ok(()));
+        let bad = |f: fn(&mut LpmsConfig)| {
+            let mut c = LpmsConfig::default();
+            f(&mut c);
+            c.validate().unwrap_err()
+        };
+        assert_eq!(bad(|c| c.path.clear()), ConfigError::EmptyPath);
+        assert_eq!(bad(|c| c.stream_hz = 800), ConfigError::StreamRate(800));
+        assert_eq!(bad(|c| c.stream_hz = 99), ConfigError::StreamRate(99));
+        assert_eq!(bad(|c| c.reply_timeout = Duration::ZERO), ConfigError::ZeroDuration("reply_timeout"));
+        assert!(matches!(
+            bad(|c| {
+                c.stream_hz = 5;
+                c.data_timeout = Duration::from_millis(400);
+            }),
+            ConfigError::DataTimeoutTooShort { .. }
+        ));
+        assert_eq!(bad(|c| c.backoff_initial = Duration::from_secs(9)), ConfigError::BackoffOrder);
+    }
 }
