@@ -11,8 +11,10 @@
 //! - [`rng`]: the seedable generator behind every random draw.
 //! - [`vamr`]: the Virtual-AMR measurement-construction pipeline (paper §4).
 //! - [`amcl`]: adaptive Monte Carlo localisation on a likelihood field.
+//! - [`carmen`]: CARMEN robot logs, for replaying public 2D LiDAR datasets.
 
 pub mod amcl;
+pub mod carmen;
 pub mod config;
 pub mod geometry;
 pub mod map;

@@ -90,9 +90,57 @@ impl OccupancyGrid {
     }
 }
 
+/// A map of polygon outlines (walls are polygon edges, as the ray caster sees them): cells an edge
+/// passes through or touches are occupied, cells inside `free_region` are free, the rest unknown.
+#[must_use]
+pub fn rasterize_outlines(
+    outlines: &[crate::geometry::Polygon],
+    free_region: &crate::geometry::Polygon,
+    resolution_m: f64,
+    origin: Se2,
+    width: usize,
+    height: usize,
+) -> OccupancyGrid {
+    let mut g = OccupancyGrid::filled(width, height, resolution_m, origin, UNKNOWN);
+    // A cell is crossed by an edge when the edge comes within half a cell diagonal of its centre;
+    // half the side is the tighter choice that still gives an unbroken wall.
+    let half = resolution_m / 2.0;
+    for j in 0..height {
+        for i in 0..width {
+            let c = g.cell_center(i, j);
+            if outlines.iter().any(|p| p.distance_to_boundary(c) <= half) {
+                g.set(i, j, OCCUPIED);
+            } else if free_region.contains(c) {
+                g.set(i, j, FREE);
+            }
+        }
+    }
+    g
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rasterised_room() {
+        let room = crate::geometry::Polygon::centered_rectangle(1.0, 0.5).unwrap();
+        let g =
+            rasterize_outlines(std::slice::from_ref(&room), &room, 0.1, Se2::new(-0.7, -0.45, 0.0), 14, 9);
+        // The wall x = 0.5 lies on the border of columns 11 (0.4–0.5) and 12 (0.5–0.6): both touch it.
+        assert!(g.is_occupied(11, 4) && g.is_occupied(12, 4));
+        assert!(!g.is_occupied(10, 4) && !g.is_occupied(13, 4));
+        assert!(g.is_free(7, 4), "the room's middle is free");
+        assert_eq!(g.get(0, 0), Some(UNKNOWN), "outside is unknown");
+        // Every wall cell is within half a cell of the outline.
+        for j in 0..g.height {
+            for i in 0..g.width {
+                if g.is_occupied(i, j) {
+                    assert!(room.distance_to_boundary(g.cell_center(i, j)) <= 0.05 + 1e-12);
+                }
+            }
+        }
+    }
 
     #[test]
     fn cell_convention() {
