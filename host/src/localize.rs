@@ -115,10 +115,10 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
         });
         let points = scan_points(&laser.scan, &laser.laser_in_robot, &opts.params);
         filter.update(odom, &points, false);
-        if let Some(e) = filter.estimate() {
+        // Between filter updates the pose follows the odometry from the last estimate.
+        if let (Some(e), Some(pose)) = (filter.estimate(), filter.pose_at(&odom)) {
             let c = e.covariance;
-            let _ =
-                write!(out, "{:.6},{:.6},{:.6},{:.6}", laser.timestamp_s, e.pose.x, e.pose.y, e.pose.theta);
+            let _ = write!(out, "{:.6},{:.6},{:.6},{:.6}", laser.timestamp_s, pose.x, pose.y, pose.theta);
             for row in c {
                 for v in row {
                     let _ = write!(out, ",{v:.9}");

@@ -98,9 +98,21 @@ impl Amcl {
         self.injections
     }
 
+    /// The estimate of the last filter update (and its covariance).
     #[must_use]
     pub fn estimate(&self) -> Option<&Estimate> {
         self.estimate.as_ref()
+    }
+
+    /// The robot's pose now, for odometry pose `odom`: the last estimate moved on by the odometry
+    /// since that update. This is what nav2's map→odom transform gives between filter updates.
+    #[must_use]
+    pub fn pose_at(&self, odom: &Se2) -> Option<Se2> {
+        let e = self.estimate.as_ref()?;
+        Some(match self.last_odom {
+            Some(at_update) => e.pose * (at_update.inverse() * *odom),
+            None => e.pose,
+        })
     }
 
     fn max(&self) -> usize {
@@ -271,6 +283,27 @@ pub(crate) mod tests {
     pub(crate) fn shipped_params() -> AmclParams {
         crate::config::parse_file("amcl.toml", include_str!("../../../config/amcl.toml"))
             .expect("shipped amcl.toml")
+    }
+
+    #[test]
+    fn pose_between_updates_follows_the_odometry() {
+        let mut g = crate::map::OccupancyGrid::filled(40, 40, 0.1, Se2::IDENTITY, crate::map::FREE);
+        g.set(20, 20, crate::map::OCCUPIED);
+        let params = shipped_params();
+        let field = Arc::new(LikelihoodField::new(&g, &params, 10.0));
+        let mut amcl = Amcl::new(params, field, 1);
+        assert_eq!(amcl.pose_at(&Se2::IDENTITY), None);
+        amcl.init_pose(Se2::new(1.0, 1.0, std::f64::consts::FRAC_PI_2), 0.0, 0.0);
+        // The first update sets the odometry reference at (5, 5, 0).
+        assert!(matches!(amcl.update(Se2::new(5.0, 5.0, 0.0), &[], false), UpdateOutcome::Updated { .. }));
+        // 0.1 m forward in odometry is below update_min_d: skipped, but the pose moves with it.
+        assert_eq!(amcl.update(Se2::new(5.1, 5.0, 0.0), &[], false), UpdateOutcome::Skipped);
+        let p = amcl.pose_at(&Se2::new(5.1, 5.0, 0.0)).unwrap();
+        let e = amcl.estimate().unwrap().pose;
+        assert!(
+            (p.x - e.x).abs() < 1e-9 && (p.y - (e.y + 0.1)).abs() < 1e-9,
+            "forward is +y for this heading: {p:?} vs {e:?}"
+        );
     }
 
     #[test]

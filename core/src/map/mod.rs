@@ -102,9 +102,10 @@ pub fn rasterize_outlines(
     height: usize,
 ) -> OccupancyGrid {
     let mut g = OccupancyGrid::filled(width, height, resolution_m, origin, UNKNOWN);
-    // A cell is crossed by an edge when the edge comes within half a cell diagonal of its centre;
-    // half the side is the tighter choice that still gives an unbroken wall.
-    let half = resolution_m / 2.0;
+    // A cell is taken when an edge comes within half a side of its centre: that gives an unbroken
+    // wall. An edge on a cell border is exactly half a side from both neighbours, so allow for
+    // rounding, or such a wall can vanish from the map altogether.
+    let half = resolution_m / 2.0 * (1.0 + 1e-9);
     for j in 0..height {
         for i in 0..width {
             let c = g.cell_center(i, j);
@@ -132,11 +133,18 @@ mod tests {
         assert!(!g.is_occupied(10, 4) && !g.is_occupied(13, 4));
         assert!(g.is_free(7, 4), "the room's middle is free");
         assert_eq!(g.get(0, 0), Some(UNKNOWN), "outside is unknown");
+        // A wall on cell borders, at an origin where the cell centres do not come out exact in
+        // binary: x = 8.0 with 0.05 m cells from −0.5 (this wall once vanished from the map).
+        let big = crate::geometry::Polygon::centered_rectangle(16.0, 2.0).unwrap();
+        let g2 =
+            rasterize_outlines(std::slice::from_ref(&big), &big, 0.05, Se2::new(-8.5, -1.5, 0.0), 340, 60);
+        let (i, j) = g2.cell_of([7.99, 0.0]).unwrap();
+        assert!(g2.is_occupied(i, j) && g2.is_occupied(i + 1, j), "both cells touching x = 8 are walls");
         // Every wall cell is within half a cell of the outline.
         for j in 0..g.height {
             for i in 0..g.width {
                 if g.is_occupied(i, j) {
-                    assert!(room.distance_to_boundary(g.cell_center(i, j)) <= 0.05 + 1e-12);
+                    assert!(room.distance_to_boundary(g.cell_center(i, j)) <= 0.05 + 1e-9);
                 }
             }
         }
