@@ -3,6 +3,7 @@
 mod bench;
 mod config_cmd;
 mod localize;
+mod mock_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -64,6 +65,54 @@ enum Command {
     /// Measure the algorithms (medians over repeated runs; nothing is asserted).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Run a mock device standalone, serving its real protocol until Ctrl-C.
+    #[command(subcommand)]
+    Mock(MockCommand),
+    /// Protocol tools.
+    #[command(subcommand)]
+    Tools(ToolsCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum MockCommand {
+    /// A mock SICK TiM5xx on TCP (SOPAS, CoLa-A and CoLa-B, detected per connection), streaming
+    /// scans of a static room at 15 Hz. Prints the address it listens on.
+    Lidar {
+        /// Address to listen on (port 0 picks a free one).
+        #[arg(long, default_value = "127.0.0.1:2112")]
+        listen: String,
+        /// 271 points (TiM551, 1°) or 811 (TiM561/571, 0.333°).
+        #[arg(long, default_value_t = 271)]
+        points: u32,
+        /// Behave like a device set to one dialect (a | b) instead of answering either.
+        #[arg(long, value_parser = parse_dialect)]
+        dialect: Option<amr_drivers::sopas::Dialect>,
+    },
+    /// A mock LP-Research LPMS-B2 (LPBUS) behind a pseudo-terminal, streaming from power-up. Prints
+    /// the tty path to open (a stable symlink to the current pty).
+    Imu {
+        /// Stream rate in Hz (5, 10, 25, 50, 100, 200, 400 or 800).
+        #[arg(long, default_value_t = 100)]
+        rate: u32,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum ToolsCommand {
+    /// Decode a captured SOPAS telegram (CoLa-A or CoLa-B, framed or not) and print every field as
+    /// JSON.
+    SopasDecode {
+        /// The captured bytes.
+        file: PathBuf,
+    },
+}
+
+fn parse_dialect(s: &str) -> Result<amr_drivers::sopas::Dialect, String> {
+    match s.to_ascii_lowercase().as_str() {
+        "a" => Ok(amr_drivers::sopas::Dialect::ColaA),
+        "b" => Ok(amr_drivers::sopas::Dialect::ColaB),
+        _ => Err(format!("`{s}`: expected a (CoLa-A) or b (CoLa-B)")),
+    }
 }
 
 #[derive(Debug, Subcommand)]
@@ -106,6 +155,20 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
         Command::Bench(BenchCommand::Vamr { json, quick, config }) => bench_vamr(json, quick, config),
+        Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
+            mock_cmd::lidar(&listen, points, dialect)
+        }
+        Command::Mock(MockCommand::Imu { rate }) => {
+            if amr_core::config::IMU_STREAM_RATES_HZ.contains(&rate) {
+                mock_cmd::imu(rate)
+            } else {
+                Err(anyhow::anyhow!(
+                    "--rate must be one of {:?}, not {rate}",
+                    amr_core::config::IMU_STREAM_RATES_HZ
+                ))
+            }
+        }
+        Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
         Command::Localize { map, log, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let s = localize::run(&localize::Options { map, log, initial, params, out, seed })?;

@@ -221,7 +221,9 @@ async fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
         let (stream, peer) = match listener.accept().await {
             Ok(x) => x,
             Err(e) => {
+                // E.g. out of file descriptors: back off instead of spinning on the error.
                 tracing::warn!(error = %e, "mock accept failed");
+                tokio::time::sleep(Duration::from_millis(50)).await;
                 continue;
             }
         };
