@@ -85,10 +85,8 @@ fn mock_imu_streams_lpbus_frames_on_its_tty() {
     decoder.push(&bytes);
     let mut data_frames = 0;
     while let Some(frame) = decoder.next_frame() {
-        if let Ok(f) = frame {
-            if f.cmd == 9 {
-                data_frames += 1;
-            }
+        if frame.is_ok_and(|f| f.cmd == 9) {
+            data_frames += 1;
         }
     }
     assert!(
