@@ -6,14 +6,12 @@
 use std::hint::black_box;
 
 use amr_core::config::{Configuration, VamrParams, parse_file};
-use amr_core::se2::Se2;
-use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::heading::{
     AngleGrid, HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search,
 };
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
+use amr_core::vamr::pipeline::Pipeline;
 use amr_core::vamr::preprocess::preprocess;
-use amr_core::vamr::synthetic::Site;
+use amr_core::vamr::synthetic::Pair;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 
 fn params() -> VamrParams {
@@ -24,13 +22,11 @@ fn bench(c: &mut Criterion) {
     let params = params();
     let h = params.heading;
     for beams in [271usize, 655] {
-        let site = Site::paper(beams).unwrap();
-        let poses = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
-        let scans = [site.scan(&poses, 0), site.scan(&poses, 1)];
+        let pair = Pair::straight(beams).unwrap();
+        let (site, scans, truth) = (&pair.site, &pair.scans, pair.truth());
         let pa = preprocess(&scans[0], &site.mount, &params.preprocess);
         let pb = preprocess(&scans[1], &site.mount, &params.preprocess);
         let target = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
-        let truth = poses[0].inverse() * poses[1];
         let problem = HeadingProblem {
             source: &pb.smoothed_points,
             target: &target,
@@ -63,17 +59,7 @@ fn bench(c: &mut Criterion) {
         });
         g.finish();
 
-        let packets: Vec<RobotPacket<'_>> = scans
-            .iter()
-            .map(|s| RobotPacket {
-                scan: s,
-                times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
-                lidar_to_base: site.mount,
-                chassis: &site.chassis,
-                weight: 1.0,
-                amcl_pose: None,
-            })
-            .collect();
+        let packets = pair.packets();
         let mut pipeline = Pipeline::new(2, params.clone(), Configuration::T4, 0.05, 0.1);
         pipeline.update(&packets).unwrap();
         c.bench_with_input(BenchmarkId::new("pipeline-t4-refined", beams), &beams, |b, _| {

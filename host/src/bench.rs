@@ -7,16 +7,14 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use amr_core::config::{Configuration, VamrParams};
-use amr_core::se2::Se2;
 use amr_core::vamr::contour::{ContourInput, recognize};
-use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::fusion::{FusionInput, fuse};
 use amr_core::vamr::heading::{
     AngleGrid, HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search,
 };
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
+use amr_core::vamr::pipeline::Pipeline;
 use amr_core::vamr::preprocess::preprocess;
-use amr_core::vamr::synthetic::Site;
+use amr_core::vamr::synthetic::Pair;
 use amr_core::vamr::tracker::Tracker;
 use serde::Serialize;
 
@@ -67,10 +65,8 @@ struct Measured {
 
 /// The paper's straight-line layout: side by side, 0.9 m between centres.
 fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Measured> {
-    let site = Site::paper(beams)?;
-    let poses = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
-    let scans = [site.scan(&poses, 0), site.scan(&poses, 1)];
-    let truth = poses[0].inverse() * poses[1];
+    let pair = Pair::straight(beams)?;
+    let (site, scans, truth) = (&pair.site, &pair.scans, pair.truth());
     let pre = |i: usize| preprocess(&scans[i], &site.mount, &params.preprocess);
     let (pa, pb) = (pre(0), pre(1));
     let contour_input = ContourInput {
@@ -93,18 +89,9 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
     let full = AngleGrid::full(h.step_deg.get());
     let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());
     let mut scratch = SearchScratch::default();
-    let packets: Vec<RobotPacket<'_>> = scans
-        .iter()
-        .map(|s| RobotPacket {
-            scan: s,
-            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
-            lidar_to_base: site.mount,
-            chassis: &site.chassis,
-            weight: 1.0,
-            amcl_pose: None,
-        })
-        .collect();
-    let bases = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
+    let packets = pair.packets();
+    // V midway between them, axes aligned.
+    let bases = pair.poses;
     let inputs: Vec<FusionInput<'_>> = scans
         .iter()
         .zip(bases)

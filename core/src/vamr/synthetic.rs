@@ -58,3 +58,43 @@ impl Site {
         self.beams.with_ranges(ranges)
     }
 }
+
+/// Two robots on a [`Site`] and what each one's scanner sees.
+#[derive(Debug, Clone)]
+pub struct Pair {
+    pub site: Site,
+    pub poses: [Se2; 2],
+    pub scans: [Scan; 2],
+}
+
+impl Pair {
+    /// The paper's straight-line layout: side by side, 0.9 m between centres, on [`Site::paper`].
+    pub fn straight(beams: usize) -> Result<Self, PolygonError> {
+        let site = Site::paper(beams)?;
+        let poses = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
+        let scans = [site.scan(&poses, 0), site.scan(&poses, 1)];
+        Ok(Pair { site, poses, scans })
+    }
+
+    /// `T_{B_1}^{B_0}`: robot 1 in robot 0's base frame.
+    #[must_use]
+    pub fn truth(&self) -> Se2 {
+        self.poses[0].inverse() * self.poses[1]
+    }
+
+    /// Both scans as one synchronised set of packets, without AMCL poses.
+    #[must_use]
+    pub fn packets(&self) -> Vec<super::pipeline::RobotPacket<'_>> {
+        self.scans
+            .iter()
+            .map(|s| super::pipeline::RobotPacket {
+                scan: s,
+                times: super::frame::PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+                lidar_to_base: self.site.mount,
+                chassis: &self.site.chassis,
+                weight: 1.0,
+                amcl_pose: None,
+            })
+            .collect()
+    }
+}
