@@ -131,6 +131,19 @@ enum BenchCommand {
         #[arg(long)]
         config: Option<PathBuf>,
     },
+    /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, and of
+    /// resampling + estimate alone. Uses amcl.toml from the configuration.
+    Amcl {
+        /// Print JSON instead of a Markdown table.
+        #[arg(long)]
+        json: bool,
+        /// Fewer repetitions.
+        #[arg(long)]
+        quick: bool,
+        /// Configuration directory (default: ./config, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 #[derive(Debug, Subcommand)]
@@ -155,6 +168,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
         Command::Bench(BenchCommand::Vamr { json, quick, config }) => bench_vamr(json, quick, config),
+        Command::Bench(BenchCommand::Amcl { json, quick, config }) => bench_amcl(json, quick, config),
         Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
             mock_cmd::lidar(&listen, points, dialect)
         }
@@ -199,6 +213,19 @@ fn bench_vamr(json: bool, quick: bool, config: Option<PathBuf>) -> anyhow::Resul
     tracing::info!(quick, "benchmarking the Virtual-AMR pipeline");
     let report = bench::run(&config.vamr, quick)?;
     let text = if json { serde_json::to_string_pretty(&report)? + "\n" } else { bench::markdown(&report) };
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    {
+        print!("{text}");
+    }
+    Ok(())
+}
+
+fn bench_amcl(json: bool, quick: bool, config: Option<PathBuf>) -> anyhow::Result<()> {
+    let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+    tracing::info!(quick, "benchmarking AMCL");
+    let report = bench::run_amcl(&config.amcl, &config.vamr, quick)?;
+    let text =
+        if json { serde_json::to_string_pretty(&report)? + "\n" } else { bench::amcl_markdown(&report) };
     #[allow(clippy::print_stdout, reason = "the command's report")]
     {
         print!("{text}");
