@@ -8,5 +8,6 @@
 //! The protocol modules arrive with their issues: `sopas` (SICK TiM551), `canopen` + `cia402`
 //! (TECO drives), `lpms` (LPMS-B2).
 
+pub mod canopen;
 pub mod lpms;
 pub mod sopas;

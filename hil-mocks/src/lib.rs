@@ -6,4 +6,5 @@
 //! `teco_drive`, `lpms`) arrive with their issues.
 
 pub mod lpms;
+pub mod teco_drive;
 pub mod tim551;
