@@ -28,50 +28,25 @@ pub struct ConstantYawRate {
     pub bias_radps: f64,
     /// Standard deviation of the gyro noise, rad/s.
     pub noise_std_radps: f64,
-    rng: SplitMix64,
+    rng: amr_core::rng::Rng,
 }
 
 impl ConstantYawRate {
     /// Turning at `yaw_rate_radps` with the given gyro bias, noise and seed.
     pub fn new(yaw_rate_radps: f64, bias_radps: f64, noise_std_radps: f64, seed: u64) -> Self {
-        Self { yaw_rate_radps, bias_radps, noise_std_radps, rng: SplitMix64(seed) }
+        Self { yaw_rate_radps, bias_radps, noise_std_radps, rng: amr_core::rng::Rng::seed(seed) }
     }
 }
 
 impl MotionSource for ConstantYawRate {
     fn motion_at(&mut self, t_s: f64) -> Motion {
         let yaw_rad = self.yaw_rate_radps * t_s;
-        let noise = self.noise_std_radps * self.rng.next_gaussian();
+        let noise = self.noise_std_radps * self.rng.normal();
         Motion {
             angular_velocity_radps: [0.0, 0.0, self.yaw_rate_radps + self.bias_radps + noise],
             orientation_wxyz: [(yaw_rad / 2.0).cos(), 0.0, 0.0, (yaw_rad / 2.0).sin()],
             linear_acc_mps2: [0.0, 0.0, 0.0],
         }
-    }
-}
-
-/// SplitMix64 (Steele, Lea, Flood 2014): a tiny deterministic generator, enough for test noise.
-#[derive(Debug, Clone)]
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1].
-    fn next_unit(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 1.0) / (1u64 << 53) as f64
-    }
-
-    /// Standard normal by Box–Muller.
-    fn next_gaussian(&mut self) -> f64 {
-        let (u1, u2) = (self.next_unit(), self.next_unit());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
     }
 }
 
