@@ -111,19 +111,22 @@ pub fn apply(fixture: &Fixture) -> Result<Vec<ConfigFile>, String> {
     let mut files = read_files(&ConfigSource::Dir(config_dir())).map_err(|e| e.to_string())?;
     let existing = files.iter().position(|f| f.path == fixture.file);
     match (fixture.mode.as_str(), existing) {
-        ("add", None) => files.push(ConfigFile { path: fixture.file.clone(), text: fixture.body.clone() }),
-        ("replace", Some(i)) => files[i].text = fixture.body.clone(),
+        ("add", None) => {
+            files.push(ConfigFile { path: fixture.file.clone(), bytes: fixture.body.clone().into_bytes() })
+        }
+        ("replace", Some(i)) => files[i].bytes = fixture.body.clone().into_bytes(),
         ("delete", Some(i)) => {
             files.remove(i);
         }
         ("overlay", Some(i)) => {
-            let mut base: toml::Table = toml::from_str(&files[i].text).map_err(|e| e.to_string())?;
+            let text = files[i].text().map_err(|e| e.to_string())?;
+            let mut base: toml::Table = toml::from_str(text).map_err(|e| e.to_string())?;
             for key in &fixture.remove {
                 remove_key(&mut base, key)?;
             }
             let overlay: toml::Table = toml::from_str(&fixture.body).map_err(|e| e.to_string())?;
             merge(&mut base, overlay);
-            files[i].text = toml::to_string(&base).map_err(|e| e.to_string())?;
+            files[i].bytes = toml::to_string(&base).map_err(|e| e.to_string())?.into_bytes();
         }
         (mode, _) => {
             return Err(format!("fixture {}: mode {mode} does not fit file {}", fixture.name, fixture.file));
@@ -139,7 +142,7 @@ pub fn write_dir(files: &[ConfigFile], dir: &Path) -> std::io::Result<()> {
         if let Some(parent) = path.parent() {
             std::fs::create_dir_all(parent)?;
         }
-        std::fs::write(path, &f.text)?;
+        std::fs::write(path, &f.bytes)?;
     }
     Ok(())
 }

@@ -34,8 +34,6 @@ impl fmt::Display for ConfigSource {
 pub enum LoadError {
     #[error("cannot read {path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: not UTF-8 text")]
-    NotText { path: String },
     #[error(transparent)]
     Invalid(#[from] ConfigError),
 }
@@ -53,12 +51,7 @@ pub fn read_files(source: &ConfigSource) -> Result<Vec<ConfigFile>, LoadError> {
             out
         }
     };
-    raw.into_iter()
-        .map(|(path, bytes)| match String::from_utf8(bytes) {
-            Ok(text) => Ok(ConfigFile { path, text }),
-            Err(_) => Err(LoadError::NotText { path }),
-        })
-        .collect()
+    Ok(raw.into_iter().map(|(path, bytes)| ConfigFile { path, bytes }).collect())
 }
 
 /// Read and validate a whole configuration.
@@ -105,8 +98,7 @@ mod tests {
         let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config");
         let from_dir = read_files(&ConfigSource::Dir(dir)).unwrap();
         let embedded = read_files(&ConfigSource::Embedded).unwrap();
-        let names = |v: &[ConfigFile]| v.iter().map(|f| (f.path.clone(), f.text.clone())).collect::<Vec<_>>();
-        assert_eq!(names(&from_dir), names(&embedded));
+        assert_eq!(from_dir, embedded);
         assert!(from_dir.iter().any(|f| f.path == "server.toml"));
     }
 

@@ -8,6 +8,7 @@
 //! | `server.toml` | [`ServerConfig`] | the formation, fusion weights and gates, the T1–T4 switch |
 //! | `vamr.toml` | [`VamrParams`] | the Virtual-AMR pipeline parameters (paper Table 2) |
 //! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names and defaults) |
+//! | `maps/<name>.yaml` + its image | [`OccupancyGrid`] | a ROS map_server map, checked by loading it |
 //! | `*.md` | — | documentation, ignored |
 //!
 //! Every struct rejects unknown keys. Rules on a single value are checked while the file is
@@ -21,9 +22,12 @@ mod server;
 pub mod value;
 mod vamr;
 
+use std::collections::BTreeMap;
 use std::fmt;
 
 use serde::de::DeserializeOwned;
+
+use crate::map::{MapYaml, OccupancyGrid, load_map};
 
 pub use amcl::{AmclParams, InitialPose, LaserModel};
 pub use robot::{
@@ -135,6 +139,30 @@ fn key_line(text: &str, key: &str) -> Option<usize> {
     span_line(text, span)
 }
 
+/// A map's YAML and its image (in `maps/`, named by the YAML): the grid, by the map's name.
+fn load_map_file(
+    yaml_file: &ConfigFile,
+    files: &[ConfigFile],
+) -> Result<(String, OccupancyGrid), ConfigError> {
+    let error = |file: &str, key: &str, rule: String| ConfigError {
+        file: file.to_owned(),
+        line: None,
+        key: key.to_owned(),
+        rule,
+    };
+    let yaml = MapYaml::parse(yaml_file.text()?).map_err(|e| match e {
+        crate::map::MapError::Invalid { key, rule } => error(&yaml_file.path, key, rule),
+        other => error(&yaml_file.path, "", other.to_string()),
+    })?;
+    let image_path = format!("maps/{}", yaml.image);
+    let image = files.iter().find(|f| f.path == image_path).ok_or_else(|| {
+        error(&yaml_file.path, "image", format!("names {image_path}, which is not in the configuration"))
+    })?;
+    let grid = load_map(&yaml, &image.bytes).map_err(|e| error(&image_path, "", e.to_string()))?;
+    let name = yaml_file.path.trim_start_matches("maps/").trim_end_matches(".yaml").to_owned();
+    Ok((name, grid))
+}
+
 /// What a file in a configuration directory is, judged by its path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileKind {
@@ -142,6 +170,10 @@ pub enum FileKind {
     Server,
     Vamr,
     Amcl,
+    /// `maps/<name>.yaml`: a map's metadata.
+    Map,
+    /// `maps/<name>.pgm` or `.png`: a map's image, read through its YAML.
+    MapImage,
     /// Documentation (`*.md`): skipped.
     Documentation,
 }
@@ -157,20 +189,42 @@ impl FileKind {
             "vamr.toml" => Ok(FileKind::Vamr),
             "amcl.toml" => Ok(FileKind::Amcl),
             p if p.starts_with("robot-") && p.ends_with(".toml") && !p.contains('/') => Ok(FileKind::Robot),
+            p if p.strip_prefix("maps/").is_some_and(|name| !name.contains('/')) => {
+                if p.ends_with(".yaml") {
+                    Ok(FileKind::Map)
+                } else if p.ends_with(".pgm") || p.ends_with(".png") {
+                    Ok(FileKind::MapImage)
+                } else {
+                    Err("unknown file in maps/: expected <name>.yaml with a .pgm or .png image".to_owned())
+                }
+            }
             _ => Err(
-                "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml \
-                      or *.md documentation"
+                "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml, \
+                      maps/<name>.yaml or *.md documentation"
                     .to_owned(),
             ),
         }
     }
 }
 
-/// One file of a configuration set: its path relative to the set's root and its text.
-#[derive(Debug, Clone)]
+/// One file of a configuration set: its path relative to the set's root (`/`-separated) and its
+/// contents.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ConfigFile {
     pub path: String,
-    pub text: String,
+    pub bytes: Vec<u8>,
+}
+
+impl ConfigFile {
+    /// The contents as text, or the error naming the file.
+    pub fn text(&self) -> Result<&str, ConfigError> {
+        std::str::from_utf8(&self.bytes).map_err(|_| ConfigError {
+            file: self.path.clone(),
+            line: None,
+            key: String::new(),
+            rule: "not UTF-8 text".to_owned(),
+        })
+    }
 }
 
 /// A complete, validated configuration: every robot, the server, and the algorithm parameters.
@@ -181,6 +235,8 @@ pub struct Config {
     pub server: ServerConfig,
     pub vamr: VamrParams,
     pub amcl: AmclParams,
+    /// Maps by name (`maps/<name>.yaml`).
+    pub maps: BTreeMap<String, OccupancyGrid>,
 }
 
 impl Config {
@@ -190,6 +246,7 @@ impl Config {
         files.sort_by(|a, b| a.path.cmp(&b.path));
         let mut robots: Vec<(String, RobotConfig)> = Vec::new();
         let (mut server, mut vamr, mut amcl) = (None, None, None);
+        let mut maps = BTreeMap::new();
         for f in &files {
             let kind = FileKind::of(&f.path).map_err(|rule| ConfigError {
                 file: f.path.clone(),
@@ -198,17 +255,22 @@ impl Config {
                 rule,
             })?;
             match kind {
-                FileKind::Documentation => {}
-                FileKind::Server => server = Some(parse_file::<ServerConfig>(&f.path, &f.text)?),
-                FileKind::Vamr => vamr = Some(parse_file::<VamrParams>(&f.path, &f.text)?),
-                FileKind::Amcl => amcl = Some(parse_file::<AmclParams>(&f.path, &f.text)?),
+                FileKind::Documentation | FileKind::MapImage => {}
+                FileKind::Server => server = Some(parse_file::<ServerConfig>(&f.path, f.text()?)?),
+                FileKind::Vamr => vamr = Some(parse_file::<VamrParams>(&f.path, f.text()?)?),
+                FileKind::Amcl => amcl = Some(parse_file::<AmclParams>(&f.path, f.text()?)?),
+                FileKind::Map => {
+                    let (name, grid) = load_map_file(f, &files)?;
+                    maps.insert(name, grid);
+                }
                 FileKind::Robot => {
-                    let robot = parse_file::<RobotConfig>(&f.path, &f.text)?;
+                    let text = f.text()?;
+                    let robot = parse_file::<RobotConfig>(&f.path, text)?;
                     let stem = f.path.trim_end_matches(".toml");
                     if robot.id.as_str() != stem {
                         return Err(ConfigError {
                             file: f.path.clone(),
-                            line: key_line(&f.text, "id"),
+                            line: key_line(text, "id"),
                             key: "id".to_owned(),
                             rule: format!("must equal the file name `{stem}` (got `{}`)", robot.id.as_str()),
                         });
@@ -227,7 +289,8 @@ impl Config {
         let vamr = vamr.ok_or_else(|| missing("vamr.toml"))?;
         let amcl = amcl.ok_or_else(|| missing("amcl.toml"))?;
         let robots: Vec<RobotConfig> = robots.into_iter().map(|(_, r)| r).collect();
-        let server_text = files.iter().find(|f| f.path == "server.toml").map_or("", |f| f.text.as_str());
+        let server_text =
+            files.iter().find(|f| f.path == "server.toml").and_then(|f| f.text().ok()).unwrap_or_default();
         for (i, member) in server.robots.iter().enumerate() {
             if !robots.iter().any(|r| r.id == member.id) {
                 let key = format!("robots[{i}].id");
@@ -243,7 +306,7 @@ impl Config {
                 });
             }
         }
-        Ok(Config { robots, server, vamr, amcl })
+        Ok(Config { robots, server, vamr, amcl, maps })
     }
 
     /// The robot with this id.
@@ -289,6 +352,10 @@ mod tests {
         assert_eq!(FileKind::of("robot-a.toml"), Ok(FileKind::Robot));
         assert_eq!(FileKind::of("server.toml"), Ok(FileKind::Server));
         assert_eq!(FileKind::of("maps/README.md"), Ok(FileKind::Documentation));
+        assert_eq!(FileKind::of("maps/site.yaml"), Ok(FileKind::Map));
+        assert_eq!(FileKind::of("maps/site.pgm"), Ok(FileKind::MapImage));
+        assert!(FileKind::of("maps/site.jpg").is_err());
+        assert!(FileKind::of("maps/old/site.yaml").is_err());
         assert!(FileKind::of("robots/robot-a.toml").is_err());
         assert!(FileKind::of("robot-a.yaml").is_err());
     }
