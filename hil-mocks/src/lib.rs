@@ -8,3 +8,4 @@
 pub mod lpms;
 pub mod teco_drive;
 pub mod tim551;
+pub mod world;

@@ -163,5 +163,17 @@ fn write_summary(out: &mut String, source: &ConfigSource, c: &Config) -> std::fm
         a.update_min_d.get(),
         a.update_min_a.get()
     )?;
-    writeln!(out, "ok: {} robots, server, vamr and amcl are valid", c.robots.len())
+    for (name, m) in &c.maps {
+        let occupied = m.cells.iter().filter(|&&v| v == amr_core::map::OCCUPIED).count();
+        writeln!(
+            out,
+            "map {name}: {} × {} cells at {} m ({:.1} m × {:.1} m), {occupied} occupied",
+            m.width,
+            m.height,
+            m.resolution_m,
+            m.width as f64 * m.resolution_m,
+            m.height as f64 * m.resolution_m
+        )?;
+    }
+    writeln!(out, "ok: {} robots, server, vamr, amcl and {} maps are valid", c.robots.len(), c.maps.len())
 }

@@ -36,7 +36,8 @@ fn check_accepts_the_shipped_configuration() {
     assert!(stdout.contains("robot robot-a"), "{stdout}");
     assert!(stdout.contains("robot robot-b"), "{stdout}");
     assert!(stdout.contains("configuration T4, formation [robot-a (w 1), robot-b (w 1)]"), "{stdout}");
-    assert!(stdout.trim_end().ends_with("ok: 2 robots, server, vamr and amcl are valid"), "{stdout}");
+    assert!(stdout.contains("map paper-site: 210 × 76 cells at 0.05 m"), "{stdout}");
+    assert!(stdout.trim_end().ends_with("ok: 2 robots, server, vamr, amcl and 1 maps are valid"), "{stdout}");
 }
 
 #[test]
@@ -91,10 +92,9 @@ fn errors_point_at_the_line_of_the_key() {
     ];
     for (file, from, to, key) in cases {
         let dir = tempfile::tempdir().unwrap();
-        for entry in std::fs::read_dir(config_dir()).unwrap() {
-            let p = entry.unwrap().path();
-            std::fs::copy(&p, dir.path().join(p.file_name().unwrap())).unwrap();
-        }
+        let shipped =
+            amr_actors::config::read_files(&amr_actors::config::ConfigSource::Dir(config_dir())).unwrap();
+        write_dir(&shipped, dir.path()).unwrap();
         let path = dir.path().join(file);
         let original = std::fs::read_to_string(&path).unwrap();
         let line = original.lines().position(|l| l.contains(from)).expect("shipped line") + 1;

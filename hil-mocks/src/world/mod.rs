@@ -1,0 +1,331 @@
+//! The simulated world (issue 8 §1): a static map of polygon outlines, N robot bodies with the
+//! configured chassis, differential-drive kinematics with acceleration limits, wheel slip and
+//! encoder resolution; a TiM551 model that ray-casts the map and every other robot; an IMU model
+//! (true yaw rate + bias + noise). Deterministic from a seed: all noise comes from one
+//! [`amr_core::rng::Rng`], forked per robot and per sensor.
+//!
+//! Time is the caller's: [`World::step`] advances it, the sensor models read the state at the current
+//! time. The mock devices reach the world through [`WorldLidar`] and [`WorldImu`].
+
+mod site;
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use amr_core::config::RobotConfig;
+use amr_core::geometry::{Polygon, cast_ray};
+use amr_core::rng::Rng;
+use amr_core::scan::Scan;
+use amr_core::se2::Se2;
+
+pub use site::{PAPER_SITE_LENGTH_M, PAPER_SITE_WIDTH_M, paper_site};
+
+/// A robot's physical description (from its configuration).
+#[derive(Debug, Clone)]
+pub struct RobotSpec {
+    pub chassis: Polygon,
+    pub wheel_radius_m: f64,
+    pub track_width_m: f64,
+    pub lidar_mount: Se2,
+    /// Largest wheel-surface acceleration the drives deliver, m/s².
+    pub max_accel_mps2: f64,
+}
+
+impl RobotSpec {
+    #[must_use]
+    pub fn from_config(c: &RobotConfig) -> Self {
+        RobotSpec {
+            chassis: c.chassis.outline_m.clone(),
+            wheel_radius_m: c.kinematics.wheel_radius_m.get(),
+            track_width_m: c.kinematics.track_width_m.get(),
+            lidar_mount: c.lidar_mount.to_se2(),
+            max_accel_mps2: c.limits.max_accel_mps2.get(),
+        }
+    }
+}
+
+/// Sensor and actuator imperfections.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Noise {
+    /// Standard deviation of each LiDAR range, m.
+    pub range_sigma_m: f64,
+    /// Probability that a beam returns nothing.
+    pub dropout_probability: f64,
+    /// Standard deviation of the relative wheel slip per step (ground speed = wheel speed·(1 + s)).
+    pub wheel_slip_sigma: f64,
+    /// Encoder resolution: counts per wheel revolution (motor counts × gear ratio).
+    pub encoder_counts_per_wheel_rev: f64,
+    /// Gyro bias range: each robot's bias is drawn once, uniform in ±this, rad/s.
+    pub gyro_bias_max_radps: f64,
+    /// Gyro white noise, rad/s.
+    pub gyro_sigma_radps: f64,
+}
+
+impl Noise {
+    /// No noise at all: exact sensors, no slip, continuous encoders.
+    pub const NONE: Noise = Noise {
+        range_sigma_m: 0.0,
+        dropout_probability: 0.0,
+        wheel_slip_sigma: 0.0,
+        encoder_counts_per_wheel_rev: 0.0,
+        gyro_bias_max_radps: 0.0,
+        gyro_sigma_radps: 0.0,
+    };
+
+    /// A TiM551 (statistical error ≈ 20 mm at 1σ in SICK's data sheet; we use 10 mm as the
+    /// systematic part is calibrated), occasional dropouts, a good floor and an LPMS-class gyro.
+    pub const TYPICAL: Noise = Noise {
+        range_sigma_m: 0.01,
+        dropout_probability: 0.01,
+        wheel_slip_sigma: 0.002,
+        encoder_counts_per_wheel_rev: 200_000.0,
+        gyro_bias_max_radps: 0.002,
+        gyro_sigma_radps: 0.005,
+    };
+}
+
+/// The TiM551 beam layout: 271 beams over 270°, 0.05–10 m (devices.md §1), robot convention.
+#[must_use]
+pub fn tim551_beams() -> Scan {
+    Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271])
+}
+
+#[derive(Debug, Clone)]
+struct SimRobot {
+    spec: RobotSpec,
+    pose: Se2,
+    /// Commanded body twist.
+    cmd_v_mps: f64,
+    cmd_w_radps: f64,
+    /// Actual wheel surface speeds (left, right), m/s.
+    wheel_mps: [f64; 2],
+    /// Integrated wheel rotation (left, right), rad — what the encoders measure.
+    wheel_rad: [f64; 2],
+    /// The body's true twist over the last step.
+    twist: (f64, f64),
+    gyro_bias_radps: f64,
+    rng: Rng,
+}
+
+/// The world.
+#[derive(Debug, Clone)]
+pub struct World {
+    statics: Vec<Polygon>,
+    robots: Vec<SimRobot>,
+    noise: Noise,
+    t_s: f64,
+    rng: Rng,
+}
+
+impl World {
+    #[must_use]
+    pub fn new(statics: Vec<Polygon>, noise: Noise, seed: u64) -> Self {
+        World { statics, robots: Vec::new(), noise, t_s: 0.0, rng: Rng::seed(seed) }
+    }
+
+    /// Add a robot at `pose`, standing still; returns its index.
+    pub fn add_robot(&mut self, spec: RobotSpec, pose: Se2) -> usize {
+        let mut rng = self.rng.fork(self.robots.len() as u64);
+        let max_bias = self.noise.gyro_bias_max_radps;
+        let bias = if max_bias > 0.0 { rng.range(-max_bias, max_bias) } else { 0.0 };
+        self.robots.push(SimRobot {
+            spec,
+            pose,
+            cmd_v_mps: 0.0,
+            cmd_w_radps: 0.0,
+            wheel_mps: [0.0; 2],
+            wheel_rad: [0.0; 2],
+            twist: (0.0, 0.0),
+            gyro_bias_radps: bias,
+            rng,
+        });
+        self.robots.len() - 1
+    }
+
+    #[must_use]
+    pub fn time_s(&self) -> f64 {
+        self.t_s
+    }
+
+    #[must_use]
+    pub fn robot_count(&self) -> usize {
+        self.robots.len()
+    }
+
+    /// The velocity the robot's drives are asked for (the drives' own acceleration limit applies).
+    pub fn command(&mut self, robot: usize, v_mps: f64, w_radps: f64) {
+        if let Some(r) = self.robots.get_mut(robot) {
+            (r.cmd_v_mps, r.cmd_w_radps) = (finite_or_zero(v_mps), finite_or_zero(w_radps));
+        }
+    }
+
+    /// Advance by `dt_s`: wheel speeds ramp towards the command at the acceleration limit, the ground
+    /// speed differs from the wheel speed by the slip, and the pose follows the exact arc.
+    pub fn step(&mut self, dt_s: f64) {
+        if dt_s.is_nan() || dt_s <= 0.0 {
+            return;
+        }
+        let slip_sigma = self.noise.wheel_slip_sigma;
+        for r in &mut self.robots {
+            let half_b = r.spec.track_width_m / 2.0;
+            let target = [r.cmd_v_mps - r.cmd_w_radps * half_b, r.cmd_v_mps + r.cmd_w_radps * half_b];
+            let dv_max = r.spec.max_accel_mps2 * dt_s;
+            let mut ground = [0.0; 2];
+            for k in 0..2 {
+                let dv = (target[k] - r.wheel_mps[k]).clamp(-dv_max, dv_max);
+                let before = r.wheel_mps[k];
+                r.wheel_mps[k] += dv;
+                let mean = 0.5 * (before + r.wheel_mps[k]);
+                r.wheel_rad[k] += mean * dt_s / r.spec.wheel_radius_m;
+                ground[k] = mean * (1.0 + r.rng.gaussian(slip_sigma));
+            }
+            let v = 0.5 * (ground[0] + ground[1]);
+            let w = (ground[1] - ground[0]) / r.spec.track_width_m;
+            r.pose = r.pose * arc(v * dt_s, w * dt_s);
+            r.twist = (v, w);
+        }
+        self.t_s += dt_s;
+    }
+
+    /// The true pose of a robot.
+    #[must_use]
+    pub fn pose(&self, robot: usize) -> Option<Se2> {
+        self.robots.get(robot).map(|r| r.pose)
+    }
+
+    /// Place a robot (teleport), e.g. for a kidnapping drill.
+    pub fn set_pose(&mut self, robot: usize, pose: Se2) {
+        if let Some(r) = self.robots.get_mut(robot) {
+            r.pose = pose;
+        }
+    }
+
+    /// The true body twist `(v, ω)` over the last step.
+    #[must_use]
+    pub fn twist(&self, robot: usize) -> Option<(f64, f64)> {
+        self.robots.get(robot).map(|r| r.twist)
+    }
+
+    /// Wheel rotations (left, right) as the encoders report them, rad, quantised to the encoder
+    /// resolution.
+    #[must_use]
+    pub fn encoders_rad(&self, robot: usize) -> Option<[f64; 2]> {
+        let r = self.robots.get(robot)?;
+        let cpr = self.noise.encoder_counts_per_wheel_rev;
+        Some(r.wheel_rad.map(|a| {
+            if cpr > 0.0 {
+                (a / std::f64::consts::TAU * cpr).floor() / cpr * std::f64::consts::TAU
+            } else {
+                a
+            }
+        }))
+    }
+
+    /// The gyro's yaw rate: true rate + the robot's bias + white noise.
+    pub fn gyro_radps(&mut self, robot: usize) -> Option<f64> {
+        let sigma = self.noise.gyro_sigma_radps;
+        let r = self.robots.get_mut(robot)?;
+        Some(r.twist.1 + r.gyro_bias_radps + r.rng.gaussian(sigma))
+    }
+
+    /// What robot `robot`'s LiDAR sees now on the beams of `beams`: the map and every other robot's
+    /// body (its own body is below the scan plane), with range noise and dropouts.
+    pub fn scan(&mut self, robot: usize, beams: &Scan) -> Option<Scan> {
+        let ranges = self.ranges(
+            robot,
+            &(0..beams.len()).map(|i| beams.angle(i)).collect::<Vec<_>>(),
+            beams.range_max_m,
+        )?;
+        Some(beams.with_ranges(ranges))
+    }
+
+    /// Ranges along `angles_rad` (robot frame) from robot `robot`'s LiDAR; NaN where nothing returns.
+    pub fn ranges(&mut self, robot: usize, angles_rad: &[f64], range_max_m: f64) -> Option<Vec<f64>> {
+        let lidar = self.robots.get(robot)?.pose * self.robots[robot].spec.lidar_mount;
+        let mut scene: Vec<(Se2, &Polygon)> = self.statics.iter().map(|p| (Se2::IDENTITY, p)).collect();
+        scene.extend(
+            self.robots
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != robot)
+                .map(|(_, r)| (r.pose, &r.spec.chassis)),
+        );
+        let exact: Vec<Option<f64>> = angles_rad
+            .iter()
+            .map(|a| cast_ray([lidar.x, lidar.y], lidar.theta + a, range_max_m, &scene))
+            .collect();
+        let (sigma, drop) = (self.noise.range_sigma_m, self.noise.dropout_probability);
+        let rng = &mut self.robots[robot].rng;
+        Some(
+            exact
+                .into_iter()
+                .map(|r| match r {
+                    Some(r) if !(drop > 0.0 && rng.uniform() < drop) => r + rng.gaussian(sigma),
+                    _ => f64::NAN,
+                })
+                .collect(),
+        )
+    }
+}
+
+fn finite_or_zero(x: f64) -> f64 {
+    if x.is_finite() { x } else { 0.0 }
+}
+
+/// The motion along an arc of length `ds` turning by `dtheta`, in the start frame.
+fn arc(ds: f64, dtheta: f64) -> Se2 {
+    if dtheta.abs() < 1e-9 {
+        return Se2::new(ds * (0.5 * dtheta).cos(), ds * (0.5 * dtheta).sin(), dtheta);
+    }
+    let r = ds / dtheta;
+    Se2::new(r * dtheta.sin(), r * (1.0 - dtheta.cos()), dtheta)
+}
+
+/// A world shared between the simulation loop and the mock devices.
+pub type SharedWorld = Arc<Mutex<World>>;
+
+fn lock(world: &SharedWorld) -> std::sync::MutexGuard<'_, World> {
+    // A panic elsewhere while holding the lock leaves a consistent world (every mutation is
+    // completed before the guard drops), so keep going with it.
+    world.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// Robot `robot`'s LiDAR, for the mock TiM551: the world's state now, whatever time the mock asks
+/// for (the simulation loop owns time).
+#[derive(Debug, Clone)]
+pub struct WorldLidar {
+    pub world: SharedWorld,
+    pub robot: usize,
+}
+
+impl crate::tim551::ScanSource for WorldLidar {
+    fn scan(&self, _elapsed: std::time::Duration, angles_rad: &[f64]) -> crate::tim551::SourceScan {
+        let ranges = lock(&self.world).ranges(self.robot, angles_rad, 10.0).unwrap_or_default();
+        crate::tim551::SourceScan {
+            ranges_m: ranges.iter().map(|r| if r.is_finite() { *r as f32 } else { 0.0 }).collect(),
+            rssi: None,
+        }
+    }
+}
+
+/// Robot `robot`'s IMU, for the mock LPMS-B2.
+#[derive(Debug, Clone)]
+pub struct WorldImu {
+    pub world: SharedWorld,
+    pub robot: usize,
+}
+
+impl crate::lpms::MotionSource for WorldImu {
+    fn motion_at(&mut self, _t_s: f64) -> crate::lpms::Motion {
+        let mut w = lock(&self.world);
+        let yaw_rate = w.gyro_radps(self.robot).unwrap_or(0.0);
+        let yaw = w.pose(self.robot).map_or(0.0, |p| p.theta);
+        crate::lpms::Motion {
+            angular_velocity_radps: [0.0, 0.0, yaw_rate],
+            orientation_wxyz: [(yaw / 2.0).cos(), 0.0, 0.0, (yaw / 2.0).sin()],
+            linear_acc_mps2: [0.0; 3],
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,166 @@
+use super::*;
+use amr_core::map::{MapMode, MapYaml, load_map, rasterize_outlines, save_map};
+
+fn square_robot() -> RobotSpec {
+    RobotSpec {
+        chassis: Polygon::centered_rectangle(0.4, 0.4).unwrap(),
+        wheel_radius_m: 0.065,
+        track_width_m: 0.33,
+        lidar_mount: Se2::new(0.175, 0.0, 0.0),
+        max_accel_mps2: 0.05,
+    }
+}
+
+#[test]
+fn acceleration_is_limited_and_the_pose_follows_the_arc() {
+    let mut w = World::new(paper_site().unwrap(), Noise::NONE, 1);
+    let r = w.add_robot(square_robot(), Se2::new(-3.0, 0.0, 0.0));
+    w.command(r, 0.2, 0.0);
+    // 0.05 m/s² from rest: after 1 s, 0.05 m/s and 2.5 cm travelled (v²/2a). The twist is the mean
+    // over the last 10 ms step: (0.0495 + 0.05)/2.
+    for _ in 0..100 {
+        w.step(0.01);
+    }
+    assert!((w.twist(r).unwrap().0 - 0.04975).abs() < 1e-12, "{:?}", w.twist(r));
+    assert!((w.pose(r).unwrap().x - (-3.0 + 0.025)).abs() < 1e-9, "{:?}", w.pose(r));
+    // Turning on the spot at 0.2 rad/s once the wheels are up to speed: the exact arc keeps x, y.
+    let mut w = World::new(vec![], Noise::NONE, 1);
+    let r = w.add_robot(RobotSpec { max_accel_mps2: 1e9, ..square_robot() }, Se2::IDENTITY);
+    w.command(r, 0.0, 0.2);
+    for _ in 0..500 {
+        w.step(0.01);
+    }
+    // 5 s at 0.2 rad/s less half of the first step: 0.999 rad.
+    let p = w.pose(r).unwrap();
+    assert!(p.x.abs() < 1e-12 && p.y.abs() < 1e-12 && (p.theta - 0.999).abs() < 1e-9, "{p:?}");
+    // A circle: v = 0.1, ω = 0.2 → radius 0.5 m; after π/0.2 s the robot is 1 m to the left.
+    let mut w = World::new(vec![], Noise::NONE, 1);
+    let r = w.add_robot(RobotSpec { max_accel_mps2: 1e9, ..square_robot() }, Se2::IDENTITY);
+    w.command(r, 0.1, 0.2);
+    let steps = (std::f64::consts::PI / 0.2 / 0.001).round() as usize;
+    for _ in 0..steps {
+        w.step(0.001);
+    }
+    let p = w.pose(r).unwrap();
+    assert!(p.x.abs() < 1e-3 && (p.y - 1.0).abs() < 1e-3, "{p:?}");
+}
+
+#[test]
+fn encoders_measure_the_wheels_not_the_ground() {
+    let noise = Noise { wheel_slip_sigma: 0.05, ..Noise::NONE };
+    let mut w = World::new(vec![], noise, 7);
+    let r = w.add_robot(RobotSpec { max_accel_mps2: 1e9, ..square_robot() }, Se2::IDENTITY);
+    w.command(r, 0.2, 0.0);
+    for _ in 0..1000 {
+        w.step(0.01);
+    }
+    // The wheels turned exactly 10 s at 0.2 m/s, less half of the first step (spun up within it):
+    // 1.999 m worth. The ground saw that ± slip.
+    let enc = w.encoders_rad(r).unwrap();
+    assert!((enc[0] * 0.065 - 1.999).abs() < 1e-9 && (enc[1] * 0.065 - 1.999).abs() < 1e-9, "{enc:?}");
+    let p = w.pose(r).unwrap();
+    assert!((p.x - 2.0).abs() > 1e-6, "slip moves the true pose away from the wheel odometry");
+    // Quantised encoders report whole counts.
+    let q = World { noise: Noise { encoder_counts_per_wheel_rev: 1000.0, ..Noise::NONE }, ..w.clone() };
+    let counts = q.encoders_rad(r).unwrap()[0] / std::f64::consts::TAU * 1000.0;
+    assert!((counts - counts.round()).abs() < 1e-6);
+}
+
+#[test]
+fn the_lidar_sees_walls_and_the_other_robot_but_not_itself() {
+    let mut w = World::new(paper_site().unwrap(), Noise::NONE, 3);
+    let a = w.add_robot(square_robot(), Se2::new(0.0, 0.45, 0.0));
+    let b = w.add_robot(square_robot(), Se2::new(0.0, -0.45, 0.0));
+    let beams = tim551_beams();
+    let scan_a = w.scan(a, &beams).unwrap();
+    // Straight right of A's LiDAR (−90°): B's left face, at y = −0.25, i.e. 0.70 m away.
+    let right = scan_a.ranges_m()[45];
+    assert!((right - 0.70).abs() < 1e-9, "{right}");
+    // Straight ahead: the end wall at x = 5, 4.825 m from the LiDAR.
+    assert!((scan_a.ranges_m()[135] - 4.825).abs() < 1e-9);
+    // Without B, the same beam reaches the −y wall at 2.0 m.
+    let mut alone = World::new(paper_site().unwrap(), Noise::NONE, 3);
+    let a2 = alone.add_robot(square_robot(), Se2::new(0.0, 0.45, 0.0));
+    assert!((alone.scan(a2, &beams).unwrap().ranges_m()[45] - 2.0).abs() < 1e-9);
+    let _ = b;
+}
+
+#[test]
+fn noise_and_dropouts_have_their_configured_size() {
+    let noise = Noise { range_sigma_m: 0.01, dropout_probability: 0.1, ..Noise::NONE };
+    let mut w = World::new(paper_site().unwrap(), noise, 5);
+    let a = w.add_robot(square_robot(), Se2::new(0.0, 0.0, 0.0));
+    let beams = tim551_beams();
+    let (mut n, mut dropped, mut sum2) = (0usize, 0usize, 0.0);
+    for _ in 0..40 {
+        let s = w.scan(a, &beams).unwrap();
+        let r = s.ranges_m()[135];
+        n += 1;
+        if r.is_nan() {
+            dropped += 1;
+        } else {
+            sum2 += (r - 4.825).powi(2);
+        }
+    }
+    let sigma = (sum2 / (n - dropped) as f64).sqrt();
+    assert!((0.005..0.02).contains(&sigma), "{sigma}");
+    assert!((1..=12).contains(&dropped), "{dropped} of 40 dropped at p = 0.1");
+}
+
+#[test]
+fn same_seed_same_world() {
+    let run = |seed| {
+        let mut w = World::new(paper_site().unwrap(), Noise::TYPICAL, seed);
+        let a = w.add_robot(square_robot(), Se2::new(-2.0, 0.45, 0.0));
+        let b = w.add_robot(square_robot(), Se2::new(-2.0, -0.45, 0.0));
+        let beams = tim551_beams();
+        let mut out = Vec::new();
+        for k in 0..200 {
+            w.command(a, 0.2, 0.05 * f64::from(k % 7));
+            w.command(b, 0.2, -0.02);
+            w.step(0.02);
+            if k % 10 == 0 {
+                out.extend(w.scan(a, &beams).unwrap().ranges_m().iter().map(|r| r.to_bits()));
+                out.push(w.gyro_radps(b).unwrap().to_bits());
+                out.extend(w.encoders_rad(a).unwrap().map(f64::to_bits));
+            }
+        }
+        out
+    };
+    assert_eq!(run(9), run(9));
+    assert_ne!(run(9), run(10));
+}
+
+#[test]
+fn the_gyro_reads_the_true_yaw_rate_plus_its_bias() {
+    let noise = Noise { gyro_bias_max_radps: 0.01, gyro_sigma_radps: 0.001, ..Noise::NONE };
+    let mut w = World::new(vec![], noise, 2);
+    let r = w.add_robot(RobotSpec { max_accel_mps2: 1e9, ..square_robot() }, Se2::IDENTITY);
+    w.command(r, 0.0, 0.1);
+    // The first step spins up (mean rate 0.05); from the second on the rate is 0.1.
+    w.step(0.01);
+    w.step(0.01);
+    let mean = (0..2000).map(|_| w.gyro_radps(r).unwrap()).sum::<f64>() / 2000.0;
+    let bias = mean - 0.1;
+    assert!(bias.abs() <= 0.01 + 1e-4 && bias.abs() > 1e-5, "bias {bias}");
+}
+
+/// The shipped map is the rendering of [`paper_site`]. Set `AMR_WRITE_MAPS=1` to re-render it after
+/// changing the site (and say why in the map's README).
+#[test]
+fn shipped_paper_site_map_matches_the_site() {
+    let site = paper_site().unwrap();
+    let grid = rasterize_outlines(&site, &site[0], 0.05, Se2::new(-5.25, -1.8, 0.0), 210, 76);
+    let (yaml, image) = save_map(&grid, MapMode::Trinary, 0.65, 0.196, "paper-site.pgm").unwrap();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
+    if std::env::var_os("AMR_WRITE_MAPS").is_some() {
+        std::fs::write(dir.join("paper-site.yaml"), &yaml).unwrap();
+        std::fs::write(dir.join("paper-site.pgm"), &image).unwrap();
+    }
+    let shipped_yaml = std::fs::read_to_string(dir.join("paper-site.yaml")).unwrap();
+    let shipped_image = std::fs::read(dir.join("paper-site.pgm")).unwrap();
+    assert_eq!(shipped_yaml, yaml);
+    assert_eq!(shipped_image, image);
+    let loaded = load_map(&MapYaml::parse(&shipped_yaml).unwrap(), &shipped_image).unwrap();
+    assert_eq!(loaded, grid);
+}
