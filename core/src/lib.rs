@@ -16,8 +16,10 @@
 pub mod amcl;
 pub mod carmen;
 pub mod config;
+pub mod formation;
 pub mod geometry;
 pub mod map;
+pub mod metrics;
 pub mod rng;
 pub mod scan;
 pub mod se2;
