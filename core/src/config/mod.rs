@@ -9,6 +9,7 @@
 //! | `vamr.toml` | [`VamrParams`] | the Virtual-AMR pipeline parameters (paper Table 2) |
 //! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names and defaults) |
 //! | `maps/<name>.yaml` + its image | [`OccupancyGrid`] | a ROS map_server map, checked by loading it |
+//! | `scenarios/<name>.toml` | [`ScenarioConfig`] | an experiment: start, spacing, V's path, on a map |
 //! | `*.md` | — | documentation, ignored |
 //!
 //! Every struct rejects unknown keys. Rules on a single value are checked while the file is
@@ -18,6 +19,7 @@
 
 mod amcl;
 mod robot;
+mod scenario;
 mod server;
 pub mod value;
 mod vamr;
@@ -35,6 +37,7 @@ pub use robot::{
     IMU_BAUD_RATES, IMU_STREAM_RATES_HZ, ImuConfig, ImuDataMode, KinematicsConfig, LidarConfig, LidarDialect,
     LidarStartup, MotionLimits, MountConfig, NodeId, RobotConfig, RobotId, SafetyConfig,
 };
+pub use scenario::{ScenarioConfig, ScenarioLimits, Segment, StartPose};
 pub use server::{Configuration, FormationMember, OnRobotLost, ServerConfig, SyncGates};
 pub use vamr::{ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams};
 
@@ -174,6 +177,8 @@ pub enum FileKind {
     Map,
     /// `maps/<name>.pgm` or `.png`: a map's image, read through its YAML.
     MapImage,
+    /// `scenarios/<name>.toml`.
+    Scenario,
     /// Documentation (`*.md`): skipped.
     Documentation,
 }
@@ -189,6 +194,9 @@ impl FileKind {
             "vamr.toml" => Ok(FileKind::Vamr),
             "amcl.toml" => Ok(FileKind::Amcl),
             p if p.starts_with("robot-") && p.ends_with(".toml") && !p.contains('/') => Ok(FileKind::Robot),
+            p if p.strip_prefix("scenarios/").is_some_and(|n| !n.contains('/') && n.ends_with(".toml")) => {
+                Ok(FileKind::Scenario)
+            }
             p if p.strip_prefix("maps/").is_some_and(|name| !name.contains('/')) => {
                 if p.ends_with(".yaml") {
                     Ok(FileKind::Map)
@@ -200,7 +208,7 @@ impl FileKind {
             }
             _ => Err(
                 "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml, \
-                      maps/<name>.yaml or *.md documentation"
+                      maps/<name>.yaml, scenarios/<name>.toml or *.md documentation"
                     .to_owned(),
             ),
         }
@@ -237,6 +245,8 @@ pub struct Config {
     pub amcl: AmclParams,
     /// Maps by name (`maps/<name>.yaml`).
     pub maps: BTreeMap<String, OccupancyGrid>,
+    /// Scenarios by name (`scenarios/<name>.toml`).
+    pub scenarios: BTreeMap<String, ScenarioConfig>,
 }
 
 impl Config {
@@ -247,6 +257,7 @@ impl Config {
         let mut robots: Vec<(String, RobotConfig)> = Vec::new();
         let (mut server, mut vamr, mut amcl) = (None, None, None);
         let mut maps = BTreeMap::new();
+        let mut scenarios = BTreeMap::new();
         for f in &files {
             let kind = FileKind::of(&f.path).map_err(|rule| ConfigError {
                 file: f.path.clone(),
@@ -262,6 +273,11 @@ impl Config {
                 FileKind::Map => {
                     let (name, grid) = load_map_file(f, &files)?;
                     maps.insert(name, grid);
+                }
+                FileKind::Scenario => {
+                    let scenario = parse_file::<ScenarioConfig>(&f.path, f.text()?)?;
+                    let name = f.path.trim_start_matches("scenarios/").trim_end_matches(".toml").to_owned();
+                    scenarios.insert(name, (f.path.clone(), scenario));
                 }
                 FileKind::Robot => {
                     let text = f.text()?;
@@ -306,7 +322,21 @@ impl Config {
                 });
             }
         }
-        Ok(Config { robots, server, vamr, amcl, maps })
+        let mut checked = BTreeMap::new();
+        for (name, (path, scenario)) in scenarios {
+            if !maps.contains_key(&scenario.map) {
+                let text =
+                    files.iter().find(|f| f.path == path).and_then(|f| f.text().ok()).unwrap_or_default();
+                return Err(ConfigError {
+                    file: path,
+                    line: key_line(text, "map"),
+                    key: "map".to_owned(),
+                    rule: format!("names map `{}`, but there is no maps/{}.yaml", scenario.map, scenario.map),
+                });
+            }
+            checked.insert(name, scenario);
+        }
+        Ok(Config { robots, server, vamr, amcl, maps, scenarios: checked })
     }
 
     /// The robot with this id.
