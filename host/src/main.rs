@@ -2,6 +2,7 @@
 
 mod bench;
 mod config_cmd;
+mod eval_cmd;
 mod localize;
 mod mock_cmd;
 
@@ -65,6 +66,26 @@ enum Command {
     /// Measure the algorithms (medians over repeated runs; nothing is asserted).
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// The paper's experiments in simulation: world + Virtual-AMR pipeline + AMCL in simulated time,
+    /// T1–T4 side by side on identical sensor streams. Writes report.md, report.json and
+    /// trials.json (the raw errors) to OUT/<scenario>/.
+    Eval {
+        /// A scenario of the configuration (config/scenarios/<name>.toml).
+        #[arg(long, default_value = "straight")]
+        scenario: String,
+        /// Number of trials (the paper ran 5); trial k uses seed + k.
+        #[arg(long, default_value_t = 5)]
+        trials: usize,
+        /// Seed of the first trial.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Output directory.
+        #[arg(long, default_value = "out/eval")]
+        out: PathBuf,
+        /// Configuration directory (default: ./config, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Run a mock device standalone, serving its real protocol until Ctrl-C.
     #[command(subcommand)]
     Mock(MockCommand),
@@ -183,6 +204,16 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
+        Command::Eval { scenario, trials, seed, out, config } => (|| {
+            let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+            let dir = eval_cmd::run(&config, &scenario, trials, seed, &out)?;
+            #[allow(clippy::print_stdout, reason = "the command's report")]
+            {
+                print!("{}", std::fs::read_to_string(dir.join("report.md"))?);
+                println!("\nwritten to {}", dir.display());
+            }
+            Ok(())
+        })(),
         Command::Localize { map, log, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let s = localize::run(&localize::Options { map, log, initial, params, out, seed })?;

@@ -1,0 +1,264 @@
+//! The paper's experiments in simulated time (issue 8): the world, the Virtual-AMR pipeline and AMCL,
+//! with T1–T4 run side by side on identical sensor streams.
+//!
+//! The pair follows its plan with the Eq. 20 controller closed on each robot's wheel odometry, never
+//! on the estimates, so every configuration sees exactly the same scans. Per-robot AMCL runs once and
+//! serves T1 (its midpoint is the estimate) and T2/T3 (relative pose sources); T2, T3 and T4 each have
+//! their own pipeline and their own AMCL on the virtual scan. Errors of V's position are taken against
+//! the true V (from the world) and against the paper's reference (its planned path + encoders, here the
+//! odometry midpoint), each labelled.
+
+mod plan;
+
+use std::sync::Arc;
+
+use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
+use amr_core::config::{AmclParams, Configuration, ScenarioConfig, VamrParams};
+use amr_core::formation::{FormationGains, limit_twist, member_command, wheel_odometry_increment};
+use amr_core::geometry::Polygon;
+use amr_core::map::OccupancyGrid;
+use amr_core::metrics::{AxisStats, MeanSd, Sample};
+use amr_core::se2::Se2;
+use amr_core::vamr::frame::{PacketTimes, virtual_frame};
+use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
+use serde::Serialize;
+
+use crate::world::{Noise, RobotSpec, World, tim551_beams};
+pub use plan::{Reference, reference};
+
+/// Everything a run needs besides the seed.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    pub site: Vec<Polygon>,
+    pub map: OccupancyGrid,
+    pub robot: RobotSpec,
+    pub vamr: VamrParams,
+    pub amcl: AmclParams,
+    pub noise: Noise,
+    pub scenario: ScenarioConfig,
+    /// Physics steps per LiDAR scan (the scan rate is `1 / (physics_dt · this)`).
+    pub physics_dt_s: f64,
+    pub steps_per_scan: usize,
+}
+
+/// One configuration's errors over one trial.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Series {
+    /// Against the true pose of V.
+    pub truth: Vec<Sample>,
+    /// Against the paper-style reference (odometry).
+    pub reference: Vec<Sample>,
+    /// Scans for which the configuration produced no estimate (e.g. a failed heading search before
+    /// any success).
+    pub missing: usize,
+}
+
+/// One trial: per configuration (T1–T4, in that order).
+#[derive(Debug, Clone, Serialize)]
+pub struct Trial {
+    pub seed: u64,
+    pub scans: usize,
+    pub series: Vec<(Configuration, Series)>,
+}
+
+const CONFIGS: [Configuration; 4] =
+    [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4];
+
+fn v_of(a: &Se2, b: &Se2) -> Se2 {
+    // Eq. 16 with equal weights, in the map frame.
+    let rel = a.inverse() * *b;
+    *a * virtual_frame(&[(Se2::IDENTITY, 1.0), (rel, 1.0)])
+}
+
+fn error(est: &Se2, truth: &Se2) -> Sample {
+    Sample { e_x: est.x - truth.x, e_y: est.y - truth.y }
+}
+
+/// Run one trial with `seed`.
+#[must_use]
+pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
+    let sc = &setup.scenario;
+    let half = sc.spacing_m.get() / 2.0;
+    let slots = [half, -half];
+    let start_v = sc.start_pose();
+    let mut world = World::new(setup.site.clone(), setup.noise, seed);
+    let robots: Vec<usize> = slots
+        .iter()
+        .map(|y| world.add_robot(setup.robot.clone(), start_v * Se2::new(0.0, *y, 0.0)))
+        .collect();
+    let reference = reference(sc, setup.physics_dt_s);
+    let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, tim551_beams().range_max_m));
+    let mut own: Vec<Amcl> = robots
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let mut f = Amcl::new(
+                setup.amcl.clone(),
+                Arc::clone(&field),
+                seed.wrapping_mul(31).wrapping_add(i as u64),
+            );
+            f.init_pose(world.pose(*r).unwrap_or(start_v), 0.1, 0.05);
+            f
+        })
+        .collect();
+    let mut pipelines: Vec<(Configuration, Pipeline, Amcl)> = CONFIGS[1..]
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let mut f = Amcl::new(
+                setup.amcl.clone(),
+                Arc::clone(&field),
+                seed.wrapping_mul(37).wrapping_add(10 + k as u64),
+            );
+            f.init_pose(start_v, 0.1, 0.05);
+            (*c, Pipeline::new(2, setup.vamr.clone(), *c, 0.05, 0.1), f)
+        })
+        .collect();
+    // Odometry poses in the map frame, starting from the known start poses.
+    let mut odom: Vec<Se2> = robots.iter().map(|r| world.pose(*r).unwrap_or(start_v)).collect();
+    let mut last_enc: Vec<[f64; 2]> =
+        robots.iter().map(|r| world.encoders_rad(*r).unwrap_or([0.0; 2])).collect();
+    let mut last_cmd = vec![(0.0, 0.0); robots.len()];
+    let mut series: Vec<(Configuration, Series)> = CONFIGS.iter().map(|c| (*c, Series::default())).collect();
+    let beams = tim551_beams();
+    let gains = FormationGains::DEFAULT;
+    let lim = &sc.limits;
+    let mut scans = 0;
+    for (step, r) in reference.iter().enumerate() {
+        // Control, closed on odometry.
+        for (i, rid) in robots.iter().enumerate() {
+            let in_v = r.pose.inverse() * odom[i];
+            let cmd = member_command(r.v_mps, r.w_radps, slots[i], &in_v, &gains);
+            let cmd = limit_twist(
+                cmd,
+                last_cmd[i],
+                setup.physics_dt_s,
+                lim.max_speed_mps.get(),
+                lim.max_yaw_rate_radps.get(),
+                lim.max_accel_mps2.get(),
+            );
+            last_cmd[i] = cmd;
+            world.command(*rid, cmd.0, cmd.1);
+        }
+        world.step(setup.physics_dt_s);
+        for (i, rid) in robots.iter().enumerate() {
+            let enc = world.encoders_rad(*rid).unwrap_or(last_enc[i]);
+            let inc = wheel_odometry_increment(
+                enc[0] - last_enc[i][0],
+                enc[1] - last_enc[i][1],
+                setup.robot.wheel_radius_m,
+                setup.robot.track_width_m,
+            );
+            odom[i] = odom[i] * inc;
+            last_enc[i] = enc;
+        }
+        if step % setup.steps_per_scan != 0 {
+            continue;
+        }
+        scans += 1;
+        let t = world.time_s();
+        let scan_list: Vec<_> =
+            robots.iter().map(|rid| world.scan(*rid, &beams).unwrap_or_else(|| beams.clone())).collect();
+        let truth: Vec<Se2> = robots.iter().map(|rid| world.pose(*rid).unwrap_or(start_v)).collect();
+        let v_true = v_of(&truth[0], &truth[1]);
+        let v_ref = v_of(&odom[0], &odom[1]);
+        let mut own_pose = Vec::new();
+        for (i, f) in own.iter_mut().enumerate() {
+            let pts = scan_points(&scan_list[i], &setup.robot.lidar_mount, &setup.amcl);
+            f.update(odom[i], &pts, false);
+            own_pose.push(f.pose_at(&odom[i]));
+        }
+        let mut record = |c: Configuration, est: Option<Se2>| {
+            if let Some(s) = series.iter_mut().find(|(k, _)| *k == c).map(|(_, s)| s) {
+                match est {
+                    Some(e) => {
+                        s.truth.push(error(&e, &v_true));
+                        s.reference.push(error(&e, &v_ref));
+                    }
+                    None => s.missing += 1,
+                }
+            }
+        };
+        record(
+            Configuration::T1,
+            match (own_pose[0], own_pose[1]) {
+                (Some(a), Some(b)) => Some(v_of(&a, &b)),
+                _ => None,
+            },
+        );
+        for (c, pipeline, vamcl) in &mut pipelines {
+            let packets: Vec<RobotPacket<'_>> = scan_list
+                .iter()
+                .zip(&own_pose)
+                .map(|(s, p)| RobotPacket {
+                    scan: s,
+                    times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
+                    lidar_to_base: setup.robot.lidar_mount,
+                    chassis: &setup.robot.chassis,
+                    weight: 1.0,
+                    amcl_pose: *p,
+                })
+                .collect();
+            let est = pipeline.update(&packets).ok().and_then(|u| {
+                let points: Vec<[f64; 2]> = u.virtual_scan.as_ref()?.points.iter().map(|(p, _)| *p).collect();
+                let v_odom = odom[0] * u.v_in_reference;
+                vamcl.update(v_odom, &points, false);
+                vamcl.pose_at(&v_odom)
+            });
+            record(*c, est);
+        }
+    }
+    Trial { seed, scans, series }
+}
+
+/// Pooled and trial-level statistics of one configuration.
+#[derive(Debug, Clone, Serialize)]
+pub struct ConfigSummary {
+    pub configuration: String,
+    pub pooled_truth: Option<AxisStats>,
+    pub pooled_reference: Option<AxisStats>,
+    /// Trial-level 2D RMSE against the truth, mean ± SD over trials.
+    pub trial_rmse_2d: Option<MeanSd>,
+    pub missing: usize,
+    /// The paper's trial-level 2D RMSE, mean and SD (Tables 15–16), when it gives one.
+    pub paper_rmse_2d: Option<(f64, f64)>,
+}
+
+/// The paper's trial-level 2D RMSE (spec §10).
+#[must_use]
+pub fn paper_rmse(scenario: &str, c: Configuration) -> Option<(f64, f64)> {
+    let row = match scenario {
+        "straight" => [(0.2401, 0.0365), (0.1595, 0.0215), (0.1210, 0.0187), (0.0412, 0.0083)],
+        "turning" => [(0.3047, 0.0563), (0.2191, 0.0395), (0.2401, 0.0417), (0.0511, 0.0104)],
+        _ => return None,
+    };
+    Some(row[CONFIGS.iter().position(|k| *k == c)?])
+}
+
+/// Summaries of several trials, T1–T4.
+#[must_use]
+pub fn summarise(scenario: &str, trials: &[Trial]) -> Vec<ConfigSummary> {
+    CONFIGS
+        .iter()
+        .map(|c| {
+            let all: Vec<&Series> =
+                trials.iter().filter_map(|t| t.series.iter().find(|(k, _)| k == c).map(|(_, s)| s)).collect();
+            let pooled = |f: fn(&Series) -> &Vec<Sample>| {
+                AxisStats::of(&all.iter().flat_map(|s| f(s).iter().copied()).collect::<Vec<_>>())
+            };
+            let per_trial: Vec<f64> =
+                all.iter().filter_map(|s| AxisStats::of(&s.truth).map(|a| a.d2.rmse)).collect();
+            ConfigSummary {
+                configuration: format!("{c:?}"),
+                pooled_truth: pooled(|s| &s.truth),
+                pooled_reference: pooled(|s| &s.reference),
+                trial_rmse_2d: MeanSd::of(&per_trial),
+                missing: all.iter().map(|s| s.missing).sum(),
+                paper_rmse_2d: paper_rmse(scenario, *c),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,107 @@
+use super::*;
+use crate::world::paper_site;
+use amr_core::config::{Config, ConfigFile, value::Count};
+
+fn shipped() -> Config {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");
+    let mut files = Vec::new();
+    let mut stack = vec![root.clone()];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let rel = p.strip_prefix(&root).unwrap().to_string_lossy().replace('\\', "/");
+                files.push(ConfigFile { path: rel, bytes: std::fs::read(&p).unwrap() });
+            }
+        }
+    }
+    Config::from_files(files).unwrap()
+}
+
+/// The straight scenario shortened to 0.6 m and back, with few particles so it runs quickly in a
+/// debug build.
+fn short_setup() -> Setup {
+    let config = shipped();
+    let mut scenario = config.scenarios["straight"].clone();
+    scenario.segments = vec![
+        amr_core::config::Segment {
+            straight_m: Some(amr_core::config::value::Finite::new(0.6).unwrap()),
+            turn_deg: None,
+        },
+        amr_core::config::Segment {
+            straight_m: Some(amr_core::config::value::Finite::new(-0.6).unwrap()),
+            turn_deg: None,
+        },
+    ];
+    let mut amcl = config.amcl.clone();
+    amcl.min_particles = Count::new(200).unwrap();
+    amcl.max_particles = Count::new(200).unwrap();
+    Setup {
+        site: paper_site().unwrap(),
+        map: config.maps["paper-site"].clone(),
+        robot: RobotSpec::from_config(&config.robots[0]),
+        vamr: config.vamr.clone(),
+        amcl,
+        noise: Noise::TYPICAL,
+        scenario,
+        physics_dt_s: 1.0 / 150.0,
+        steps_per_scan: 10,
+    }
+}
+
+#[test]
+fn the_reference_respects_the_limits_and_comes_back() {
+    let config = shipped();
+    let sc = &config.scenarios["straight"];
+    let dt = 0.01;
+    let r = reference(sc, dt);
+    let start = sc.start_pose();
+    let end = r.last().unwrap().pose;
+    assert!(end.approx_eq(&start, 1e-3, 1e-9), "back where it started: {end:?}");
+    let far = r.iter().map(|x| x.pose.x - start.x).fold(f64::NEG_INFINITY, f64::max);
+    assert!((far - 4.0).abs() < 0.01, "4 m out: {far}");
+    assert!(r.iter().all(|x| x.v_mps.abs() <= 0.22 + 1e-12));
+    assert!(
+        r.windows(2).all(|w| (w[1].v_mps - w[0].v_mps).abs() <= 0.05 * dt + 1e-12),
+        "acceleration ≤ 0.05 m/s²"
+    );
+}
+
+#[test]
+fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
+    let setup = short_setup();
+    let trial = run_trial(&setup, 1);
+    assert!(trial.scans > 100, "{} scans", trial.scans);
+    assert_eq!(trial.series.iter().map(|(c, _)| *c).collect::<Vec<_>>(), CONFIGS.to_vec());
+    for (c, s) in &trial.series {
+        assert_eq!(s.truth.len() + s.missing, trial.scans, "{c:?}: every scan is a sample or a miss");
+        assert_eq!(s.truth.len(), s.reference.len());
+        // Localisation works in every configuration on this short run (a loose bound: this is not
+        // the paper's comparison, which `amr eval` reports).
+        let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
+        assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
+    }
+    // The summary's statistics are those of the raw errors.
+    let summary = summarise("straight", std::slice::from_ref(&trial));
+    for (sum, (_, s)) in summary.iter().zip(&trial.series) {
+        let raw = AxisStats::of(&s.truth).unwrap();
+        assert_eq!(sum.pooled_truth.unwrap(), raw);
+        assert_eq!(sum.trial_rmse_2d.unwrap().mean, raw.d2.rmse);
+        assert_eq!(sum.trial_rmse_2d.unwrap().n, 1);
+    }
+    assert_eq!(summary[3].paper_rmse_2d, Some((0.0412, 0.0083)));
+}
+
+#[test]
+fn same_seed_same_trial() {
+    let setup = short_setup();
+    let mut shorter = setup.clone();
+    shorter.scenario.segments.truncate(1);
+    let a = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
+    let b = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
+    let c = serde_json::to_string(&run_trial(&shorter, 5)).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+}
