@@ -314,10 +314,22 @@ impl SdoClient {
             return Some(self.fail(addr, AbortCode::BAD_COMMAND));
         }
         if r[0] == 0x80 {
-            // An abort for another object is still the server aborting our transfer.
+            if ObjectAddr::of(&r) != addr && matches!(self.transfer, Transfer::Initiate { .. }) {
+                tracing::debug!(%addr, got = %ObjectAddr::of(&r), "stale SDO abort ignored");
+                return None;
+            }
             self.cancel();
             let code = AbortCode(u32::from_le_bytes([r[4], r[5], r[6], r[7]]));
             return Some(SdoStep::Done { result: Err(SdoFailure::Aborted(code)), abort: None });
+        }
+        // A stale initiate response (to a request abandoned after a timeout or a node reset)
+        // names another object: ignore it and keep waiting for ours.
+        if matches!(self.transfer, Transfer::Initiate { .. })
+            && r[0] & 0xE0 != 0
+            && ObjectAddr::of(&r) != addr
+        {
+            tracing::debug!(%addr, got = %ObjectAddr::of(&r), "stale SDO response ignored");
+            return None;
         }
         self.deadline = Some(now + self.timeout);
         let transfer = std::mem::replace(&mut self.transfer, Transfer::Idle);
@@ -651,6 +663,12 @@ mod tests {
         assert_eq!(step, SdoStep::Send([0x60, 0, 0, 0, 0, 0, 0, 0]));
         let step = c.handle_response(now, &[0x10, 1, 2, 3, 4, 5, 6, 7]).unwrap();
         assert!(matches!(step, SdoStep::Done { result: Err(SdoFailure::Protocol(AbortCode::TOGGLE)), .. }));
+        // A stale response for another object is ignored while an initiate is pending.
+        c.start(now, SdoRequest::Upload(ObjectAddr::new(0x6041, 0)));
+        assert_eq!(c.handle_response(now, &[0x43, 0x00, 0x10, 0, 0x92, 0x01, 0x02, 0]), None);
+        assert_eq!(c.handle_response(now, &[0x80, 0x00, 0x10, 0, 0, 0, 0x04, 0x05]), None);
+        let step = c.handle_response(now, &[0x4B, 0x41, 0x60, 0, 0x37, 0x02, 0, 0]).unwrap();
+        assert_eq!(step, SdoStep::Done { result: Ok(SdoResult::Read(vec![0x37, 0x02])), abort: None });
         // A response with nothing in flight is ignored.
         assert_eq!(c.handle_response(now, &[0x60, 0, 0, 0, 0, 0, 0, 0]), None);
     }
