@@ -141,30 +141,23 @@ enum BenchCommand {
     /// Per-stage times of the Virtual-AMR pipeline (paper Table 4 layout) at 2 × 271 and 2 × 655
     /// points on a synthetic two-robot scene, with the paper-faithful KD-tree heading search as the
     /// baseline measured in the same run. Uses vamr.toml from the configuration.
-    Vamr {
-        /// Print JSON instead of a Markdown table.
-        #[arg(long)]
-        json: bool,
-        /// Fewer repetitions (for a quick look; the medians are noisier).
-        #[arg(long)]
-        quick: bool,
-        /// Configuration directory (default: ./config, else the embedded defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
+    Vamr(BenchOptions),
     /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, and of
     /// resampling + estimate alone. Uses amcl.toml from the configuration.
-    Amcl {
-        /// Print JSON instead of a Markdown table.
-        #[arg(long)]
-        json: bool,
-        /// Fewer repetitions.
-        #[arg(long)]
-        quick: bool,
-        /// Configuration directory (default: ./config, else the embedded defaults).
-        #[arg(long)]
-        config: Option<PathBuf>,
-    },
+    Amcl(BenchOptions),
+}
+
+#[derive(Debug, clap::Args)]
+struct BenchOptions {
+    /// Print JSON instead of a Markdown table.
+    #[arg(long)]
+    json: bool,
+    /// Fewer repetitions (for a quick look; the medians are noisier).
+    #[arg(long)]
+    quick: bool,
+    /// Configuration directory (default: ./config, else the embedded defaults).
+    #[arg(long)]
+    config: Option<PathBuf>,
 }
 
 #[derive(Debug, Subcommand)]
@@ -188,8 +181,12 @@ fn main() -> ExitCode {
 
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
-        Command::Bench(BenchCommand::Vamr { json, quick, config }) => bench_vamr(json, quick, config),
-        Command::Bench(BenchCommand::Amcl { json, quick, config }) => bench_amcl(json, quick, config),
+        Command::Bench(BenchCommand::Vamr(opts)) => {
+            bench(opts, "the Virtual-AMR pipeline", |c, quick| bench::run(&c.vamr, quick), bench::markdown)
+        }
+        Command::Bench(BenchCommand::Amcl(opts)) => {
+            bench(opts, "AMCL", |c, quick| bench::run_amcl(&c.amcl, &c.vamr, quick), bench::amcl_markdown)
+        }
         Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
             mock_cmd::lidar(&listen, points, dialect)
         }
@@ -239,24 +236,17 @@ fn main() -> ExitCode {
     }
 }
 
-fn bench_vamr(json: bool, quick: bool, config: Option<PathBuf>) -> anyhow::Result<()> {
-    let config = amr_actors::config::load(&config_cmd::source_for(config))?;
-    tracing::info!(quick, "benchmarking the Virtual-AMR pipeline");
-    let report = bench::run(&config.vamr, quick)?;
-    let text = if json { serde_json::to_string_pretty(&report)? + "\n" } else { bench::markdown(&report) };
-    #[allow(clippy::print_stdout, reason = "the command's report")]
-    {
-        print!("{text}");
-    }
-    Ok(())
-}
-
-fn bench_amcl(json: bool, quick: bool, config: Option<PathBuf>) -> anyhow::Result<()> {
-    let config = amr_actors::config::load(&config_cmd::source_for(config))?;
-    tracing::info!(quick, "benchmarking AMCL");
-    let report = bench::run_amcl(&config.amcl, &config.vamr, quick)?;
-    let text =
-        if json { serde_json::to_string_pretty(&report)? + "\n" } else { bench::amcl_markdown(&report) };
+/// Load the configuration, run a benchmark and print its report as Markdown or JSON.
+fn bench<R: serde::Serialize>(
+    opts: BenchOptions,
+    what: &str,
+    run: impl FnOnce(&amr_core::config::Config, bool) -> anyhow::Result<R>,
+    markdown: fn(&R) -> String,
+) -> anyhow::Result<()> {
+    let config = amr_actors::config::load(&config_cmd::source_for(opts.config))?;
+    tracing::info!(quick = opts.quick, "benchmarking {what}");
+    let report = run(&config, opts.quick)?;
+    let text = if opts.json { serde_json::to_string_pretty(&report)? + "\n" } else { markdown(&report) };
     #[allow(clippy::print_stdout, reason = "the command's report")]
     {
         print!("{text}");
