@@ -1,0 +1,328 @@
+//! The sans-IO master against a scripted drive in memory (no tokio, time stepped by hand, as
+//! quinn-proto's tests): the exact start-up frames, the verified fault reset failing on a drive
+//! that never leaves Fault, EMCY 0x0000 not an error, the drive heartbeat timeout.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code")]
+
+mod canopen {
+    use std::collections::HashMap;
+    use std::time::{Duration, Instant};
+
+    use amr_drivers::canopen::cia402::{State402, controlword, device_transition};
+    use amr_drivers::canopen::emcy::Emcy;
+    use amr_drivers::canopen::frame::{CanFrame, Cob};
+    use amr_drivers::canopen::master::{
+        CanConfig, CommLossReaction, DriveSetup, Master, MasterConfig, MasterEvent, Phase,
+    };
+    use amr_drivers::canopen::nmt::{NmtCommand, NmtState};
+    use amr_drivers::canopen::pdo;
+    use amr_drivers::canopen::sdo::{AbortCode, ObjectAddr, ObjectDictionary, SdoServer};
+    use amr_drivers::canopen::{CanopenError, DeviceError, LinkError};
+
+    const NODE: u8 = 1;
+
+    #[derive(Default)]
+    struct Od(HashMap<ObjectAddr, Vec<u8>>);
+
+    impl ObjectDictionary for Od {
+        fn read(&mut self, addr: ObjectAddr) -> Result<Vec<u8>, AbortCode> {
+            match (addr.index, addr.sub) {
+                (0x1000, 0) => Ok(0x0002_0192u32.to_le_bytes().to_vec()),
+                (0x6061, 0) => self.0.get(&ObjectAddr::new(0x6060, 0)).cloned().ok_or(AbortCode::NO_OBJECT),
+                _ => self.0.get(&addr).cloned().ok_or(AbortCode::NO_OBJECT),
+            }
+        }
+        fn write(&mut self, addr: ObjectAddr, data: &[u8]) -> Result<(), AbortCode> {
+            self.0.insert(addr, data.to_vec());
+            Ok(())
+        }
+    }
+
+    /// A minimal scripted CiA 402 node: generic OD, SDO server, boot-up on reset, statusword TPDO
+    /// on SYNC, heartbeat every 100 ms unless silenced.
+    struct FakeDrive {
+        od: Od,
+        sdo: SdoServer,
+        state: State402,
+        cw: u16,
+        pending_cw: Option<u16>,
+        operational: bool,
+        /// Ignores the fault reset (a drive whose fault persists).
+        stuck_in_fault: bool,
+        heartbeat: bool,
+        next_heartbeat: Instant,
+    }
+
+    impl FakeDrive {
+        fn new(now: Instant) -> Self {
+            Self {
+                od: Od::default(),
+                sdo: SdoServer::new(),
+                state: State402::SwitchOnDisabled,
+                cw: 0,
+                pending_cw: None,
+                operational: false,
+                stuck_in_fault: false,
+                heartbeat: true,
+                next_heartbeat: now,
+            }
+        }
+
+        fn handle(&mut self, f: &CanFrame, out: &mut Vec<CanFrame>) {
+            match f.cob() {
+                Cob::Nmt => match NmtCommand::decode(f) {
+                    Some((NmtCommand::ResetCommunication | NmtCommand::ResetNode, NODE | 0)) => {
+                        self.operational = false;
+                        out.push(NmtState::BootUp.heartbeat(NODE));
+                    }
+                    Some((NmtCommand::Start, NODE | 0)) => self.operational = true,
+                    Some((NmtCommand::EnterPreOperational, NODE | 0)) => self.operational = false,
+                    _ => {}
+                },
+                Cob::SdoRequest(NODE) => {
+                    if let Some(r) = self.sdo.handle_request(f.data(), &mut self.od) {
+                        out.push(Cob::SdoResponse(NODE).frame(&r));
+                    }
+                }
+                Cob::Rpdo(1, NODE) => {
+                    self.pending_cw = pdo::unpack(&pdo::RPDO1_MAP, f.data()).map(|v| v[0] as u16)
+                }
+                Cob::Sync if self.operational => {
+                    if let Some(cw) = self.pending_cw.take() {
+                        let next = device_transition(self.state, self.cw, cw);
+                        if !(self.stuck_in_fault && self.state == State402::Fault) {
+                            self.state = next;
+                        }
+                        self.cw = cw;
+                    }
+                    let sw = self.state.statusword_bits();
+                    out.push(
+                        Cob::Tpdo(1, NODE).frame(&pdo::pack(&pdo::TPDO1_MAP, &[u64::from(sw), 0]).unwrap()),
+                    );
+                    out.push(Cob::Tpdo(2, NODE).frame(&0i32.to_le_bytes()));
+                }
+                _ => {}
+            }
+        }
+
+        fn tick(&mut self, now: Instant, out: &mut Vec<CanFrame>) {
+            if now >= self.next_heartbeat {
+                self.next_heartbeat = now + Duration::from_millis(100);
+                let st = if self.operational { NmtState::Operational } else { NmtState::PreOperational };
+                if self.heartbeat {
+                    out.push(st.heartbeat(NODE));
+                }
+            }
+        }
+    }
+
+    struct Sim {
+        now: Instant,
+        master: Master,
+        drive: FakeDrive,
+        sent: Vec<CanFrame>,
+        events: Vec<MasterEvent>,
+    }
+
+    impl Sim {
+        fn new() -> Self {
+            let now = Instant::now();
+            let config = MasterConfig {
+                can: CanConfig {
+                    master_node_id: 127,
+                    master_heartbeat_ms: 100,
+                    sync_period_ms: 20,
+                    sdo_timeout_ms: 500,
+                    boot_timeout_ms: 2000,
+                },
+                drives: vec![DriveSetup {
+                    node_id: NODE,
+                    heartbeat_producer_ms: 100,
+                    heartbeat_consumer_ms: 300,
+                    master_consumer_ms: 300,
+                    comm_loss_reaction: CommLossReaction::QuickStop,
+                    profile_acceleration: 1000,
+                    profile_deceleration: 2000,
+                    quick_stop_deceleration: 5000,
+                }],
+                enable_timeout_ms: 1000,
+                mode_confirm_attempts: 3,
+            };
+            Self {
+                now,
+                master: Master::new(config, now),
+                drive: FakeDrive::new(now),
+                sent: vec![],
+                events: vec![],
+            }
+        }
+
+        /// Step time by 1 ms at a time for `ms` milliseconds, exchanging frames at once.
+        fn run(&mut self, ms: u64) {
+            for _ in 0..ms {
+                self.now += Duration::from_millis(1);
+                if self.master.poll_timeout().is_some_and(|t| t <= self.now) {
+                    self.master.handle_timeout(self.now);
+                }
+                let mut to_master = Vec::new();
+                self.drive.tick(self.now, &mut to_master);
+                // Bounded: the fake answers each frame with at most two.
+                for _ in 0..100 {
+                    while let Some(f) = self.master.poll_transmit() {
+                        self.drive.handle(&f, &mut to_master);
+                        self.sent.push(f);
+                    }
+                    if to_master.is_empty() {
+                        break;
+                    }
+                    for f in std::mem::take(&mut to_master) {
+                        self.master.handle_frame(self.now, &f);
+                    }
+                }
+                while let Some(e) = self.master.poll_event() {
+                    self.events.push(e);
+                }
+            }
+        }
+
+        fn sdo_bodies(&self) -> Vec<[u8; 8]> {
+            self.sent
+                .iter()
+                .filter(|f| f.cob() == Cob::SdoRequest(NODE))
+                .map(|f| f.data().try_into().unwrap())
+                .collect()
+        }
+    }
+
+    #[test]
+    fn canopen_master_startup_frames_are_the_golden_ones() {
+        let mut sim = Sim::new();
+        sim.run(200);
+        // Reset communication first, then pre-operational after the boot-up.
+        assert_eq!(sim.sent[0], Cob::Nmt.frame(&[0x82, NODE]));
+        assert!(sim.sent.contains(&Cob::Nmt.frame(&[0x80, NODE])));
+        let sdo = sim.sdo_bodies();
+        let expected: [[u8; 8]; 6] = [
+            [0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0],             // upload 0x1000
+            [0x2B, 0x17, 0x10, 0x00, 0x64, 0x00, 0, 0],       // 0x1017 = 100 ms
+            [0x23, 0x16, 0x10, 0x01, 0x2C, 0x01, 0x7F, 0x00], // 0x1016:01 = 127 << 16 | 300
+            [0x2B, 0x07, 0x60, 0x00, 0x03, 0x00, 0, 0],       // 0x6007 = quick stop
+            [0x23, 0x83, 0x60, 0x00, 0xE8, 0x03, 0, 0],       // 0x6083 = 1000
+            [0x2F, 0x60, 0x60, 0x00, 0x03, 0, 0, 0],          // 0x6060 = 3
+        ];
+        for e in expected {
+            assert!(sdo.contains(&e), "missing {e:02x?}");
+        }
+        // 0x1600:01 = 0x60400010 written while RPDO1 is invalid (bit 31).
+        let map1 = sdo.iter().position(|b| *b == [0x23, 0x00, 0x16, 0x01, 0x10, 0x00, 0x40, 0x60]).unwrap();
+        let invalid =
+            sdo.iter().position(|b| *b == [0x23, 0x00, 0x14, 0x01, 0x01, 0x02, 0x00, 0x80]).unwrap();
+        let valid = sdo.iter().position(|b| *b == [0x23, 0x00, 0x14, 0x01, 0x01, 0x02, 0x00, 0x00]).unwrap();
+        assert!(invalid < map1 && map1 < valid);
+        // Mode confirmed on 0x6061 before NMT start.
+        let confirm = sdo.iter().position(|b| b[..4] == [0x40, 0x61, 0x60, 0x00]).unwrap();
+        assert!(sdo.iter().position(|b| b[..4] == [0x2F, 0x60, 0x60, 0x00]).unwrap() < confirm);
+        assert!(sim.sent.contains(&Cob::Nmt.frame(&[0x01, NODE])));
+        assert!(sim.events.contains(&MasterEvent::Configured { node: NODE, device_type: 0x0002_0192 }));
+        // The master's own heartbeat 0x77F [05].
+        assert!(sim.sent.contains(&Cob::Heartbeat(127).frame(&[0x05])));
+        assert_eq!(sim.master.drive_status(NODE).unwrap().phase, Phase::Operational);
+    }
+
+    #[test]
+    fn canopen_master_fault_reset_is_verified() {
+        let mut sim = Sim::new();
+        sim.master.enable(sim.now);
+        sim.run(500);
+        assert!(sim.events.contains(&MasterEvent::Enabled { node: NODE }));
+        // The drive faults and never clears it.
+        sim.drive.state = State402::Fault;
+        sim.drive.stuck_in_fault = true;
+        sim.master.handle_frame(sim.now, &Emcy { code: 0x3210, register: 0x05, data: [0; 5] }.frame(NODE));
+        sim.run(100);
+        assert!(sim.events.contains(&MasterEvent::Error(CanopenError::Device(DeviceError::Fault {
+            node: NODE,
+            error_code: 0x3210
+        }))));
+        let before = sim.sent.len();
+        sim.master.recover(NODE);
+        sim.run(1200);
+        // Controlwords sent after recover(): a 0 first, then 0x80 (the rising edge) held.
+        let cws: Vec<u16> = sim.sent[before..]
+            .iter()
+            .filter(|f| f.cob() == Cob::Rpdo(1, NODE))
+            .map(|f| u16::from_le_bytes([f.data()[0], f.data()[1]]))
+            .collect();
+        let edge = cws.iter().position(|&c| c == controlword::FAULT_RESET).unwrap();
+        assert!(edge > 0 && cws[edge - 1] == controlword::DISABLE_VOLTAGE, "{cws:x?}");
+        assert!(sim.events.contains(&MasterEvent::Error(CanopenError::Device(
+            DeviceError::FaultResetFailed { node: NODE }
+        ))));
+        assert!(!sim.events.contains(&MasterEvent::Recovered { node: NODE }));
+        // Not stuck any more: a second recover() succeeds and is confirmed.
+        sim.drive.stuck_in_fault = false;
+        sim.master.recover(NODE);
+        sim.run(300);
+        assert!(sim.events.contains(&MasterEvent::Recovered { node: NODE }));
+        assert_eq!(sim.master.drive_status(NODE).unwrap().state, Some(State402::OperationEnabled));
+    }
+
+    #[test]
+    fn canopen_master_emcy_reset_is_not_an_error() {
+        let mut sim = Sim::new();
+        sim.run(200);
+        let n = sim.events.len();
+        sim.master.handle_frame(sim.now, &Cob::Emcy(NODE).frame(&[0; 8]));
+        sim.run(1);
+        assert_eq!(sim.events[n..].iter().filter(|e| matches!(e, MasterEvent::Error(_))).count(), 0);
+        assert!(sim.events[n..].contains(&MasterEvent::EmcyReset { node: NODE }));
+    }
+
+    #[test]
+    fn canopen_master_reports_lost_drive_within_consumer_time_and_sends_zero() {
+        let mut sim = Sim::new();
+        sim.master.enable(sim.now);
+        sim.master.set_targets(&[(NODE, 5000)]);
+        sim.run(500);
+        let last_target = |sim: &Sim| {
+            let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
+            i32::from_le_bytes([f.data()[2], f.data()[3], f.data()[4], f.data()[5]])
+        };
+        assert_eq!(last_target(&sim), 5000);
+        sim.drive.heartbeat = false;
+        let silent_from = sim.now;
+        // Bounded: at most 1000 steps of 1 ms.
+        let mut lost_at = None;
+        let mut lost_index = 0;
+        for _ in 0..1000 {
+            lost_index = sim.sent.len();
+            sim.run(1);
+            if sim.events.iter().any(|e| {
+                *e == MasterEvent::Error(CanopenError::Link(LinkError::HeartbeatLost { node: NODE }))
+            }) {
+                lost_at = Some(sim.now);
+                break;
+            }
+        }
+        // The last heartbeat was at most 100 ms before `silent_from`; consumer time 300 ms.
+        let lost_after = lost_at.unwrap() - silent_from;
+        assert!(lost_after <= Duration::from_millis(300), "{lost_after:?}");
+        // The master resets the drive and reconfigures it; until it is enabled again every RPDO
+        // carries zero velocity.
+        sim.drive.heartbeat = true;
+        sim.run(300);
+        let targets: Vec<(u16, i32)> = sim.sent[lost_index..]
+            .iter()
+            .filter(|f| f.cob() == Cob::Rpdo(1, NODE))
+            .map(|f| {
+                pdo::unpack(&pdo::RPDO1_MAP, f.data()).map(|v| (v[0] as u16, v[1] as u32 as i32)).unwrap()
+            })
+            .collect();
+        let first_enabled = targets.iter().position(|(cw, _)| *cw == controlword::ENABLE_OPERATION).unwrap();
+        assert!(first_enabled > 0, "walked the state machine again: {targets:?}");
+        assert!(targets[..=first_enabled].iter().all(|(_, v)| *v == 0), "{targets:?}");
+        assert_eq!(targets.last().unwrap().1, 5000, "target resumes once enabled: {targets:?}");
+        let reset = sim.sent[lost_index..].iter().find(|f| f.cob() == Cob::Nmt).unwrap();
+        assert_eq!(reset.data(), [0x82, NODE], "reset communication on the loss");
+        assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 2);
+    }
+}
