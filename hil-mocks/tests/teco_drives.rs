@@ -380,4 +380,31 @@ mod teco {
         assert_eq!(rig.drive(LEFT).now().state, State402::OperationEnabled);
         let _ = Phase::Operational;
     }
+
+    #[tokio::test(start_paused = true)]
+    async fn teco_halt_and_quick_stop_then_enable_again() {
+        let mut rig = Rig::new().await;
+        rig.enable_both().await;
+        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.2, 0.0).to_vec())).await;
+        rig.run_for(Duration::from_secs(1)).await;
+        assert!(rig.drive(LEFT).now().velocity_cps > 90_000.0);
+        // Halt: ramps to zero and stays enabled.
+        rig.send(MasterCommand::Halt(true)).await;
+        let s = wait_drive(rig.drive(LEFT), Duration::from_secs(2), |s| s.velocity_cps == 0.0).await;
+        assert_eq!(s.state, State402::OperationEnabled);
+        assert_ne!(s.controlword & 0x0100, 0, "halt bit set");
+        rig.send(MasterCommand::Halt(false)).await;
+        wait_drive(rig.drive(LEFT), Duration::from_secs(2), |s| s.velocity_cps > 90_000.0).await;
+        // Quick stop: both drives into Quick stop active and stopped.
+        rig.send(MasterCommand::QuickStop).await;
+        for d in &rig.drives {
+            let s = wait_drive(d, Duration::from_secs(2), |s| s.state == State402::QuickStopActive).await;
+            assert_eq!(s.controlword, 0x0002);
+            wait_drive(d, Duration::from_secs(2), |s| s.velocity_cps == 0.0).await;
+        }
+        // Enable again: through Switch on disabled back to Operation enabled, then moving.
+        rig.enable_both().await;
+        wait_drive(rig.drive(RIGHT), Duration::from_secs(2), |s| s.velocity_cps < -90_000.0).await;
+        assert!(!rig.log.iter().any(|e| matches!(e, MasterEvent::Error(_))), "{:?}", rig.log);
+    }
 }

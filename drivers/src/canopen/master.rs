@@ -341,8 +341,9 @@ impl Master {
     pub fn enable(&mut self, now: Instant) {
         self.goal = Goal::Enabled;
         let t = ms(self.config.enable_timeout_ms);
+        // Drives still booting or configuring get their deadline when configured.
         for d in &mut self.drives {
-            if d.state != Some(State402::OperationEnabled) {
+            if d.phase == Phase::Operational && d.state != Some(State402::OperationEnabled) {
                 d.enable_deadline = Some(now + t);
             }
         }
@@ -435,6 +436,8 @@ impl Master {
                 self.drives[i].sdo.cancel();
                 self.drives[i].jobs.clear();
                 self.drives[i].current = None;
+                self.drives[i].enable_deadline = None;
+                self.drives[i].recovery = Recovery::Idle;
                 self.error(LinkError::HeartbeatLost { node }.into());
                 // Any drive lost: every target is sent as zero (see `cycle`); ask it to restart.
                 self.reset_drive(i, now);
@@ -627,6 +630,8 @@ impl Master {
     fn reset_drive(&mut self, i: usize, now: Instant) {
         let d = &mut self.drives[i];
         d.phase = Phase::WaitingBoot;
+        d.state = None;
+        d.enable_deadline = None;
         d.boot_deadline = Some(now + ms(self.config.can.boot_timeout_ms));
         self.tx.push_back(NmtCommand::ResetCommunication.frame(d.setup.node_id));
     }
