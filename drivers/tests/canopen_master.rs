@@ -50,6 +50,8 @@ mod canopen {
         stuck_in_fault: bool,
         heartbeat: bool,
         next_heartbeat: Instant,
+        /// SDO replies to swallow (a lossy bus).
+        drop_sdo_replies: u32,
     }
 
     impl FakeDrive {
@@ -64,6 +66,7 @@ mod canopen {
                 stuck_in_fault: false,
                 heartbeat: true,
                 next_heartbeat: now,
+                drop_sdo_replies: 0,
             }
         }
 
@@ -80,7 +83,11 @@ mod canopen {
                 },
                 Cob::SdoRequest(NODE) => {
                     if let Some(r) = self.sdo.handle_request(f.data(), &mut self.od) {
-                        out.push(Cob::SdoResponse(NODE).frame(&r));
+                        if self.drop_sdo_replies > 0 {
+                            self.drop_sdo_replies -= 1;
+                        } else {
+                            out.push(Cob::SdoResponse(NODE).frame(&r));
+                        }
                     }
                 }
                 Cob::Rpdo(1, NODE) => {
@@ -324,5 +331,29 @@ mod canopen {
         let reset = sim.sent[lost_index..].iter().find(|f| f.cob() == Cob::Nmt).unwrap();
         assert_eq!(reset.data(), [0x82, NODE], "reset communication on the loss");
         assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 2);
+    }
+
+    #[test]
+    fn canopen_master_retries_a_lost_sdo_reply_then_resets_after_three() {
+        let mut sim = Sim::new();
+        sim.drive.drop_sdo_replies = 2;
+        sim.run(1500);
+        // Two timeouts (500 ms each) absorbed by retries: configured once, no error.
+        assert!(!sim.events.iter().any(|e| matches!(e, MasterEvent::Error(_))), "{:?}", sim.events);
+        assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 1);
+        let uploads = sim.sdo_bodies().iter().filter(|b| b[..4] == [0x40, 0x00, 0x10, 0x00]).count();
+        assert_eq!(uploads, 3, "0x1000 asked three times");
+        // Three in a row: reported, the drive is reset and configured again.
+        let mut sim = Sim::new();
+        sim.drive.drop_sdo_replies = 3;
+        sim.run(2500);
+        assert!(sim.events.iter().any(|e| matches!(
+            e,
+            MasterEvent::Error(CanopenError::Link(LinkError::SdoTimeout {
+                node: NODE,
+                addr: ObjectAddr { index: 0x1000, sub: 0 }
+            }))
+        )));
+        assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 1);
     }
 }

@@ -16,7 +16,7 @@ mod teco {
     };
     use amr_drivers::canopen::sdo::{AbortCode, ObjectAddr, SdoRequest, SdoResult};
     use amr_drivers::canopen::shell::{MasterCommand, MasterHandle, spawn_master};
-    use amr_drivers::canopen::transport::in_process::InProcessBus;
+    use amr_drivers::canopen::transport::in_process::{BusOptions, InProcessBus};
     use amr_drivers::canopen::{CanopenError, DeviceError, LinkError};
     use hil_mocks::teco_drive::{DriveHandle, DriveSnapshot, Fault, TecoDrive, TecoDriveConfig, spawn_drive};
     use tokio::time::Instant;
@@ -77,7 +77,10 @@ mod teco {
 
     impl Rig {
         async fn new() -> Self {
-            let bus = InProcessBus::default();
+            Self::on(InProcessBus::default()).await
+        }
+
+        async fn on(bus: InProcessBus) -> Self {
             let now = Instant::now().into_std();
             let drives = [LEFT, RIGHT]
                 .iter()
@@ -329,12 +332,23 @@ mod teco {
                 e,
                 MasterEvent::Error(CanopenError::Device(DeviceError::SdoAbort {
                     node: RIGHT,
+                    addr: ObjectAddr { index: 0x6083, sub: 0 },
                     code: AbortCode(0x0800_0022),
-                    ..
                 }))
             )
         })
         .await;
+        let msg = rig
+            .log
+            .iter()
+            .find_map(|e| match e {
+                MasterEvent::Error(e @ CanopenError::Device(DeviceError::SdoAbort { .. })) => {
+                    Some(e.to_string())
+                }
+                _ => None,
+            })
+            .unwrap();
+        assert!(msg.contains("0x6083:00") && msg.contains("because of the present device state"), "{msg}");
         rig.until(Duration::from_secs(3), |e| matches!(e, MasterEvent::Enabled { node: RIGHT })).await;
         // A reply slower than the SDO timeout: a link error for that request; later ones work.
         rig.drive(LEFT).inject(Fault::SlowSdo(Duration::from_millis(800)));
@@ -406,5 +420,30 @@ mod teco {
         rig.enable_both().await;
         wait_drive(rig.drive(RIGHT), Duration::from_secs(2), |s| s.velocity_cps < -90_000.0).await;
         assert!(!rig.log.iter().any(|e| matches!(e, MasterEvent::Error(_))), "{:?}", rig.log);
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn teco_lossy_slow_bus_still_configures_enables_and_drives() {
+        // 3 % of frames lost per receiver and 2 ms latency: lost SDO replies time out and the
+        // master resets and reconfigures; lost PDOs are made up by the next cycle.
+        let bus = InProcessBus::new(BusOptions { latency: Duration::from_millis(2), loss: 0.03, seed: 42 });
+        let mut rig = Rig::on(bus).await;
+        rig.send(MasterCommand::Enable).await;
+        let mut enabled = [false; 2];
+        rig.until(Duration::from_secs(30), |e| {
+            if let MasterEvent::Enabled { node } = e {
+                enabled[usize::from(*node - 1)] = true;
+            }
+            enabled == [true, true]
+        })
+        .await;
+        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.1, 0.0).to_vec())).await;
+        for d in &rig.drives {
+            wait_drive(d, Duration::from_secs(5), |s| s.velocity_cps.abs() > 45_000.0).await;
+        }
+        for n in [LEFT, RIGHT] {
+            let s = rig.drive(n).now();
+            assert_eq!((s.enables_unconfigured, s.mode_display), (0, 3));
+        }
     }
 }

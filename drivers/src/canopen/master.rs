@@ -19,6 +19,9 @@ use super::pdo::{
 };
 use super::sdo::{ObjectAddr, SdoClient, SdoFailure, SdoRequest, SdoResult, SdoStep};
 
+/// Retries of a configuration SDO request after a timeout, before the drive is reset.
+const SDO_RETRIES: u32 = 2;
+
 /// Profile velocity mode (0x6060 value 3, python-canopen `OperationMode`).
 pub const MODE_PROFILE_VELOCITY: i8 = 3;
 
@@ -233,7 +236,9 @@ struct Drive {
     phase: Phase,
     sdo: SdoClient,
     jobs: VecDeque<Job>,
-    current: Option<JobKind>,
+    current: Option<(JobKind, SdoRequest)>,
+    /// Timeouts of the configuration request in flight so far.
+    retries: u32,
     consumer: HeartbeatConsumer,
     boot_deadline: Option<Instant>,
     state: Option<State402>,
@@ -281,6 +286,7 @@ impl Master {
                 sdo: SdoClient::new(s.node_id, sdo_timeout),
                 jobs: VecDeque::new(),
                 current: None,
+                retries: 0,
                 consumer: HeartbeatConsumer::new(ms(s.heartbeat_consumer_ms)),
                 boot_deadline: None,
                 state: None,
@@ -654,8 +660,10 @@ impl Master {
         d.recovery = Recovery::Idle;
         d.enable_deadline = None;
         d.mode_reads = 0;
+        d.retries = 0;
+        // Monitoring starts with the first heartbeat (CiA 301), which the drive sends only once
+        // 0x1017 is written; a drive dying during configuration shows as SDO timeouts.
         d.consumer.reset(ms(d.setup.heartbeat_consumer_ms));
-        d.consumer.received(now);
         self.pump(i, now);
     }
 
@@ -714,9 +722,9 @@ impl Master {
                 }
                 Job::Sdo(req, kind) => {
                     let d = &mut self.drives[i];
-                    let body = d.sdo.start(now, req);
+                    let body = d.sdo.start(now, req.clone());
                     let frame = d.sdo.frame(body);
-                    d.current = Some(kind);
+                    d.current = Some((kind, req));
                     self.tx.push_back(frame);
                 }
             }
@@ -737,12 +745,21 @@ impl Master {
             let f = self.drives[i].sdo.frame(body);
             self.tx.push_back(f);
         }
-        let Some(kind) = self.drives[i].current.take() else { return };
-        let addr = match &kind {
-            JobKind::DeviceType => ObjectAddr::new(0x1000, 0),
-            JobKind::ConfirmMode => ObjectAddr::new(0x6061, 0),
-            _ => ObjectAddr::new(0, 0),
-        };
+        let Some((kind, req)) = self.drives[i].current.take() else { return };
+        let addr = req.addr();
+        let retry = matches!(kind, JobKind::Config | JobKind::DeviceType | JobKind::ConfirmMode)
+            && result == Err(SdoFailure::Timeout)
+            && self.drives[i].retries < SDO_RETRIES;
+        if retry {
+            // A lost frame costs one timeout, not a whole reconfiguration.
+            tracing::debug!(node, %addr, "SDO timeout during configuration; retrying");
+            let d = &mut self.drives[i];
+            d.retries += 1;
+            d.jobs.push_front(Job::Sdo(req, kind));
+            self.pump(i, now);
+            return;
+        }
+        self.drives[i].retries = 0;
         let to_error = |addr: ObjectAddr, f: SdoFailure| -> CanopenError {
             match f {
                 SdoFailure::Aborted(code) => DeviceError::SdoAbort { node, addr, code }.into(),
