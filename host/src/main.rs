@@ -85,6 +85,10 @@ enum Command {
         /// Configuration directory (default: ./config, else the embedded defaults).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Instead of T1–T4: the sensitivity study of ε_d (Table 6) or Δθ (Table 7) for T4,
+        /// written to OUT/<scenario>/sweep-<eps|step>.{md,json}.
+        #[arg(long, value_enum)]
+        sweep: Option<eval_cmd::Sweep>,
     },
     /// Run a mock device standalone, serving its real protocol until Ctrl-C.
     #[command(subcommand)]
@@ -201,13 +205,16 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
-        Command::Eval { scenario, trials, seed, out, config } => (|| {
+        Command::Eval { scenario, trials, seed, out, config, sweep } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
-            let dir = eval_cmd::run(&config, &scenario, trials, seed, &out)?;
+            let report = match sweep {
+                Some(which) => eval_cmd::sweep(&config, &scenario, which, trials, seed, &out)?,
+                None => eval_cmd::run(&config, &scenario, trials, seed, &out)?.join("report.md"),
+            };
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {
-                print!("{}", std::fs::read_to_string(dir.join("report.md"))?);
-                println!("\nwritten to {}", dir.display());
+                print!("{}", std::fs::read_to_string(&report)?);
+                println!("\nwritten to {}", report.display());
             }
             Ok(())
         })(),

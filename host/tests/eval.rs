@@ -83,3 +83,32 @@ fn a_short_evaluation_is_consistent_and_reproducible() {
         assert!((mean - reported).abs() < 1e-12, "{}: {mean} vs {reported}", summary["configuration"]);
     }
 }
+
+#[test]
+fn the_sensitivity_study_reports_every_setting_beside_the_paper() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = tmp.path().join("config");
+    short_config(&config);
+    let run = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(["eval", "--scenario", "straight", "--sweep", "step", "--trials", "1", "--config"])
+        .arg(&config)
+        .arg("--out")
+        .arg(tmp.path().join("out"))
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let rows: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("out/straight/sweep-step.json")).unwrap())
+            .unwrap();
+    let rows = rows.as_array().unwrap();
+    let settings: Vec<&str> = rows.iter().map(|r| r["setting"].as_str().unwrap()).collect();
+    assert_eq!(settings, ["0.05", "0.1", "0.2", "0.5", "1"]);
+    for r in rows {
+        let f = r["failure_rate_pct"].as_f64().unwrap();
+        assert!((0.0..=100.0).contains(&f), "{r}");
+        assert!(r["pipeline_ms"].as_f64().unwrap() > 0.0);
+    }
+    // Table 7's row for the nominal 0.1°: 2.0 %, 3.5 cm, 0.16°, 150 ms.
+    assert_eq!(rows[1]["paper"], serde_json::json!([2.0, 3.5, 0.16, 150.0]));
+}

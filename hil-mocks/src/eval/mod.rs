@@ -51,6 +51,16 @@ pub struct Series {
     /// Scans for which the configuration produced no estimate (e.g. a failed heading search before
     /// any success).
     pub missing: usize,
+    /// Pipeline updates (T2–T4) and, of those, the ones whose heading search failed (the paper's
+    /// failure rate, Tables 6–7).
+    pub updates: usize,
+    pub heading_failures: usize,
+    /// Error of the relative heading used for fusion (T2–T4), radians.
+    pub heading_errors_rad: Vec<f64>,
+    /// Wall-clock time spent in the pipeline (T2–T4), seconds. Not serialised: it differs from run
+    /// to run, the rest does not.
+    #[serde(skip)]
+    pub pipeline_s: f64,
 }
 
 /// One trial: per configuration (T1–T4, in that order).
@@ -72,6 +82,25 @@ fn v_of(a: &Se2, b: &Se2) -> Se2 {
 
 fn error(est: &Se2, truth: &Se2) -> Sample {
     Sample { e_x: est.x - truth.x, e_y: est.y - truth.y }
+}
+
+/// One scan's result for configuration `c`: the errors of its estimate, or a miss.
+fn record(
+    series: &mut [(Configuration, Series)],
+    c: Configuration,
+    est: Option<Se2>,
+    v_true: &Se2,
+    v_ref: &Se2,
+) {
+    if let Some(s) = series.iter_mut().find(|(k, _)| *k == c).map(|(_, s)| s) {
+        match est {
+            Some(e) => {
+                s.truth.push(error(&e, v_true));
+                s.reference.push(error(&e, v_ref));
+            }
+            None => s.missing += 1,
+        }
+    }
 }
 
 /// Run one trial with `seed`.
@@ -168,24 +197,12 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
             f.update(odom[i], &pts, false);
             own_pose.push(f.pose_at(&odom[i]));
         }
-        let mut record = |c: Configuration, est: Option<Se2>| {
-            if let Some(s) = series.iter_mut().find(|(k, _)| *k == c).map(|(_, s)| s) {
-                match est {
-                    Some(e) => {
-                        s.truth.push(error(&e, &v_true));
-                        s.reference.push(error(&e, &v_ref));
-                    }
-                    None => s.missing += 1,
-                }
-            }
+        let t1 = match (own_pose[0], own_pose[1]) {
+            (Some(a), Some(b)) => Some(v_of(&a, &b)),
+            _ => None,
         };
-        record(
-            Configuration::T1,
-            match (own_pose[0], own_pose[1]) {
-                (Some(a), Some(b)) => Some(v_of(&a, &b)),
-                _ => None,
-            },
-        );
+        record(&mut series, Configuration::T1, t1, &v_true, &v_ref);
+        let true_heading = (truth[0].inverse() * truth[1]).theta;
         for (c, pipeline, vamcl) in &mut pipelines {
             let packets: Vec<RobotPacket<'_>> = scan_list
                 .iter()
@@ -199,13 +216,33 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
                     amcl_pose: *p,
                 })
                 .collect();
-            let est = pipeline.update(&packets).ok().and_then(|u| {
+            let started = std::time::Instant::now();
+            let result = pipeline.update(&packets);
+            let elapsed = started.elapsed().as_secs_f64();
+            if let Some(s) = series.iter_mut().find(|(k, _)| k == c).map(|(_, s)| s) {
+                s.updates += 1;
+                s.pipeline_s += elapsed;
+                match &result {
+                    Ok(u) => {
+                        let failed = u.pairs.first().is_some_and(|p| {
+                            p.heading_source == amr_core::vamr::pipeline::Source::PreviousHeading
+                        });
+                        s.heading_failures += usize::from(failed);
+                        if let Some(rel) = u.relative.get(1) {
+                            s.heading_errors_rad.push(amr_core::se2::angle_diff(rel.theta, true_heading));
+                        }
+                    }
+                    Err(amr_core::vamr::pipeline::UpdateError::NoHeading { .. }) => s.heading_failures += 1,
+                    Err(_) => {}
+                }
+            }
+            let est = result.ok().and_then(|u| {
                 let points: Vec<[f64; 2]> = u.virtual_scan.as_ref()?.points.iter().map(|(p, _)| *p).collect();
                 let v_odom = odom[0] * u.v_in_reference;
                 vamcl.update(v_odom, &points, false);
                 vamcl.pose_at(&v_odom)
             });
-            record(*c, est);
+            record(&mut series, *c, est, &v_true, &v_ref);
         }
     }
     Trial { seed, scans, series }
