@@ -11,12 +11,14 @@ mod teco {
     use amr_drivers::canopen::diff_drive::{
         DiffDrive, DrivesConfig, Geometry, WheelDriveConfig, WheelOdometry,
     };
+    use amr_drivers::canopen::frame::Cob;
     use amr_drivers::canopen::master::{
         CanConfig, CommLossReaction, Master, MasterConfig, MasterEvent, Phase,
     };
+    use amr_drivers::canopen::pdo;
     use amr_drivers::canopen::sdo::{AbortCode, ObjectAddr, SdoRequest, SdoResult};
     use amr_drivers::canopen::shell::{MasterCommand, MasterHandle, spawn_master};
-    use amr_drivers::canopen::transport::in_process::{BusOptions, InProcessBus};
+    use amr_drivers::canopen::transport::in_process::{BusOptions, BusPort, InProcessBus};
     use amr_drivers::canopen::{CanopenError, DeviceError, LinkError};
     use hil_mocks::teco_drive::{DriveHandle, DriveSnapshot, Fault, TecoDrive, TecoDriveConfig, spawn_drive};
     use tokio::time::Instant;
@@ -73,6 +75,8 @@ mod teco {
         master: MasterHandle,
         odo: WheelOdometry,
         log: Vec<MasterEvent>,
+        /// Hears every frame on the bus.
+        sniffer: BusPort,
     }
 
     impl Rig {
@@ -88,7 +92,8 @@ mod teco {
                 .collect();
             let dd = diff_drive();
             let master = spawn_master(Master::new(master_config(&dd), now), bus.port());
-            Self { dd, drives, master, odo: WheelOdometry::new(), log: Vec::new() }
+            let sniffer = bus.port();
+            Self { dd, drives, master, odo: WheelOdometry::new(), log: Vec::new(), sniffer }
         }
 
         fn drive(&self, node: u8) -> &DriveHandle {
@@ -175,8 +180,34 @@ mod teco {
         // Straight at 0.2 m/s for 2 s and stop; turn on the spot at 0.5 rad/s for 2 s and stop.
         // Ramps at 0.5 m/s² lose at the start what they add at the stop.
         let zero = rig.dd.wheel_targets(0.0, 0.0).to_vec();
-        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.2, 0.0).to_vec())).await;
+        let targets = rig.dd.wheel_targets(0.2, 0.0);
+        while rig.sniffer.try_recv().is_some() {}
+        rig.send(MasterCommand::SetTargets(targets.to_vec())).await;
         rig.run_for(Duration::from_secs(2)).await;
+        // Every SYNC follows exactly one RPDO1 per wheel, so both targets apply at the same SYNC.
+        let mut since_sync = Vec::new();
+        let mut syncs = 0;
+        while let Some(f) = rig.sniffer.try_recv() {
+            match f.cob() {
+                Cob::Sync => {
+                    since_sync.sort_unstable();
+                    if syncs > 0 {
+                        let expected =
+                            if syncs > 1 { vec![targets[0], targets[1]] } else { since_sync.clone() };
+                        assert_eq!(since_sync, expected, "RPDOs before SYNC {syncs}");
+                    }
+                    assert_eq!(since_sync.len(), 2, "one RPDO1 per wheel before SYNC {syncs}");
+                    since_sync.clear();
+                    syncs += 1;
+                }
+                Cob::Rpdo(1, node) => {
+                    let v = pdo::unpack(&pdo::RPDO1_MAP, f.data()).unwrap();
+                    since_sync.push((node, v[1] as u32 as i32));
+                }
+                _ => {}
+            }
+        }
+        assert!((95..=101).contains(&syncs), "{syncs} SYNCs in 2 s at 20 ms");
         rig.send(MasterCommand::SetTargets(zero.clone())).await;
         rig.run_for(Duration::from_secs(1)).await;
         let mid = rig.odo.pose();
