@@ -12,9 +12,7 @@ mod teco {
         DiffDrive, DrivesConfig, Geometry, WheelDriveConfig, WheelOdometry,
     };
     use amr_drivers::canopen::frame::Cob;
-    use amr_drivers::canopen::master::{
-        CanConfig, CommLossReaction, Master, MasterConfig, MasterEvent, Phase,
-    };
+    use amr_drivers::canopen::master::{CanConfig, CommLossReaction, Master, MasterConfig, MasterEvent};
     use amr_drivers::canopen::pdo;
     use amr_drivers::canopen::sdo::{AbortCode, ObjectAddr, SdoRequest, SdoResult};
     use amr_drivers::canopen::shell::{MasterCommand, MasterHandle, spawn_master};
@@ -423,7 +421,6 @@ mod teco {
         .await;
         rig.until(Duration::from_secs(8), |e| matches!(e, MasterEvent::Enabled { node: LEFT })).await;
         assert_eq!(rig.drive(LEFT).now().state, State402::OperationEnabled);
-        let _ = Phase::Operational;
     }
 
     #[tokio::test(start_paused = true)]

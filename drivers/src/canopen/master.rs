@@ -117,10 +117,9 @@ pub enum Phase {
     WaitingBoot,
     /// Being configured by SDO (PRE-OPERATIONAL).
     Configuring,
-    /// Configured and started: PDOs flow.
+    /// Configured and started: PDOs flow. (A drive whose heartbeat stops is reported and reset,
+    /// so it goes back to `WaitingBoot`.)
     Operational,
-    /// Its heartbeat stopped.
-    Lost,
 }
 
 /// A snapshot of one drive.
@@ -438,7 +437,6 @@ impl Master {
             let node = self.drives[i].setup.node_id;
             if self.drives[i].consumer.check(now) {
                 tracing::warn!(node, "drive heartbeat lost");
-                self.drives[i].phase = Phase::Lost;
                 self.drives[i].sdo.cancel();
                 self.drives[i].jobs.clear();
                 self.drives[i].current = None;

@@ -105,8 +105,10 @@ pub fn remap_requests(
         SdoRequest::Download(ObjectAddr::new(comm, 2), vec![transmission_type]),
         SdoRequest::Download(ObjectAddr::new(map, 0), vec![0]),
     ];
-    for (i, e) in entries.iter().enumerate() {
-        reqs.push(SdoRequest::Download(ObjectAddr::new(map, i as u8 + 1), e.raw().to_le_bytes().to_vec()));
+    // A PDO holds at most 8 entries (sub-indices 1..=8).
+    let entries = &entries[..entries.len().min(8)];
+    for (sub, e) in (1u8..).zip(entries) {
+        reqs.push(SdoRequest::Download(ObjectAddr::new(map, sub), e.raw().to_le_bytes().to_vec()));
     }
     reqs.push(SdoRequest::Download(ObjectAddr::new(map, 0), vec![entries.len() as u8]));
     reqs.push(SdoRequest::Download(ObjectAddr::new(comm, 1), cob.to_le_bytes().to_vec()));
