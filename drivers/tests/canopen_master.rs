@@ -288,8 +288,10 @@ mod canopen {
     fn canopen_master_reports_lost_drive_within_consumer_time_and_sends_zero() {
         let mut sim = Sim::new();
         sim.master.enable(sim.now);
-        sim.master.set_targets(&[(NODE, 5000)]);
         sim.run(500);
+        // Targets are set once enabled (a boot-up clears them).
+        sim.master.set_targets(&[(NODE, 5000)]);
+        sim.run(40);
         let last_target = |sim: &Sim| {
             let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
             i32::from_le_bytes([f.data()[2], f.data()[3], f.data()[4], f.data()[5]])
@@ -313,8 +315,7 @@ mod canopen {
         // The last heartbeat was at most 100 ms before `silent_from`; consumer time 300 ms.
         let lost_after = lost_at.unwrap() - silent_from;
         assert!(lost_after <= Duration::from_millis(300), "{lost_after:?}");
-        // The master resets the drive and reconfigures it; until it is enabled again every RPDO
-        // carries zero velocity.
+        // The master resets the drive and reconfigures it; every RPDO carries zero velocity.
         sim.drive.heartbeat = true;
         sim.run(300);
         let targets: Vec<(u16, i32)> = sim.sent[lost_index..]
@@ -326,8 +327,12 @@ mod canopen {
             .collect();
         let first_enabled = targets.iter().position(|(cw, _)| *cw == controlword::ENABLE_OPERATION).unwrap();
         assert!(first_enabled > 0, "walked the state machine again: {targets:?}");
-        assert!(targets[..=first_enabled].iter().all(|(_, v)| *v == 0), "{targets:?}");
-        assert_eq!(targets.last().unwrap().1, 5000, "target resumes once enabled: {targets:?}");
+        assert!(targets.iter().all(|(_, v)| *v == 0), "the loss cleared the target: {targets:?}");
+        assert_eq!(sim.master.drive_status(NODE).unwrap().target_velocity, 0);
+        sim.master.set_targets(&[(NODE, 4000)]);
+        sim.run(40);
+        let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
+        assert_eq!(pdo::unpack(&pdo::RPDO1_MAP, f.data()).unwrap()[1], 4000, "a fresh command moves again");
         let reset = sim.sent[lost_index..].iter().find(|f| f.cob() == Cob::Nmt).unwrap();
         assert_eq!(reset.data(), [0x82, NODE], "reset communication on the loss");
         assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 2);

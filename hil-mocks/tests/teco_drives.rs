@@ -276,7 +276,10 @@ mod teco {
             .collect();
         assert_eq!(order, ["sod", "recovered", "enabled"]);
         assert!(seen.iter().any(|e| matches!(e, MasterEvent::EmcyReset { node: LEFT })), "EMCY 0x0000 sent");
-        // Both wheels move again with the held targets.
+        // The fault cleared every target: nothing moves until a fresh command.
+        rig.run_for(Duration::from_millis(200)).await;
+        assert!(rig.drives.iter().all(|d| d.now().target_velocity == 0));
+        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.1, 0.0).to_vec())).await;
         wait_drive(rig.drive(RIGHT), Duration::from_secs(1), |s| s.target_velocity != 0).await;
     }
 

@@ -377,7 +377,9 @@ impl Master {
         self.halt = halt;
     }
 
-    /// Target velocities in drive units; they go out together in the next cycle, before one SYNC.
+    /// Target velocities in drive units; they go out together in the next cycle, before one SYNC,
+    /// while every drive is enabled. A fault, a lost heartbeat or a boot-up of any drive sets every
+    /// target to zero: motion needs a fresh command afterwards.
     pub fn set_targets(&mut self, targets: &[(NodeId, i32)]) {
         for (node, v) in targets {
             if let Some(d) = self.drives.iter_mut().find(|d| d.setup.node_id == *node) {
@@ -443,6 +445,7 @@ impl Master {
                 self.drives[i].enable_deadline = None;
                 self.drives[i].recovery = Recovery::Idle;
                 self.error(LinkError::HeartbeatLost { node }.into());
+                self.zero_targets();
                 // Any drive lost: every target is sent as zero (see `cycle`); ask it to restart.
                 self.reset_drive(i, now);
             }
@@ -476,6 +479,12 @@ impl Master {
     }
 
     /// Whether every drive is operational, enabled and not lost: only then are targets sent.
+    fn zero_targets(&mut self) {
+        for d in &mut self.drives {
+            d.target = 0;
+        }
+    }
+
     fn all_enabled(&self) -> bool {
         self.drives
             .iter()
@@ -602,6 +611,7 @@ impl Master {
         if new == State402::Fault {
             let error_code = d.last_emcy_code;
             self.error(DeviceError::Fault { node, error_code }.into());
+            self.zero_targets();
             return;
         }
         if new.is_fault() {
@@ -645,6 +655,7 @@ impl Master {
         let node = self.drives[i].setup.node_id;
         tracing::info!(node, "boot-up: configuring");
         self.events.push_back(MasterEvent::BootUp { node });
+        self.zero_targets();
         let jobs = self.config_jobs(i);
         let d = &mut self.drives[i];
         d.sdo.cancel();
