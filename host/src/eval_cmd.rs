@@ -14,13 +14,14 @@ use serde::Serialize;
 #[derive(Debug, Serialize)]
 struct Report<'a> {
     scenario: &'a str,
+    robots: usize,
     trials: usize,
     seed: u64,
     scans_per_trial: Vec<usize>,
     summary: &'a [ConfigSummary],
 }
 
-pub(crate) fn setup(config: &Config, scenario: &str) -> anyhow::Result<Setup> {
+pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::Result<Setup> {
     let sc = config.scenarios.get(scenario).with_context(|| {
         format!("no scenario `{scenario}` (have: {:?})", config.scenarios.keys().collect::<Vec<_>>())
     })?;
@@ -30,8 +31,26 @@ pub(crate) fn setup(config: &Config, scenario: &str) -> anyhow::Result<Setup> {
         sc.map
     );
     let robot = config.robots.first().context("the configuration has no robot")?;
+    anyhow::ensure!(robots >= 2, "a formation needs at least 2 robots, not {robots}");
+    let site = paper_site()?;
+    // The world does not model collisions: refuse a formation whose path leaves the site.
+    let body = RobotSpec::from_config(robot).chassis;
+    let (x0, y0, x1, y1) = body.bounds();
+    let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
+    for r in hil_mocks::eval::reference(sc, 0.1) {
+        for y in hil_mocks::eval::slots(robots, sc.spacing_m.get()) {
+            let c = (r.pose * amr_core::se2::Se2::new(0.0, y, 0.0)).transform_point([0.0, 0.0]);
+            let inside = site[0].contains(c) && site.iter().all(|p| p.distance_to_boundary(c) > reach);
+            anyhow::ensure!(
+                inside,
+                "with {robots} robots the scenario `{scenario}` drives a robot into a wall near ({:.2}, {:.2})",
+                c[0],
+                c[1]
+            );
+        }
+    }
     Ok(Setup {
-        site: paper_site()?,
+        site,
         map: config.maps.get(&sc.map).with_context(|| format!("no map `{}`", sc.map))?.clone(),
         robot: RobotSpec::from_config(robot),
         vamr: config.vamr.clone(),
@@ -40,6 +59,7 @@ pub(crate) fn setup(config: &Config, scenario: &str) -> anyhow::Result<Setup> {
         scenario: sc.clone(),
         physics_dt_s: 1.0 / 150.0,
         steps_per_scan: 10,
+        robots,
     })
 }
 
@@ -67,9 +87,10 @@ fn table(
 
 fn markdown(report: &Report<'_>) -> String {
     let mut out = format!(
-        "# amr eval: {} ({} trials, seed {})\n\nSimulated: the paper's site, TiM551 model with {} m range noise, wheel slip and gyro bias \
+        "# amr eval: {} ({} robots, {} trials, seed {})\n\nSimulated: the paper's site, TiM551 model with {} m range noise, wheel slip and gyro bias \
          (hil_mocks::world::Noise::TYPICAL). Errors are of the virtual robot V's position in metres.\n",
         report.scenario,
+        report.robots,
         report.trials,
         report.seed,
         Noise::TYPICAL.range_sigma_m
@@ -101,11 +122,12 @@ fn markdown(report: &Report<'_>) -> String {
 pub(crate) fn run(
     config: &Config,
     scenario: &str,
+    robots: usize,
     trials: usize,
     seed: u64,
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
-    let setup = setup(config, scenario)?;
+    let setup = setup(config, scenario, robots)?;
     let mut results: Vec<Trial> = Vec::with_capacity(trials);
     for k in 0..trials {
         let trial_seed = seed.wrapping_add(k as u64);
@@ -115,12 +137,17 @@ pub(crate) fn run(
     let summary = summarise(scenario, &results);
     let report = Report {
         scenario,
+        robots,
         trials,
         seed,
         scans_per_trial: results.iter().map(|t| t.scans).collect(),
         summary: &summary,
     };
-    let dir = out_dir.join(scenario);
+    let dir = if robots == 2 {
+        out_dir.join(scenario)
+    } else {
+        out_dir.join(format!("{scenario}-{robots}-robots"))
+    };
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(&report)? + "\n")?;
     std::fs::write(dir.join("trials.json"), serde_json::to_string(&results)? + "\n")?;
@@ -162,7 +189,7 @@ pub(crate) fn sweep(
     seed: u64,
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
-    let base = setup(config, scenario)?;
+    let base = setup(config, scenario, 2)?;
     let (label, settings, paper): (&str, Vec<f64>, Vec<[f64; 4]>) = match which {
         // Table 6 (ε_d in mm) and Table 7 (Δθ in degrees) of the paper.
         Sweep::Eps => (

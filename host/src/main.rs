@@ -85,6 +85,10 @@ enum Command {
         /// Configuration directory (default: ./config, else the embedded defaults).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Robots in the formation (the paper: 2; with 3 they drive in a line, the reference robot in
+        /// the middle). Refused if the path would take a robot into a wall.
+        #[arg(long, default_value_t = 2)]
+        robots: usize,
         /// Instead of T1–T4: the sensitivity study of ε_d (Table 6) or Δθ (Table 7) for T4,
         /// written to OUT/<scenario>/sweep-<eps|step>.{md,json}.
         #[arg(long, value_enum)]
@@ -205,11 +209,11 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
-        Command::Eval { scenario, trials, seed, out, config, sweep } => (|| {
+        Command::Eval { scenario, trials, seed, out, config, robots, sweep } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
             let report = match sweep {
                 Some(which) => eval_cmd::sweep(&config, &scenario, which, trials, seed, &out)?,
-                None => eval_cmd::run(&config, &scenario, trials, seed, &out)?.join("report.md"),
+                None => eval_cmd::run(&config, &scenario, robots, trials, seed, &out)?.join("report.md"),
             };
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {

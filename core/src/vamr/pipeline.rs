@@ -14,7 +14,7 @@ use super::frame::{PacketTimes, SyncFailure, robots_in_virtual, sync_gate, virtu
 use super::fusion::{FusionInput, VirtualScan, fuse};
 use super::heading::{AngleGrid, HeadingProblem, SearchScratch, TargetScan, search};
 use super::preprocess::{Preprocessed, preprocess};
-use super::tracker::{TrackOutcome, Tracker};
+use super::tracker::{Roi, TrackOutcome, Tracker};
 
 /// One robot's packet for a fused update.
 #[derive(Debug, Clone, Copy)]
@@ -91,6 +91,9 @@ pub struct Pipeline {
     max_age_s: f64,
     trackers: Vec<Tracker>,
     headings: Vec<Option<f64>>,
+    /// Where each non-reference robot is expected (its formation slot, in robot 0's frame): the
+    /// search area while its track is being acquired.
+    expected: Vec<Option<Roi>>,
     scratch: SearchScratch,
 }
 
@@ -107,6 +110,7 @@ impl Pipeline {
         Pipeline {
             trackers: vec![Tracker::new(params.tracker); others],
             headings: vec![None; others],
+            expected: vec![None; others],
             params,
             configuration,
             max_spread_s,
@@ -118,6 +122,15 @@ impl Pipeline {
     #[must_use]
     pub fn configuration(&self) -> Configuration {
         self.configuration
+    }
+
+    /// Acquire robot `robot`'s track near `center` (robot 0's base frame), within `half_width_m`,
+    /// instead of over the whole scan. With three or more robots this is what tells the reference
+    /// robot which body is which; the formation's configured slots give it.
+    pub fn set_expected(&mut self, robot: usize, center: [f64; 2], half_width_m: f64) {
+        if let Some(slot) = robot.checked_sub(1).and_then(|i| self.expected.get_mut(i)) {
+            *slot = Some(Roi { center, half_width: [half_width_m; 2] });
+        }
     }
 
     /// Switch T1–T4 between updates (trackers and headings are kept).
@@ -177,7 +190,7 @@ impl Pipeline {
                         filtered: &pre[0].filtered_points,
                         lidar_to_base: reference.lidar_to_base,
                         chassis: other.chassis,
-                        roi: tracker.roi(t_s),
+                        roi: tracker.roi(t_s).or(self.expected[i - 1]),
                         jump_m: self.params.preprocess.segment_jump_m.get(),
                     },
                     &self.params.contour,

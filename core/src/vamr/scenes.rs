@@ -261,3 +261,42 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn with_three_robots_each_track_locks_onto_its_own_robot() {
+    let w = site();
+    // Robot 0 in the middle of a line; robots 1 and 2 on either side, turned a little.
+    let poses =
+        [Se2::new(0.0, 0.0, 0.0), Se2::from_degrees(0.05, 0.9, 4.0), Se2::from_degrees(-0.05, -0.9, -3.0)];
+    let scans: Vec<Scan> = (0..3).map(|i| w.scan(&poses, i)).collect();
+    let packets: Vec<RobotPacket<'_>> = scans
+        .iter()
+        .map(|s| RobotPacket {
+            scan: s,
+            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+            lidar_to_base: w.mount,
+            chassis: &w.chassis,
+            weight: 1.0,
+            amcl_pose: None,
+        })
+        .collect();
+    let mut p = Pipeline::new(3, shipped_params(), Configuration::T4, 0.05, 0.1);
+    p.set_expected(1, [0.0, 0.9], 0.5);
+    p.set_expected(2, [0.0, -0.9], 0.5);
+    let out = p.update(&packets).unwrap();
+    for i in 1..3 {
+        let truth = poses[0].inverse() * poses[i];
+        assert!(
+            out.relative[i].approx_eq(&truth, 0.01, 0.2f64.to_radians()),
+            "robot {i}: {:?} vs {truth:?}",
+            out.relative[i]
+        );
+    }
+    // V is the centroid of the three: here near the middle robot.
+    assert!(out.v_in_reference.translation_norm() < 0.05, "{:?}", out.v_in_reference);
+    // Without the expected slots both tracks take the best-fitting body: the same one.
+    let mut blind = Pipeline::new(3, shipped_params(), Configuration::T4, 0.05, 0.1);
+    let out = blind.update(&packets).unwrap();
+    let (a, b) = (out.relative[1], out.relative[2]);
+    assert!((a.x - b.x).hypot(a.y - b.y) < 0.01, "both tracks on one robot's position: {a:?} {b:?}");
+}

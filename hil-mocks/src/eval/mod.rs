@@ -39,6 +39,29 @@ pub struct Setup {
     /// Physics steps per LiDAR scan (the scan rate is `1 / (physics_dt · this)`).
     pub physics_dt_s: f64,
     pub steps_per_scan: usize,
+    /// Robots in the formation (the paper: 2).
+    pub robots: usize,
+}
+
+/// Lateral slots in V's frame: two robots at ±spacing/2 (the paper); three or more in a line with
+/// robot 0 — the pipeline's reference, which must see every other robot — in the middle, then
+/// +spacing, −spacing, +2·spacing, …
+#[must_use]
+pub fn slots(robots: usize, spacing_m: f64) -> Vec<f64> {
+    match robots {
+        0 | 1 => vec![0.0; robots],
+        2 => vec![spacing_m / 2.0, -spacing_m / 2.0],
+        n => (0..n)
+            .map(|i| {
+                if i == 0 {
+                    0.0
+                } else {
+                    let k = i.div_ceil(2) as f64;
+                    if i % 2 == 1 { k * spacing_m } else { -k * spacing_m }
+                }
+            })
+            .collect(),
+    }
 }
 
 /// One configuration's errors over one trial.
@@ -74,10 +97,11 @@ pub struct Trial {
 const CONFIGS: [Configuration; 4] =
     [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4];
 
-fn v_of(a: &Se2, b: &Se2) -> Se2 {
-    // Eq. 16 with equal weights, in the map frame.
-    let rel = a.inverse() * *b;
-    *a * virtual_frame(&[(Se2::IDENTITY, 1.0), (rel, 1.0)])
+/// Eq. 16 for N robots with equal weights, in the map frame.
+fn v_of(poses: &[Se2]) -> Se2 {
+    let Some(first) = poses.first() else { return Se2::IDENTITY };
+    let rel: Vec<(Se2, f64)> = poses.iter().map(|p| (first.inverse() * *p, 1.0)).collect();
+    *first * virtual_frame(&rel)
 }
 
 fn error(est: &Se2, truth: &Se2) -> Sample {
@@ -107,8 +131,7 @@ fn record(
 #[must_use]
 pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
     let sc = &setup.scenario;
-    let half = sc.spacing_m.get() / 2.0;
-    let slots = [half, -half];
+    let slots = slots(setup.robots, sc.spacing_m.get());
     let start_v = sc.start_pose();
     let mut world = World::new(setup.site.clone(), setup.noise, seed);
     let robots: Vec<usize> = slots
@@ -140,7 +163,12 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
                 seed.wrapping_mul(37).wrapping_add(10 + k as u64),
             );
             f.init_pose(start_v, 0.1, 0.05);
-            (*c, Pipeline::new(2, setup.vamr.clone(), *c, 0.05, 0.1), f)
+            let mut p = Pipeline::new(setup.robots, setup.vamr.clone(), *c, 0.05, 0.1);
+            // The formation's slots: where robot 0 should find each of the others.
+            for (i, y) in slots.iter().enumerate().skip(1) {
+                p.set_expected(i, [0.0, y - slots[0]], 0.5);
+            }
+            (*c, p, f)
         })
         .collect();
     // Odometry poses in the map frame, starting from the known start poses.
@@ -189,18 +217,15 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
         let scan_list: Vec<_> =
             robots.iter().map(|rid| world.scan(*rid, &beams).unwrap_or_else(|| beams.clone())).collect();
         let truth: Vec<Se2> = robots.iter().map(|rid| world.pose(*rid).unwrap_or(start_v)).collect();
-        let v_true = v_of(&truth[0], &truth[1]);
-        let v_ref = v_of(&odom[0], &odom[1]);
+        let v_true = v_of(&truth);
+        let v_ref = v_of(&odom);
         let mut own_pose = Vec::new();
         for (i, f) in own.iter_mut().enumerate() {
             let pts = scan_points(&scan_list[i], &setup.robot.lidar_mount, &setup.amcl);
             f.update(odom[i], &pts, false);
             own_pose.push(f.pose_at(&odom[i]));
         }
-        let t1 = match (own_pose[0], own_pose[1]) {
-            (Some(a), Some(b)) => Some(v_of(&a, &b)),
-            _ => None,
-        };
+        let t1 = own_pose.iter().copied().collect::<Option<Vec<Se2>>>().map(|p| v_of(&p));
         record(&mut series, Configuration::T1, t1, &v_true, &v_ref);
         let true_heading = (truth[0].inverse() * truth[1]).theta;
         for (c, pipeline, vamcl) in &mut pipelines {

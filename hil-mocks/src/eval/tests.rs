@@ -48,6 +48,28 @@ fn short_setup() -> Setup {
         scenario,
         physics_dt_s: 1.0 / 150.0,
         steps_per_scan: 10,
+        robots: 2,
+    }
+}
+
+#[test]
+fn slots_put_the_reference_robot_where_it_sees_the_others() {
+    assert_eq!(slots(2, 0.9), vec![0.45, -0.45]);
+    assert_eq!(slots(3, 0.9), vec![0.0, 0.9, -0.9]);
+    assert_eq!(slots(4, 0.5), vec![0.0, 0.5, -0.5, 1.0]);
+}
+
+#[test]
+fn three_robots_run_through_the_same_pipeline() {
+    let mut setup = short_setup();
+    setup.robots = 3;
+    setup.scenario.segments.truncate(1);
+    let trial = run_trial(&setup, 2);
+    for (c, s) in &trial.series {
+        assert_eq!(s.truth.len() + s.missing, trial.scans, "{c:?}");
+        assert!(s.truth.len() > trial.scans / 2, "{c:?}: {} of {} scans", s.truth.len(), trial.scans);
+        let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
+        assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
     }
 }
 
