@@ -18,7 +18,8 @@ mod teco {
     use amr_drivers::canopen::shell::{MasterCommand, spawn_master};
     use amr_drivers::canopen::transport::CanTransport;
     use amr_drivers::canopen::transport::socketcand::SocketcandClient;
-    use hil_mocks::teco_drive::{TecoDriveConfig, start_mock_drives};
+    use amr_drivers::canopen::{CanopenError, DeviceError};
+    use hil_mocks::teco_drive::{Fault, TecoDriveConfig, start_mock_drives};
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     use tokio::net::TcpStream;
 
@@ -228,6 +229,98 @@ mod teco {
         assert!(truth > 0.04, "moved {truth} m");
         assert!((pose.x_m - truth).abs() < 0.002, "odometry {pose:?} vs truth {truth}");
         assert!(pose.yaw_rad.abs() < 0.01, "{pose:?}");
+        m.commands.send(MasterCommand::Shutdown).await.unwrap();
+    }
+
+    /// Events until `pred`, within `within` of real time.
+    async fn until(
+        events: &mut tokio::sync::mpsc::Receiver<MasterEvent>,
+        within: Duration,
+        mut pred: impl FnMut(&MasterEvent) -> bool,
+    ) -> Vec<MasterEvent> {
+        let mut seen = Vec::new();
+        let found = tokio::time::timeout(within, async {
+            while let Some(ev) = events.recv().await {
+                let hit = pred(&ev);
+                if !matches!(ev, MasterEvent::Cycle { .. }) {
+                    seen.push(ev);
+                }
+                if hit {
+                    return true;
+                }
+            }
+            false
+        })
+        .await;
+        assert_eq!(found, Ok(true), "events: {seen:?}");
+        seen
+    }
+
+    #[tokio::test]
+    async fn teco_socketcand_fault_recovery_and_reboot() {
+        let mock = start_mock_drives("127.0.0.1:0", &[1, 2], TecoDriveConfig::new).await.unwrap();
+        let setups = vec![1u8, 2]
+            .into_iter()
+            .map(|n| amr_drivers::canopen::master::DriveSetup {
+                node_id: n,
+                heartbeat_producer_ms: 50,
+                heartbeat_consumer_ms: 500,
+                master_consumer_ms: 500,
+                comm_loss_reaction: CommLossReaction::QuickStop,
+                profile_acceleration: 100_000,
+                profile_deceleration: 100_000,
+                quick_stop_deceleration: 200_000,
+            })
+            .collect();
+        let config = MasterConfig {
+            can: CanConfig {
+                master_node_id: 127,
+                master_heartbeat_ms: 50,
+                sync_period_ms: 10,
+                sdo_timeout_ms: 1000,
+                boot_timeout_ms: 2000,
+            },
+            drives: setups,
+            enable_timeout_ms: 2000,
+            mode_confirm_attempts: 5,
+        };
+        let client = SocketcandClient::connect(&mock.address.to_string(), "can0", STEP).await.unwrap();
+        let mut m = spawn_master(Master::new(config, tokio::time::Instant::now().into_std()), client);
+        m.commands.send(MasterCommand::Enable).await.unwrap();
+        let mut enabled = [false; 2];
+        until(&mut m.events, STEP, |e| {
+            if let MasterEvent::Enabled { node } = e {
+                enabled[usize::from(*node - 1)] = true;
+            }
+            enabled == [true, true]
+        })
+        .await;
+        // Drive fault: reported, then the verified reset brings it back.
+        mock.drives[0].inject(Fault::DriveFault { code: 0x4310 });
+        until(&mut m.events, STEP, |e| {
+            matches!(
+                e,
+                MasterEvent::Error(CanopenError::Device(DeviceError::Fault { node: 1, error_code: 0x4310 }))
+            )
+        })
+        .await;
+        m.commands.send(MasterCommand::Recover(1)).await.unwrap();
+        let seen = until(&mut m.events, STEP, |e| matches!(e, MasterEvent::Enabled { node: 1 })).await;
+        assert!(seen.contains(&MasterEvent::Recovered { node: 1 }), "{seen:?}");
+        // Reboot: boot-up, reconfigured, then enabled — in that order.
+        mock.drives[1].inject(Fault::Reboot);
+        let seen = until(&mut m.events, STEP, |e| matches!(e, MasterEvent::Enabled { node: 2 })).await;
+        let order: Vec<_> = seen
+            .iter()
+            .filter_map(|e| match e {
+                MasterEvent::BootUp { node: 2 } => Some("boot-up"),
+                MasterEvent::Configured { node: 2, .. } => Some("configured"),
+                MasterEvent::Enabled { node: 2 } => Some("enabled"),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(order, ["boot-up", "configured", "enabled"]);
+        assert_eq!(mock.drives[1].now().enables_unconfigured, 0);
         m.commands.send(MasterCommand::Shutdown).await.unwrap();
     }
 }
