@@ -151,7 +151,19 @@ pub(crate) fn run(
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
     std::fs::write(dir.join("report.json"), serde_json::to_string_pretty(&report)? + "\n")?;
     std::fs::write(dir.join("trials.json"), serde_json::to_string(&results)? + "\n")?;
-    let md = markdown(&report);
+    let mut md = markdown(&report);
+    if let Some(first) = results.first() {
+        let written = crate::plots::write_all(&dir, first, &setup.site)?;
+        md += &format!(
+            "\n## Plots (trial 1)\n\n{}\n",
+            written
+                .iter()
+                .filter_map(|p| p.file_name())
+                .map(|n| format!("- {}", n.to_string_lossy()))
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
     std::fs::write(dir.join("report.md"), &md)?;
     Ok(dir)
 }

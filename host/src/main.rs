@@ -5,6 +5,7 @@ mod config_cmd;
 mod eval_cmd;
 mod localize;
 mod mock_cmd;
+mod plots;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -84,6 +84,8 @@ pub struct Series {
     /// to run, the rest does not.
     #[serde(skip)]
     pub pipeline_s: f64,
+    /// V's estimate at every scan (`[x, y, θ]` in the map), `None` where there was none.
+    pub estimates: Vec<Option<[f64; 3]>>,
 }
 
 /// One trial: per configuration (T1–T4, in that order).
@@ -92,6 +94,14 @@ pub struct Trial {
     pub seed: u64,
     pub scans: usize,
     pub series: Vec<(Configuration, Series)>,
+    /// Time of every scan, s.
+    pub times_s: Vec<f64>,
+    /// The true V at every scan, `[x, y, θ]` in the map.
+    pub truth_v: Vec<[f64; 3]>,
+    /// Every robot's true position at every scan.
+    pub truth_robots: Vec<Vec<[f64; 2]>>,
+    /// T4's particle cloud (positions) after the last scan.
+    pub final_particles_t4: Vec<[f64; 2]>,
 }
 
 const CONFIGS: [Configuration; 4] =
@@ -117,6 +127,7 @@ fn record(
     v_ref: &Se2,
 ) {
     if let Some(s) = series.iter_mut().find(|(k, _)| *k == c).map(|(_, s)| s) {
+        s.estimates.push(est.map(|e| [e.x, e.y, e.theta]));
         match est {
             Some(e) => {
                 s.truth.push(error(&e, v_true));
@@ -181,6 +192,8 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
     let gains = FormationGains::DEFAULT;
     let lim = &sc.limits;
     let mut scans = 0;
+    let (mut times_s, mut truth_v, mut truth_robots) =
+        (Vec::new(), Vec::new(), vec![Vec::new(); robots.len()]);
     for (step, r) in reference.iter().enumerate() {
         // Control, closed on odometry.
         for (i, rid) in robots.iter().enumerate() {
@@ -219,6 +232,11 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
         let truth: Vec<Se2> = robots.iter().map(|rid| world.pose(*rid).unwrap_or(start_v)).collect();
         let v_true = v_of(&truth);
         let v_ref = v_of(&odom);
+        times_s.push(t);
+        truth_v.push([v_true.x, v_true.y, v_true.theta]);
+        for (track, p) in truth_robots.iter_mut().zip(&truth) {
+            track.push([p.x, p.y]);
+        }
         let mut own_pose = Vec::new();
         for (i, f) in own.iter_mut().enumerate() {
             let pts = scan_points(&scan_list[i], &setup.robot.lidar_mount, &setup.amcl);
@@ -270,7 +288,12 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
             record(&mut series, *c, est, &v_true, &v_ref);
         }
     }
-    Trial { seed, scans, series }
+    let final_particles_t4 = pipelines
+        .iter()
+        .find(|(c, _, _)| *c == Configuration::T4)
+        .map(|(_, _, f)| f.particles().iter().map(|p| [p.pose.x, p.pose.y]).collect())
+        .unwrap_or_default();
+    Trial { seed, scans, series, times_s, truth_v, truth_robots, final_particles_t4 }
 }
 
 /// Pooled and trial-level statistics of one configuration.

@@ -96,10 +96,15 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
     let setup = short_setup();
     let trial = run_trial(&setup, 1);
     assert!(trial.scans > 100, "{} scans", trial.scans);
+    assert_eq!((trial.times_s.len(), trial.truth_v.len()), (trial.scans, trial.scans));
+    assert!(trial.truth_robots.iter().all(|t| t.len() == trial.scans));
+    assert_eq!(trial.final_particles_t4.len(), 200, "T4's cloud at the end");
     assert_eq!(trial.series.iter().map(|(c, _)| *c).collect::<Vec<_>>(), CONFIGS.to_vec());
     for (c, s) in &trial.series {
         assert_eq!(s.truth.len() + s.missing, trial.scans, "{c:?}: every scan is a sample or a miss");
         assert_eq!(s.truth.len(), s.reference.len());
+        assert_eq!(s.estimates.len(), trial.scans, "{c:?}: one entry per scan");
+        assert_eq!(s.estimates.iter().filter(|e| e.is_some()).count(), s.truth.len());
         // Localisation works in every configuration on this short run (a loose bound: this is not
         // the paper's comparison, which `amr eval` reports).
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
