@@ -118,6 +118,17 @@ enum MockCommand {
         #[arg(long, value_parser = parse_dialect)]
         dialect: Option<amr_drivers::sopas::Dialect>,
     },
+    /// Two (or more) mock TECO servo drives, CANopen CiA 402 nodes in profile velocity mode, on a
+    /// simulated CAN bus behind a socketcand server (CAN over TCP): python-can's `socketcand`
+    /// interface or any CiA 402 master can drive them. Prints the address.
+    Drives {
+        /// Address of the socketcand server (port 0 picks a free one).
+        #[arg(long, default_value = "127.0.0.1:29536")]
+        socketcand: String,
+        /// Node ids of the drives.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        nodes: Vec<u8>,
+    },
     /// A mock LP-Research LPMS-B2 (LPBUS) behind a pseudo-terminal, streaming from power-up. Prints
     /// the tty path to open (a stable symlink to the current pty).
     Imu {
@@ -199,6 +210,7 @@ fn main() -> ExitCode {
         Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
             mock_cmd::lidar(&listen, points, dialect)
         }
+        Command::Mock(MockCommand::Drives { socketcand, nodes }) => mock_cmd::drives(&socketcand, &nodes),
         Command::Mock(MockCommand::Imu { rate }) => {
             if amr_core::config::IMU_STREAM_RATES_HZ.contains(&rate) {
                 mock_cmd::imu(rate)

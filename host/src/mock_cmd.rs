@@ -65,3 +65,24 @@ pub(crate) fn sopas_decode(file: &Path) -> anyhow::Result<()> {
         .with_context(|| format!("{}: not a SOPAS telegram this decoder accepts", file.display()))?;
     announce(&serde_json::to_string_pretty(&reply)?)
 }
+
+/// Serve mock TECO drives (CiA 402) behind a socketcand server until Ctrl-C.
+pub(crate) fn drives(listen: &str, nodes: &[u8]) -> anyhow::Result<()> {
+    anyhow::ensure!(!nodes.is_empty(), "--nodes needs at least one node id");
+    for (i, n) in nodes.iter().enumerate() {
+        anyhow::ensure!((1..=127).contains(n), "node id {n} is not a CANopen node id (1..=127)");
+        anyhow::ensure!(!nodes[..i].contains(n), "node id {n} is listed twice");
+    }
+    runtime()?.block_on(async {
+        let mock = hil_mocks::teco_drive::start_mock_drives(
+            listen,
+            nodes,
+            hil_mocks::teco_drive::TecoDriveConfig::new,
+        )
+        .await
+        .with_context(|| format!("cannot listen on {listen}"))?;
+        announce(&format!("mock TECO drives {nodes:?} on socketcand {} (channel can0)", mock.address))?;
+        tokio::signal::ctrl_c().await.context("waiting for Ctrl-C")?;
+        Ok(())
+    })
+}

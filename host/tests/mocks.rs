@@ -124,3 +124,46 @@ fn sopas_decode_prints_every_field_as_json() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("not a SOPAS telegram"));
 }
+
+#[test]
+fn mock_drives_answer_sdo_over_socketcand() {
+    let (_mock, line) = start(&["mock", "drives", "--socketcand", "127.0.0.1:0", "--nodes", "1,2"]);
+    assert!(line.starts_with("mock TECO drives [1, 2] on socketcand 127.0.0.1:"), "{line}");
+    let addr = line.split(' ').find(|w| w.starts_with("127.0.0.1:")).unwrap();
+    let mut tcp = std::net::TcpStream::connect(addr).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut expect = |send: Option<&[u8]>, want: &str| {
+        if let Some(bytes) = send {
+            tcp.write_all(bytes).unwrap();
+        }
+        let got = read_until(tcp.try_clone().unwrap(), |b| b.ends_with(b">"));
+        let text = String::from_utf8_lossy(&got).into_owned();
+        assert!(text.contains(want), "expected `{want}`, got {text:?}");
+        text
+    };
+    expect(None, "< hi >");
+    expect(Some(b"< open can0 >"), "< ok >");
+    expect(Some(b"< rawmode >"), "< ok >");
+    // SDO upload of 0x1000 (device type) from node 2; the reply comes on 0x582 with command 0x43.
+    tcp.write_all(b"< send 602 8 40 0 10 0 0 0 0 0 >").unwrap();
+    let mut reply = String::new();
+    for _ in 0..20 {
+        let got = read_until(tcp.try_clone().unwrap(), |b| b.ends_with(b">"));
+        reply += &String::from_utf8_lossy(&got);
+        if reply.contains("< frame 582 ") {
+            break;
+        }
+    }
+    let frame =
+        reply.split("< frame 582 ").nth(1).unwrap_or_else(|| panic!("no SDO reply from node 2 in {reply:?}"));
+    let data = frame.split_whitespace().nth(1).unwrap();
+    assert!(
+        data.to_ascii_lowercase().starts_with("43001000"),
+        "expedited 4-byte upload of 0x1000:00: {data}"
+    );
+    // Bad node lists are refused before anything starts.
+    let bad =
+        Command::new(env!("CARGO_BIN_EXE_amr")).args(["mock", "drives", "--nodes", "1,1"]).output().unwrap();
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("listed twice"));
+}
