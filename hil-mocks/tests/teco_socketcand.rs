@@ -155,20 +155,7 @@ mod teco {
         })
         .await
         .unwrap();
-        let dd = DiffDrive::new(
-            DrivesConfig {
-                left: WheelDriveConfig { node_id: 1, inverted: false },
-                right: WheelDriveConfig { node_id: 2, inverted: true },
-                encoder_counts_per_rev: 10_000,
-                gear_ratio: 20.0,
-                velocity_units_per_rps: 10_000.0,
-                heartbeat_producer_ms: 50,
-                heartbeat_consumer_ms: 500,
-                master_consumer_ms: 500,
-                comm_loss_reaction: CommLossReaction::QuickStop,
-            },
-            Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
-        );
+        let dd = diff_drive();
         let config = MasterConfig {
             can: CanConfig {
                 master_node_id: 127,
@@ -256,9 +243,8 @@ mod teco {
         seen
     }
 
-    #[tokio::test]
-    async fn teco_socketcand_fault_recovery_and_reboot() {
-        let mock = start_mock_drives("127.0.0.1:0", &[1, 2], TecoDriveConfig::new).await.unwrap();
+    /// The master's configuration for two drives (consumer times 500 ms, heartbeats 50 ms).
+    fn two_drive_master() -> MasterConfig {
         let setups = vec![1u8, 2]
             .into_iter()
             .map(|n| amr_drivers::canopen::master::DriveSetup {
@@ -272,7 +258,7 @@ mod teco {
                 quick_stop_deceleration: 200_000,
             })
             .collect();
-        let config = MasterConfig {
+        MasterConfig {
             can: CanConfig {
                 master_node_id: 127,
                 master_heartbeat_ms: 50,
@@ -283,7 +269,101 @@ mod teco {
             drives: setups,
             enable_timeout_ms: 2000,
             mode_confirm_attempts: 5,
-        };
+        }
+    }
+
+    /// Mock drives 1 and 2 behind socketcand and an enabled amr master talking to them over it.
+    async fn enabled_pair() -> (hil_mocks::teco_drive::MockDrives, amr_drivers::canopen::shell::MasterHandle)
+    {
+        let mock = start_mock_drives("127.0.0.1:0", &[1, 2], TecoDriveConfig::new).await.unwrap();
+        let client = SocketcandClient::connect(&mock.address.to_string(), "can0", STEP).await.unwrap();
+        let mut m =
+            spawn_master(Master::new(two_drive_master(), tokio::time::Instant::now().into_std()), client);
+        m.commands.send(MasterCommand::Enable).await.unwrap();
+        let mut enabled = [false; 2];
+        until(&mut m.events, STEP, |e| {
+            if let MasterEvent::Enabled { node } = e {
+                enabled[usize::from(*node - 1)] = true;
+            }
+            enabled == [true, true]
+        })
+        .await;
+        (mock, m)
+    }
+
+    /// The robots' drive layer (config/robot-*.toml values, heartbeats as in `two_drive_master`).
+    fn diff_drive() -> DiffDrive {
+        DiffDrive::new(
+            DrivesConfig {
+                left: WheelDriveConfig { node_id: 1, inverted: false },
+                right: WheelDriveConfig { node_id: 2, inverted: true },
+                encoder_counts_per_rev: 10_000,
+                gear_ratio: 20.0,
+                velocity_units_per_rps: 10_000.0,
+                heartbeat_producer_ms: 50,
+                heartbeat_consumer_ms: 500,
+                master_consumer_ms: 500,
+                comm_loss_reaction: CommLossReaction::QuickStop,
+            },
+            Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
+        )
+    }
+
+    /// Over real TCP the deadline is the consumer time plus this much for scheduling on a shared
+    /// machine (the in-process tests, in paused time, hold the consumer time exactly).
+    const SLACK: Duration = Duration::from_millis(250);
+
+    #[tokio::test]
+    async fn teco_socketcand_drive_heartbeat_lost_is_reported_and_the_other_wheel_stopped() {
+        let (mock, mut m) = enabled_pair().await;
+        let dd = diff_drive();
+        m.commands.send(MasterCommand::SetTargets(dd.wheel_targets(0.1, 0.0).to_vec())).await.unwrap();
+        wait_for(|| mock.drives[0].now().target_velocity != 0).await;
+        let t0 = std::time::Instant::now();
+        mock.drives[1].inject(Fault::HeartbeatLoss(true));
+        until(&mut m.events, STEP, |e| {
+            matches!(
+                e,
+                MasterEvent::Error(CanopenError::Link(amr_drivers::canopen::LinkError::HeartbeatLost {
+                    node: 2
+                }))
+            )
+        })
+        .await;
+        let dt = t0.elapsed();
+        assert!(dt <= Duration::from_millis(500) + SLACK, "reported after {dt:?}");
+        wait_for(|| mock.drives[0].now().target_velocity == 0).await;
+        m.commands.send(MasterCommand::Shutdown).await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn teco_socketcand_master_silent_then_drives_quick_stop() {
+        let (mock, m) = enabled_pair().await;
+        let t0 = std::time::Instant::now();
+        m.commands.send(MasterCommand::Shutdown).await.unwrap();
+        wait_for(|| mock.drives.iter().all(|d| d.now().state == State402::QuickStopActive)).await;
+        let dt = t0.elapsed();
+        assert!(dt <= Duration::from_millis(500) + SLACK, "quick stop after {dt:?}");
+    }
+
+    /// Poll the mocks' state (they run on their own tasks) until `done`, at most 5 s.
+    async fn wait_for(mut done: impl FnMut() -> bool) {
+        let ok = tokio::time::timeout(STEP, async {
+            loop {
+                if done() {
+                    return;
+                }
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        })
+        .await;
+        assert!(ok.is_ok(), "condition not reached within {STEP:?}");
+    }
+
+    #[tokio::test]
+    async fn teco_socketcand_fault_recovery_and_reboot() {
+        let mock = start_mock_drives("127.0.0.1:0", &[1, 2], TecoDriveConfig::new).await.unwrap();
+        let config = two_drive_master();
         let client = SocketcandClient::connect(&mock.address.to_string(), "can0", STEP).await.unwrap();
         let mut m = spawn_master(Master::new(config, tokio::time::Instant::now().into_std()), client);
         m.commands.send(MasterCommand::Enable).await.unwrap();
