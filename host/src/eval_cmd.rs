@@ -21,6 +21,22 @@ struct Report<'a> {
     summary: &'a [ConfigSummary],
 }
 
+/// A progress bar on stderr when it is a terminal (hidden otherwise, so logs and CI stay clean).
+fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        indicatif::ProgressBar::new(len)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({elapsed}, about {eta} left)")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(what.to_owned());
+    bar
+}
+
 pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::Result<Setup> {
     let sc = config.scenarios.get(scenario).with_context(|| {
         format!("no scenario `{scenario}` (have: {:?})", config.scenarios.keys().collect::<Vec<_>>())
@@ -129,11 +145,14 @@ pub(crate) fn run(
 ) -> anyhow::Result<PathBuf> {
     let setup = setup(config, scenario, robots)?;
     let mut results: Vec<Trial> = Vec::with_capacity(trials);
+    let bar = progress(trials as u64, &format!("{scenario}: trials"));
     for k in 0..trials {
         let trial_seed = seed.wrapping_add(k as u64);
-        tracing::info!(scenario, trial = k + 1, of = trials, seed = trial_seed, "running trial");
+        tracing::debug!(scenario, trial = k + 1, of = trials, seed = trial_seed, "running trial");
         results.push(run_trial(&setup, trial_seed));
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     let summary = summarise(scenario, &results);
     let report = Report {
         scenario,
@@ -241,8 +260,15 @@ pub(crate) fn sweep(
                     amr_core::config::value::Positive::new(*value).map_err(anyhow::Error::msg)?
             }
         }
-        tracing::info!(scenario, setting = value, "sensitivity study");
-        let results: Vec<Trial> = (0..trials).map(|k| run_trial(&s, seed.wrapping_add(k as u64))).collect();
+        let bar = progress(trials as u64, &format!("{label} = {value}"));
+        let results: Vec<Trial> = (0..trials)
+            .map(|k| {
+                let t = run_trial(&s, seed.wrapping_add(k as u64));
+                bar.inc(1);
+                t
+            })
+            .collect();
+        bar.finish_and_clear();
         let t4: Vec<&hil_mocks::eval::Series> = results
             .iter()
             .filter_map(|t| {

@@ -54,6 +54,9 @@ pub struct Noise {
     pub wheel_slip_sigma: f64,
     /// Encoder resolution: counts per wheel revolution (motor counts × gear ratio).
     pub encoder_counts_per_wheel_rev: f64,
+    /// Standard deviation of each encoder reading, counts (electrical noise and backlash; it does
+    /// not accumulate).
+    pub encoder_sigma_counts: f64,
     /// Gyro bias range: each robot's bias is drawn once, uniform in ±this, rad/s.
     pub gyro_bias_max_radps: f64,
     /// Gyro white noise, rad/s.
@@ -67,6 +70,7 @@ impl Noise {
         dropout_probability: 0.0,
         wheel_slip_sigma: 0.0,
         encoder_counts_per_wheel_rev: 0.0,
+        encoder_sigma_counts: 0.0,
         gyro_bias_max_radps: 0.0,
         gyro_sigma_radps: 0.0,
     };
@@ -78,6 +82,7 @@ impl Noise {
         dropout_probability: 0.01,
         wheel_slip_sigma: 0.002,
         encoder_counts_per_wheel_rev: 200_000.0,
+        encoder_sigma_counts: 2.0,
         gyro_bias_max_radps: 0.002,
         gyro_sigma_radps: 0.005,
     };
@@ -205,15 +210,17 @@ impl World {
         self.robots.get(robot).map(|r| r.twist)
     }
 
-    /// Wheel rotations (left, right) as the encoders report them, rad, quantised to the encoder
-    /// resolution.
-    #[must_use]
-    pub fn encoders_rad(&self, robot: usize) -> Option<[f64; 2]> {
-        let r = self.robots.get(robot)?;
-        let cpr = self.noise.encoder_counts_per_wheel_rev;
-        Some(r.wheel_rad.map(|a| {
+    /// Wheel rotations (left, right) as the encoders report them, rad: quantised to the encoder
+    /// resolution, with reading noise.
+    pub fn encoders_rad(&mut self, robot: usize) -> Option<[f64; 2]> {
+        let (cpr, sigma) = (self.noise.encoder_counts_per_wheel_rev, self.noise.encoder_sigma_counts);
+        let r = self.robots.get_mut(robot)?;
+        let tau = std::f64::consts::TAU;
+        let wheel = r.wheel_rad;
+        Some(wheel.map(|a| {
             if cpr > 0.0 {
-                (a / std::f64::consts::TAU * cpr).floor() / cpr * std::f64::consts::TAU
+                let counts = (a / tau * cpr + r.rng.gaussian(sigma)).floor();
+                counts / cpr * tau
             } else {
                 a
             }

@@ -61,9 +61,21 @@ fn encoders_measure_the_wheels_not_the_ground() {
     let p = w.pose(r).unwrap();
     assert!((p.x - 2.0).abs() > 1e-6, "slip moves the true pose away from the wheel odometry");
     // Quantised encoders report whole counts.
-    let q = World { noise: Noise { encoder_counts_per_wheel_rev: 1000.0, ..Noise::NONE }, ..w.clone() };
+    let mut q = World { noise: Noise { encoder_counts_per_wheel_rev: 1000.0, ..Noise::NONE }, ..w.clone() };
     let counts = q.encoders_rad(r).unwrap()[0] / std::f64::consts::TAU * 1000.0;
     assert!((counts - counts.round()).abs() < 1e-6);
+    // Reading noise of σ = 2 counts scatters single readings but does not accumulate.
+    let mut noisy = World {
+        noise: Noise { encoder_counts_per_wheel_rev: 1000.0, encoder_sigma_counts: 2.0, ..Noise::NONE },
+        ..w.clone()
+    };
+    let exact = w.encoders_rad(r).unwrap()[0] / std::f64::consts::TAU * 1000.0;
+    let readings: Vec<f64> = (0..400)
+        .map(|_| noisy.encoders_rad(r).unwrap()[0] / std::f64::consts::TAU * 1000.0 - exact)
+        .collect();
+    let mean = readings.iter().sum::<f64>() / 400.0;
+    let sd = (readings.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / 400.0).sqrt();
+    assert!(mean.abs() < 0.6 && (1.5..2.6).contains(&sd), "mean {mean}, sd {sd}");
 }
 
 #[test]
