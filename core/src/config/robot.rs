@@ -265,6 +265,13 @@ pub struct DrivesConfig {
     /// Each drive stops (see `comm_loss_reaction`) after this long without the master's heartbeat (0x1016).
     pub master_consumer_ms: Millis,
     pub comm_loss_reaction: CommLossReaction,
+    /// Longest wait for a drive to reach Operation enabled (or to leave Fault after a reset).
+    pub enable_timeout_ms: Millis,
+    /// How often 0x6061 is read back to confirm profile velocity mode before giving up.
+    pub mode_confirm_attempts: Count,
+    /// Wheel-surface deceleration of a quick stop (0x6085), m/s²: an emergency stop, so at least the
+    /// normal acceleration limit.
+    pub quick_stop_decel_mps2: Positive,
 }
 
 /// LPBUS data encoding.
@@ -377,6 +384,17 @@ impl ConfigFileType for RobotConfig {
             dr.heartbeat_producer_ms.ms() <= u32::from(u16::MAX),
             "devices.drives.heartbeat_producer_ms",
             format!("must fit the 16-bit object 0x1017 (got {} ms)", dr.heartbeat_producer_ms.ms()),
+        )?;
+
+        rule(
+            dr.quick_stop_decel_mps2 >= self.limits.max_accel_mps2,
+            "devices.drives.quick_stop_decel_mps2",
+            format!(
+                "must be at least limits.max_accel_mps2: a quick stop must not brake more gently than normal driving \
+                 ({} < {} m/s²)",
+                dr.quick_stop_decel_mps2.get(),
+                self.limits.max_accel_mps2.get()
+            ),
         )?;
 
         let imu = &d.imu;
