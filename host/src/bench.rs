@@ -200,7 +200,7 @@ pub(crate) fn markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         out,
-        "Acquisition and AMCL are not part of this pipeline benchmark (AMCL arrives with its own issue)."
+        "Acquisition and AMCL are not part of this pipeline benchmark; `amr bench amcl` measures AMCL."
     );
     out
 }
