@@ -36,14 +36,7 @@ fn register_font() -> anyhow::Result<()> {
 const COLOURS: [RGBColor; 4] =
     [RGBColor(214, 39, 40), RGBColor(255, 127, 14), RGBColor(44, 160, 44), RGBColor(31, 119, 180)];
 
-fn walls<DB: DrawingBackend>(
-    chart: &mut ChartContext<
-        '_,
-        DB,
-        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
-    >,
-    site: &[Polygon],
-) -> Result<(), String> {
+fn walls<DB: DrawingBackend>(chart: &mut Chart<'_, DB>, site: &[Polygon]) -> Result<(), String> {
     for poly in site {
         let mut pts: Vec<(f64, f64)> = poly.vertices().iter().map(|v| (v[0], v[1])).collect();
         pts.extend(pts.first().copied());
@@ -52,18 +45,46 @@ fn walls<DB: DrawingBackend>(
     Ok(())
 }
 
+type Chart<'a, DB> = ChartContext<
+    'a,
+    DB,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// A line with a legend entry.
+fn labelled<DB: DrawingBackend>(
+    chart: &mut Chart<'_, DB>,
+    points: impl IntoIterator<Item = (f64, f64)>,
+    colour: RGBColor,
+    label: String,
+) -> Result<(), String> {
+    chart
+        .draw_series(LineSeries::new(points, colour))
+        .map_err(|e| e.to_string())?
+        .label(label)
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+    Ok(())
+}
+
+/// The legend box, then the picture out.
+fn finish<'a, DB: DrawingBackend + 'a>(
+    chart: &mut Chart<'a, DB>,
+    area: &DrawingArea<DB, Shift>,
+) -> Result<(), String> {
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| e.to_string())?;
+    area.present().map_err(|e| e.to_string())
+}
+
 fn site_chart<'a, DB: DrawingBackend>(
     area: &'a DrawingArea<DB, Shift>,
     caption: &str,
     site: &[Polygon],
-) -> Result<
-    ChartContext<
-        'a,
-        DB,
-        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
-    >,
-    String,
-> {
+) -> Result<Chart<'a, DB>, String> {
     let (mut x0, mut y0, mut x1, mut y1) =
         (f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
     for p in site {
@@ -100,19 +121,14 @@ fn trajectories<DB: DrawingBackend>(
         .label("V, true")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK));
     for ((c, s), colour) in trial.series.iter().zip(COLOURS) {
-        chart
-            .draw_series(LineSeries::new(s.estimates.iter().flatten().map(|p| (p[0], p[1])), colour))
-            .map_err(|e| e.to_string())?
-            .label(format!("V, {c:?}"))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+        labelled(
+            &mut chart,
+            s.estimates.iter().flatten().map(|p| (p[0], p[1])),
+            colour,
+            format!("V, {c:?}"),
+        )?;
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| e.to_string())?;
-    area.present().map_err(|e| e.to_string())
+    finish(&mut chart, area)
 }
 
 fn errors<DB: DrawingBackend>(
@@ -140,19 +156,9 @@ fn errors<DB: DrawingBackend>(
         .map_err(|e| e.to_string())?;
     chart.configure_mesh().x_desc("t (s)").y_desc("error (m)").draw().map_err(|e| e.to_string())?;
     for ((c, s), colour) in trial.series.iter().zip(COLOURS) {
-        chart
-            .draw_series(LineSeries::new(e2d(s), colour))
-            .map_err(|e| e.to_string())?
-            .label(format!("{c:?}"))
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+        labelled(&mut chart, e2d(s), colour, format!("{c:?}"))?;
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .draw()
-        .map_err(|e| e.to_string())?;
-    area.present().map_err(|e| e.to_string())
+    finish(&mut chart, area)
 }
 
 fn particles<DB: DrawingBackend>(
