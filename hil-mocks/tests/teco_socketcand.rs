@@ -318,7 +318,7 @@ mod teco {
         let (mock, mut m) = enabled_pair().await;
         let dd = diff_drive();
         m.commands.send(MasterCommand::SetTargets(dd.wheel_targets(0.1, 0.0).to_vec())).await.unwrap();
-        wait_for(|| mock.drives[0].now().target_velocity != 0).await;
+        wait_drive(&mock.drives[0], |s| s.target_velocity != 0).await;
         let t0 = std::time::Instant::now();
         mock.drives[1].inject(Fault::HeartbeatLoss(true));
         until(&mut m.events, STEP, |e| {
@@ -332,7 +332,7 @@ mod teco {
         .await;
         let dt = t0.elapsed();
         assert!(dt <= Duration::from_millis(500) + SLACK, "reported after {dt:?}");
-        wait_for(|| mock.drives[0].now().target_velocity == 0).await;
+        wait_drive(&mock.drives[0], |s| s.target_velocity == 0).await;
         m.commands.send(MasterCommand::Shutdown).await.unwrap();
     }
 
@@ -341,23 +341,21 @@ mod teco {
         let (mock, m) = enabled_pair().await;
         let t0 = std::time::Instant::now();
         m.commands.send(MasterCommand::Shutdown).await.unwrap();
-        wait_for(|| mock.drives.iter().all(|d| d.now().state == State402::QuickStopActive)).await;
+        for d in &mock.drives {
+            wait_drive(d, |s| s.state == State402::QuickStopActive).await;
+        }
         let dt = t0.elapsed();
         assert!(dt <= Duration::from_millis(500) + SLACK, "quick stop after {dt:?}");
     }
 
-    /// Poll the mocks' state (they run on their own tasks) until `done`, at most 5 s.
-    async fn wait_for(mut done: impl FnMut() -> bool) {
-        let ok = tokio::time::timeout(STEP, async {
-            loop {
-                if done() {
-                    return;
-                }
-                tokio::time::sleep(Duration::from_millis(5)).await;
-            }
-        })
-        .await;
-        assert!(ok.is_ok(), "condition not reached within {STEP:?}");
+    /// Wait (at most 5 s) until a mock drive's published state satisfies `pred`.
+    async fn wait_drive(
+        d: &hil_mocks::teco_drive::DriveHandle,
+        pred: impl FnMut(&hil_mocks::teco_drive::DriveSnapshot) -> bool,
+    ) {
+        let mut rx = d.snapshot.clone();
+        let reached = tokio::time::timeout(STEP, rx.wait_for(pred)).await;
+        assert!(matches!(reached, Ok(Ok(_))), "drive state not reached within {STEP:?}: {:?}", d.now());
     }
 
     #[tokio::test]
