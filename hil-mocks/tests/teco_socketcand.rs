@@ -360,19 +360,7 @@ mod teco {
 
     #[tokio::test]
     async fn teco_socketcand_fault_recovery_and_reboot() {
-        let mock = start_mock_drives("127.0.0.1:0", &[1, 2], TecoDriveConfig::new).await.unwrap();
-        let config = two_drive_master();
-        let client = SocketcandClient::connect(&mock.address.to_string(), "can0", STEP).await.unwrap();
-        let mut m = spawn_master(Master::new(config, tokio::time::Instant::now().into_std()), client);
-        m.commands.send(MasterCommand::Enable).await.unwrap();
-        let mut enabled = [false; 2];
-        until(&mut m.events, STEP, |e| {
-            if let MasterEvent::Enabled { node } = e {
-                enabled[usize::from(*node - 1)] = true;
-            }
-            enabled == [true, true]
-        })
-        .await;
+        let (mock, mut m) = enabled_pair().await;
         // Drive fault: reported, then the verified reset brings it back.
         mock.drives[0].inject(Fault::DriveFault { code: 0x4310 });
         until(&mut m.events, STEP, |e| {

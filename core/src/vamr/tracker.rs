@@ -153,6 +153,19 @@ impl Tracker {
         })
     }
 
+    /// A packet without a usable measurement: keep the prediction, or drop the track after
+    /// `N_miss,max` in a row.
+    fn miss(&mut self, prior: TrackState, outcome: impl FnOnce(u32) -> TrackOutcome) -> TrackOutcome {
+        self.misses += 1;
+        if self.misses >= self.params.max_missed_packets.get() {
+            self.reset();
+            TrackOutcome::Lost
+        } else {
+            self.state = Some(prior);
+            outcome(self.misses)
+        }
+    }
+
     /// One synchronised packet at `t_s` with the contour measurement `z` (or none).
     pub fn update(&mut self, t_s: f64, z: Option<[f64; 2]>) -> TrackOutcome {
         let Some(current) = self.state else {
@@ -175,34 +188,18 @@ impl Tracker {
             return TrackOutcome::TimeWentBackwards;
         }
         let Some(prior) = self.predict(t_s) else { return TrackOutcome::Idle };
-        let miss = |this: &mut Tracker, outcome: fn(u32) -> TrackOutcome| {
-            this.misses += 1;
-            if this.misses >= this.params.max_missed_packets.get() {
-                this.reset();
-                TrackOutcome::Lost
-            } else {
-                this.state = Some(prior);
-                outcome(this.misses)
-            }
-        };
         let Some(z) = z else {
-            return miss(self, |misses| TrackOutcome::Missed { misses });
+            return self.miss(prior, |misses| TrackOutcome::Missed { misses });
         };
         let r = Matrix2::from_diagonal_element(self.params.measurement_var_m2.get());
         let innovation = Vector2::new(z[0], z[1]) - H * prior.x;
         let s = H * prior.p * H.transpose() + r;
         let Some(s_inv) = s.try_inverse() else {
-            return miss(self, |misses| TrackOutcome::Missed { misses });
+            return self.miss(prior, |misses| TrackOutcome::Missed { misses });
         };
         let d2 = (innovation.transpose() * s_inv * innovation)[(0, 0)];
         if d2 > self.gate_sq {
-            self.misses += 1;
-            if self.misses >= self.params.max_missed_packets.get() {
-                self.reset();
-                return TrackOutcome::Lost;
-            }
-            self.state = Some(prior);
-            return TrackOutcome::Gated { mahalanobis_sq: d2, misses: self.misses };
+            return self.miss(prior, |misses| TrackOutcome::Gated { mahalanobis_sq: d2, misses });
         }
         let k = prior.p * H.transpose() * s_inv;
         let x = prior.x + k * innovation;
