@@ -411,40 +411,15 @@ mod tests {
         s.handle_bytes(now, &r.to_frame(1).encode().unwrap());
     }
 
-    /// Opens the link and answers every start-up command like a well-behaved sensor.
-    fn configure(s: &mut Session, now: Instant) -> ConfigRegister {
+    /// Opens the link and answers every start-up command like a sensor whose config register is
+    /// `reg`; returns the commands in the order they came.
+    fn answer_start_up(s: &mut Session, now: Instant, reg: ConfigRegister) -> Vec<Command> {
         s.handle_timeout(now);
         assert_eq!(drain(s), vec![Event::OpenLink]);
         s.link_up(now);
-        let c = s.config().clone();
-        let reg = ConfigRegister::from_settings(c.outputs, c.data_mode, c.stream_hz).unwrap();
+        let mut seen = Vec::new();
         for _ in 0..9 {
             let cmds = sent_commands(s);
-            assert_eq!(cmds.len(), 1);
-            let r = match cmds[0] {
-                Command::GetConfig => Reply::Config(reg),
-                Command::GetImuId => Reply::ImuId(1),
-                Command::GetFirmwareVersion => {
-                    Reply::FirmwareVersion(FirmwareVersion { major: 2, minor: 1, build: 0 })
-                }
-                _ => Reply::Ack,
-            };
-            reply(s, now, r);
-        }
-        reg
-    }
-
-    #[test]
-    fn start_up_sends_the_documented_sequence_then_streams() {
-        let t0 = Instant::now();
-        let mut s = Session::new(SessionConfig::default(), t0);
-        s.handle_timeout(t0);
-        assert_eq!(drain(&mut s), vec![Event::OpenLink]);
-        s.link_up(t0);
-        let mut seen = Vec::new();
-        let reg = ConfigRegister::from_settings(s.config().outputs, DataMode::Float32, 100).unwrap();
-        for _ in 0..9 {
-            let cmds = sent_commands(&mut s);
             assert_eq!(cmds.len(), 1, "one request at a time");
             seen.push(cmds[0]);
             let r = match cmds[0] {
@@ -455,8 +430,25 @@ mod tests {
                 }
                 _ => Reply::Ack,
             };
-            reply(&mut s, t0, r);
+            reply(s, now, r);
         }
+        seen
+    }
+
+    /// A well-behaved sensor: it applies what it is told.
+    fn configure(s: &mut Session, now: Instant) -> ConfigRegister {
+        let c = s.config().clone();
+        let reg = ConfigRegister::from_settings(c.outputs, c.data_mode, c.stream_hz).unwrap();
+        answer_start_up(s, now, reg);
+        reg
+    }
+
+    #[test]
+    fn start_up_sends_the_documented_sequence_then_streams() {
+        let t0 = Instant::now();
+        let mut s = Session::new(SessionConfig::default(), t0);
+        let reg = ConfigRegister::from_settings(s.config().outputs, DataMode::Float32, 100).unwrap();
+        let seen = answer_start_up(&mut s, t0, reg);
         let c = SessionConfig::default();
         assert_eq!(
             seen,
@@ -615,23 +607,9 @@ mod tests {
     fn a_config_that_was_not_applied_is_reported_and_the_reported_layout_is_used() {
         let t0 = Instant::now();
         let mut s = Session::new(SessionConfig::default(), t0);
-        s.handle_timeout(t0);
-        assert_eq!(drain(&mut s), vec![Event::OpenLink]);
-        s.link_up(t0);
         // The sensor keeps gyro-only 16-bit output at 50 Hz whatever it is told.
         let reported = ConfigRegister::from_settings(OutputMask::GYRO, DataMode::Int16, 50).unwrap();
-        for _ in 0..9 {
-            let cmds = sent_commands(&mut s);
-            let r = match cmds[0] {
-                Command::GetConfig => Reply::Config(reported),
-                Command::GetImuId => Reply::ImuId(1),
-                Command::GetFirmwareVersion => {
-                    Reply::FirmwareVersion(FirmwareVersion { major: 2, minor: 0, build: 5 })
-                }
-                _ => Reply::Ack,
-            };
-            reply(&mut s, t0, r);
-        }
+        answer_start_up(&mut s, t0, reported);
         let events = drain(&mut s);
         assert!(matches!(
             events.as_slice(),
