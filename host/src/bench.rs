@@ -79,13 +79,7 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
     };
     let h = &params.heading;
     let target = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
-    let problem = HeadingProblem {
-        source: &pb.smoothed_points,
-        target: &target,
-        translation: [truth.x, truth.y],
-        distance_gate_m: h.distance_gate_m.get(),
-        window_beams: h.neighbour_window_beams.usize(),
-    };
+    let problem = HeadingProblem::new(&pb.smoothed_points, &target, [truth.x, truth.y], h);
     let full = AngleGrid::full(h.step_deg.get());
     let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());
     let mut scratch = SearchScratch::default();

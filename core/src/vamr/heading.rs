@@ -118,6 +118,25 @@ impl HeadingEstimate {
     }
 }
 
+impl<'a> HeadingProblem<'a> {
+    /// A problem with the gate and window of the configured parameters.
+    #[must_use]
+    pub fn new(
+        source: &'a [BeamPoint],
+        target: &'a TargetScan,
+        translation: [f64; 2],
+        params: &crate::config::HeadingParams,
+    ) -> Self {
+        HeadingProblem {
+            source,
+            target,
+            translation,
+            distance_gate_m: params.distance_gate_m.get(),
+            window_beams: params.neighbour_window_beams.usize(),
+        }
+    }
+}
+
 impl HeadingProblem<'_> {
     /// The indicator of Eq. 11 for source point `k` at angle `theta`.
     fn hit(&self, p: [f64; 2], theta: f64) -> bool {

@@ -220,13 +220,7 @@ impl Pipeline {
                     ),
                     None => (AngleGrid::full(h.step_deg.get()), Source::FullSearch),
                 };
-                let problem = HeadingProblem {
-                    source: &pre[i].smoothed_points,
-                    target,
-                    translation: position,
-                    distance_gate_m: h.distance_gate_m.get(),
-                    window_beams: h.neighbour_window_beams.usize(),
-                };
+                let problem = HeadingProblem::new(&pre[i].smoothed_points, target, position, h);
                 let estimate = search(&problem, &grid, &mut self.scratch);
                 report.heading_score = estimate.as_ref().map(|e| e.score);
                 report.heading_margin = estimate.as_ref().map(|e| e.margin());

@@ -66,13 +66,7 @@ fn heading_search_finds_the_relative_heading_within_0_2_deg() {
             (preprocess(&sa, &w.mount, &params.preprocess), preprocess(&sb, &w.mount, &params.preprocess));
         let truth = a.inverse() * b;
         let target = TargetScan::new(&sa, &w.mount, &pa.smoothed_points);
-        let problem = HeadingProblem {
-            source: &pb.smoothed_points,
-            target: &target,
-            translation: [truth.x, truth.y],
-            distance_gate_m: params.heading.distance_gate_m.get(),
-            window_beams: params.heading.neighbour_window_beams.usize(),
-        };
+        let problem = HeadingProblem::new(&pb.smoothed_points, &target, [truth.x, truth.y], &params.heading);
         let e = search(&problem, &AngleGrid::full(params.heading.step_deg.get()), &mut scratch).unwrap();
         let err = angle_diff(e.theta_rad, truth.theta).to_degrees();
         assert!(
