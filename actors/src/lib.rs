@@ -5,3 +5,4 @@
 //! used by `host` (see `../shared/ARCHITECTURE.md`).
 
 pub mod config;
+pub mod supervisor;

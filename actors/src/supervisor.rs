@@ -1,0 +1,1 @@
+//! Supervision: placeholder, being written.
