@@ -2,6 +2,27 @@
 
 use crate::se2::Se2;
 
+/// Lateral slots in V's frame: two robots at ±spacing/2 (the paper); three or more in a line with
+/// robot 0 — the pipeline's reference, which must see every other robot — in the middle, then
+/// +spacing, −spacing, +2·spacing, …
+#[must_use]
+pub fn slots(robots: usize, spacing_m: f64) -> Vec<f64> {
+    match robots {
+        0 | 1 => vec![0.0; robots],
+        2 => vec![spacing_m / 2.0, -spacing_m / 2.0],
+        n => (0..n)
+            .map(|i| {
+                if i == 0 {
+                    0.0
+                } else {
+                    let k = i.div_ceil(2) as f64;
+                    if i % 2 == 1 { k * spacing_m } else { -k * spacing_m }
+                }
+            })
+            .collect(),
+    }
+}
+
 /// Eq. 20, generalised to any lateral offset: a robot at lateral offset `y_i` (metres, left
 /// positive) from the virtual robot V, heading-aligned with it, moves with V's twist `(v_V, ω_V)` when
 /// it drives `v_i = v_V − ω_V·y_i`, `ω_i = ω_V`. For the paper's pair, A at `+R` and B at `−R`:

@@ -69,6 +69,21 @@ pub struct FusedUpdate {
     pub pairs: Vec<PairReport>,
 }
 
+/// A stage of one fused update, for latency accounting (the paper's Table 4). The core has no
+/// clock: [`Pipeline::update_with_laps`] calls its `lap` argument as each stage ends, and the caller
+/// charges the time since the previous lap to that stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stage {
+    /// Sync gate and preprocessing of every scan.
+    Preprocess,
+    /// Contour recognition and the tracker (T3, T4), once per non-reference robot.
+    Tracking,
+    /// The heading search (T2, T4), once per non-reference robot.
+    Heading,
+    /// Virtual frame, body masks and the virtual scan.
+    VirtualScan,
+}
+
 /// Why an update produced no fused measurement.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum UpdateError {
@@ -140,6 +155,15 @@ impl Pipeline {
 
     /// One synchronised set of packets, robot 0 first.
     pub fn update(&mut self, packets: &[RobotPacket<'_>]) -> Result<FusedUpdate, UpdateError> {
+        self.update_with_laps(packets, &mut |_| {})
+    }
+
+    /// [`Pipeline::update`], calling `lap(stage)` as each stage ends.
+    pub fn update_with_laps(
+        &mut self,
+        packets: &[RobotPacket<'_>],
+        lap: &mut dyn FnMut(Stage),
+    ) -> Result<FusedUpdate, UpdateError> {
         let expected = self.trackers.len() + 1;
         if packets.len() != expected {
             return Err(UpdateError::RobotCount { expected, got: packets.len() });
@@ -166,6 +190,7 @@ impl Pipeline {
         let reference = &packets[0];
         let target = heading_from_search
             .then(|| TargetScan::new(reference.scan, &reference.lidar_to_base, &pre[0].smoothed_points));
+        lap(Stage::Preprocess);
         let mut relative = vec![Se2::IDENTITY];
         let mut pairs = Vec::new();
         for i in 1..packets.len() {
@@ -211,6 +236,7 @@ impl Pipeline {
                 let rel = from_amcl.ok_or(UpdateError::NoPosition { robot: i, why: "no AMCL poses" })?;
                 [rel.x, rel.y]
             };
+            lap(Stage::Tracking);
             let theta = if let Some(target) = &target {
                 let h = &self.params.heading;
                 let (grid, mode) = match self.headings[i - 1] {
@@ -242,6 +268,7 @@ impl Pipeline {
             } else {
                 from_amcl.ok_or(UpdateError::NoHeading { robot: i, why: "no AMCL poses" })?.theta
             };
+            lap(Stage::Heading);
             relative.push(Se2::new(position[0], position[1], theta));
             pairs.push(report);
         }
@@ -265,6 +292,7 @@ impl Pipeline {
                 self.params.fusion.virtual_bin_deg.map(|d| d.get().to_radians()),
             )
         });
+        lap(Stage::VirtualScan);
         Ok(FusedUpdate { relative, v_in_reference, bases_in_v, virtual_scan, pairs })
     }
 }

@@ -195,6 +195,24 @@ fn t1_to_t4_run_on_the_same_inputs() {
 }
 
 #[test]
+fn every_stage_laps_once_per_pair_in_order() {
+    use super::pipeline::Stage;
+    let w = site();
+    let (a, b) = layouts()[0];
+    let poses = [a, b];
+    let scans = [w.scan(&poses, 0), w.scan(&poses, 1)];
+    let mut pipeline = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    let mut laps = Vec::new();
+    pipeline.update_with_laps(&packets(&w, &scans, &poses, false), &mut |s| laps.push(s)).unwrap();
+    assert_eq!(laps, [Stage::Preprocess, Stage::Tracking, Stage::Heading, Stage::VirtualScan]);
+    // A failed update stops lapping where it failed: T1 without AMCL poses has no position.
+    let mut t1 = Pipeline::new(2, shipped_params(), Configuration::T1, 0.05, 0.1);
+    laps.clear();
+    assert!(t1.update_with_laps(&packets(&w, &scans, &poses, false), &mut |s| laps.push(s)).is_err());
+    assert_eq!(laps, [Stage::Preprocess]);
+}
+
+#[test]
 fn stale_packets_are_not_fused_and_count_as_misses() {
     let w = site();
     let (a, b) = layouts()[0];

@@ -8,8 +8,6 @@
 //! the true V (from the world) and against the paper's reference (its planned path + encoders, here the
 //! odometry midpoint), each labelled.
 
-mod plan;
-
 use std::sync::Arc;
 
 use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
@@ -24,7 +22,8 @@ use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
 use serde::Serialize;
 
 use crate::world::{Noise, RobotSpec, World, tim551_beams};
-pub use plan::{Reference, reference};
+pub use amr_core::formation::slots;
+pub use amr_core::plan::{Reference, reference};
 
 /// Everything a run needs besides the seed.
 #[derive(Debug, Clone)]
@@ -41,27 +40,6 @@ pub struct Setup {
     pub steps_per_scan: usize,
     /// Robots in the formation (the paper: 2).
     pub robots: usize,
-}
-
-/// Lateral slots in V's frame: two robots at ±spacing/2 (the paper); three or more in a line with
-/// robot 0 — the pipeline's reference, which must see every other robot — in the middle, then
-/// +spacing, −spacing, +2·spacing, …
-#[must_use]
-pub fn slots(robots: usize, spacing_m: f64) -> Vec<f64> {
-    match robots {
-        0 | 1 => vec![0.0; robots],
-        2 => vec![spacing_m / 2.0, -spacing_m / 2.0],
-        n => (0..n)
-            .map(|i| {
-                if i == 0 {
-                    0.0
-                } else {
-                    let k = i.div_ceil(2) as f64;
-                    if i % 2 == 1 { k * spacing_m } else { -k * spacing_m }
-                }
-            })
-            .collect(),
-    }
 }
 
 /// One configuration's errors over one trial.

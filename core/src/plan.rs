@@ -1,8 +1,8 @@
 //! V's reference motion: the scenario's segments executed one after the other with trapezoidal
 //! speed profiles inside the limits, sampled at the physics step.
 
-use amr_core::config::ScenarioConfig;
-use amr_core::se2::Se2;
+use crate::config::ScenarioConfig;
+use crate::se2::Se2;
 
 /// V's planned pose and twist at one physics step.
 #[derive(Debug, Clone, Copy, PartialEq)]
