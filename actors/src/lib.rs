@@ -4,5 +4,9 @@
 //! The actor trees arrive with their issue; this crate depends on `amr-core` and `amr-drivers` and is
 //! used by `host` (see `../shared/ARCHITECTURE.md`).
 
+pub mod clock;
 pub mod config;
+pub mod link;
+pub mod mapping;
+pub mod messages;
 pub mod supervisor;
