@@ -1,0 +1,254 @@
+//! DriveActor: the two wheel drives as one differential drive, on the bus the CAN bus actor
+//! provides. It enables the drives on every new connection, applies the safety layer's wheel
+//! commands, recovers drive faults (bounded), and turns the encoder positions of each SYNC cycle
+//! into wheel travel for odometry. Whatever way it ends — stop, error or panic — it commands zero
+//! and a quick stop on its way out.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+
+use amr_drivers::canopen::cia402::State402;
+use amr_drivers::canopen::diff_drive::DiffDrive;
+use amr_drivers::canopen::error::{CanopenError, LinkError};
+use amr_drivers::canopen::frame::NodeId;
+use amr_drivers::canopen::master::MasterEvent;
+use amr_drivers::canopen::shell::MasterCommand;
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+
+use super::ports::{AbortOnDrop, BusLink, RobotPorts, WheelCommand, WheelTravel};
+use super::status::{Counters, HealthCell};
+use crate::messages::{Device, Health};
+
+/// Fault resets tried per drive before its fault is latched (the drive needs attention).
+pub const MAX_FAULT_RESETS: u32 = 3;
+
+/// Messages of the drive actor.
+#[derive(Debug)]
+pub enum DriveMsg {
+    Bus(Option<BusLink>),
+    Master(MasterEvent),
+    Wheels(WheelCommand),
+    /// Fail now, as a bug would (drills).
+    InjectFailure(String),
+}
+
+/// The drive actor.
+#[derive(Debug, Clone)]
+pub struct DriveActor {
+    pub ports: Arc<RobotPorts>,
+    pub drive: DiffDrive,
+    pub counters: Counters,
+}
+
+/// Its state. Dropping it (any way the actor ends) stops the wheels.
+#[derive(Debug)]
+pub struct DriveState {
+    _watch: AbortOnDrop<()>,
+    bus: Option<BusLink>,
+    health: HealthCell,
+    enabled: BTreeSet<NodeId>,
+    states: BTreeMap<NodeId, State402>,
+    resets: BTreeMap<NodeId, u32>,
+    quick_stopped: bool,
+    last_positions: Option<(i32, i32, f64)>,
+    nodes: [NodeId; 2],
+}
+
+impl Drop for DriveState {
+    fn drop(&mut self) {
+        if let Some(bus) = &self.bus {
+            let _ = bus.commands.try_send(MasterCommand::SetTargets(self.nodes.map(|n| (n, 0)).to_vec()));
+            let _ = bus.commands.try_send(MasterCommand::QuickStop);
+        }
+    }
+}
+
+impl DriveActor {
+    fn nodes(&self) -> [NodeId; 2] {
+        [self.drive.drives().left.node_id, self.drive.drives().right.node_id]
+    }
+
+    fn send(&self, state: &DriveState, cmd: MasterCommand) {
+        if let Some(bus) = &state.bus
+            && bus.commands.try_send(cmd).is_err()
+        {
+            self.counters.count("drives.command_dropped");
+        }
+    }
+
+    fn odometry(&self, state: &mut DriveState, positions: &[(NodeId, i32)]) {
+        let [l, r] = self.nodes();
+        let find = |n| positions.iter().find(|(k, _)| *k == n).map(|(_, p)| *p);
+        let (Some(pl), Some(pr)) = (find(l), find(r)) else { return };
+        let now = self.ports.clock.now_s();
+        if let Some((ll, lr, t)) = state.last_positions {
+            // Exact across the 32-bit wrap.
+            let dl = i64::from(pl.wrapping_sub(ll));
+            let dr = i64::from(pr.wrapping_sub(lr));
+            let d = self.drive.drives();
+            self.ports.wheels.send(WheelTravel {
+                stamp_s: now,
+                dt_s: now - t,
+                left_m: self.drive.counts_to_m(d.left, dl),
+                right_m: self.drive.counts_to_m(d.right, dr),
+            });
+        }
+        state.last_positions = Some((pl, pr, now));
+    }
+
+    fn update_health(&self, state: &mut DriveState) {
+        if state.bus.is_none() {
+            state.health.set(&self.ports, Health::Lost, "no CAN bus");
+        } else if state.resets.values().any(|n| *n > MAX_FAULT_RESETS) {
+            state.health.set(&self.ports, Health::Fault, "a drive stays in Fault after resets");
+        } else if state.enabled.len() == 2 {
+            state.health.set(&self.ports, Health::Ok, "both drives enabled");
+        } else if state.health.get() == Some(Health::Ok) {
+            state.health.set(&self.ports, Health::Degraded, format!("enabled: {:?}", state.enabled));
+        }
+    }
+}
+
+impl Actor for DriveActor {
+    type Msg = DriveMsg;
+    type State = DriveState;
+    type Arguments = ();
+
+    async fn pre_start(&self, myself: ActorRef<DriveMsg>, (): ()) -> Result<DriveState, ActorProcessingErr> {
+        self.ports.bus_events.subscribe(myself.clone(), |e| Some(DriveMsg::Master(e)));
+        self.ports.wheel_cmd.subscribe(myself.clone(), |c| Some(DriveMsg::Wheels(c)));
+        let mut rx = self.ports.bus.subscribe();
+        rx.mark_changed();
+        let watch = tokio::spawn(async move {
+            while rx.changed().await.is_ok() {
+                let link = rx.borrow_and_update().clone();
+                if myself.cast(DriveMsg::Bus(link)).is_err() {
+                    return;
+                }
+            }
+        });
+        let mut health = HealthCell::new(Device::Drives);
+        health.set(&self.ports, Health::Starting, "waiting for the CAN bus");
+        Ok(DriveState {
+            _watch: AbortOnDrop(watch),
+            bus: None,
+            health,
+            enabled: BTreeSet::new(),
+            states: BTreeMap::new(),
+            resets: BTreeMap::new(),
+            quick_stopped: false,
+            last_positions: None,
+            nodes: self.nodes(),
+        })
+    }
+
+    async fn post_stop(
+        &self,
+        _myself: ActorRef<DriveMsg>,
+        state: &mut DriveState,
+    ) -> Result<(), ActorProcessingErr> {
+        tracing::info!(robot = %self.ports.robot, "drives: quick stop on shutdown");
+        self.send(state, MasterCommand::SetTargets(self.nodes().map(|n| (n, 0)).to_vec()));
+        self.send(state, MasterCommand::QuickStop);
+        Ok(())
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<DriveMsg>,
+        msg: DriveMsg,
+        state: &mut DriveState,
+    ) -> Result<(), ActorProcessingErr> {
+        match msg {
+            DriveMsg::Bus(link) => {
+                let new = link.as_ref().map(|l| l.generation) != state.bus.as_ref().map(|l| l.generation);
+                if new {
+                    state.enabled.clear();
+                    state.states.clear();
+                    state.last_positions = None;
+                    state.bus = link;
+                    if state.bus.is_some() {
+                        state.health.set(
+                            &self.ports,
+                            Health::Starting,
+                            "configuring and enabling the drives",
+                        );
+                        // The master keeps the goal: drives still booting are enabled once configured.
+                        self.send(
+                            state,
+                            if state.quick_stopped {
+                                MasterCommand::QuickStop
+                            } else {
+                                MasterCommand::Enable
+                            },
+                        );
+                    }
+                }
+            }
+            DriveMsg::Master(ev) => match ev {
+                MasterEvent::Cycle { positions } => self.odometry(state, &positions),
+                MasterEvent::Enabled { node } => {
+                    state.enabled.insert(node);
+                    state.resets.remove(&node);
+                }
+                MasterEvent::StateChanged { node, state: s } => {
+                    state.states.insert(node, s);
+                    if s != State402::OperationEnabled {
+                        state.enabled.remove(&node);
+                    }
+                    if s.is_fault() {
+                        let n = state.resets.entry(node).or_default();
+                        *n += 1;
+                        if *n <= MAX_FAULT_RESETS {
+                            tracing::warn!(robot = %self.ports.robot, node, attempt = *n, "drive fault: resetting");
+                            self.send(state, MasterCommand::Recover(node));
+                        }
+                    }
+                }
+                MasterEvent::Recovered { node } => {
+                    tracing::info!(robot = %self.ports.robot, node, "drive fault reset confirmed");
+                    if !state.quick_stopped {
+                        self.send(state, MasterCommand::Enable);
+                    }
+                }
+                MasterEvent::BootUp { node } => {
+                    // A reboot: the encoder may restart anywhere; the master reconfigures the drive
+                    // before it is enabled again.
+                    state.enabled.remove(&node);
+                    state.last_positions = None;
+                    self.counters.count("drives.boot_up");
+                }
+                MasterEvent::Error(CanopenError::Link(LinkError::HeartbeatLost { node })) => {
+                    self.counters.count("drives.heartbeat_lost");
+                    state.enabled.remove(&node);
+                    state.health.set(&self.ports, Health::Lost, format!("drive {node}: heartbeat lost"));
+                }
+                MasterEvent::Error(e) => {
+                    self.counters.count("drives.error");
+                    tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
+                }
+                MasterEvent::Configured { .. }
+                | MasterEvent::EmcyReset { .. }
+                | MasterEvent::SdoDone { .. } => {}
+            },
+            DriveMsg::Wheels(c) => {
+                if c.quick_stop != state.quick_stopped {
+                    state.quick_stopped = c.quick_stop;
+                    self.send(
+                        state,
+                        if c.quick_stop { MasterCommand::QuickStop } else { MasterCommand::Enable },
+                    );
+                }
+                let targets = if c.quick_stop {
+                    self.nodes().map(|n| (n, 0))
+                } else {
+                    self.drive.wheel_targets(c.v_mps, c.w_radps)
+                };
+                self.send(state, MasterCommand::SetTargets(targets.to_vec()));
+            }
+            DriveMsg::InjectFailure(why) => return Err(why.into()),
+        }
+        self.update_health(state);
+        Ok(())
+    }
+}

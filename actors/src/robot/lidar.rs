@@ -1,0 +1,107 @@
+//! LidarActor: owns the SOPAS connection to the TiM551 (the TCP shell reconnects with backoff on
+//! its own), turns telegrams into scans on the fleet clock, and reports health.
+
+use std::sync::Arc;
+
+use amr_drivers::sopas::tcp::{Health as LinkHealth, LidarConfig, LidarMessage, spawn_tcp};
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+
+use super::ports::{AbortOnDrop, LidarScan, RobotPorts};
+use super::status::{Counters, HealthCell};
+use crate::mapping;
+use crate::messages::{Device, Health};
+
+/// Messages of the LiDAR actor.
+#[derive(Debug)]
+pub enum LidarMsg {
+    /// From the driver task.
+    Driver(LidarMessage),
+    /// The driver task ended (it only ends when its channel closes: a bug).
+    DriverEnded,
+    /// Fail now, as a bug would (drills).
+    InjectFailure(String),
+}
+
+/// The LiDAR actor.
+#[derive(Debug, Clone)]
+pub struct LidarActor {
+    pub ports: Arc<RobotPorts>,
+    pub config: LidarConfig,
+    pub counters: Counters,
+}
+
+/// Its state.
+#[derive(Debug)]
+pub struct LidarState {
+    _driver: AbortOnDrop<()>,
+    _pump: AbortOnDrop<()>,
+    health: HealthCell,
+    seq: u64,
+}
+
+impl Actor for LidarActor {
+    type Msg = LidarMsg;
+    type State = LidarState;
+    type Arguments = ();
+
+    async fn pre_start(&self, myself: ActorRef<LidarMsg>, (): ()) -> Result<LidarState, ActorProcessingErr> {
+        let (driver, mut rx) = spawn_tcp(self.config.clone(), 16);
+        let pump = tokio::spawn(async move {
+            while let Some(m) = rx.recv().await {
+                if myself.cast(LidarMsg::Driver(m)).is_err() {
+                    return;
+                }
+            }
+            let _ = myself.cast(LidarMsg::DriverEnded);
+        });
+        let mut health = HealthCell::new(Device::Lidar);
+        health.set(
+            &self.ports,
+            Health::Starting,
+            format!("connecting to {}:{}", self.config.host, self.config.port),
+        );
+        Ok(LidarState { _driver: AbortOnDrop(driver), _pump: AbortOnDrop(pump), health, seq: 0 })
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<LidarMsg>,
+        msg: LidarMsg,
+        state: &mut LidarState,
+    ) -> Result<(), ActorProcessingErr> {
+        let ports = &self.ports;
+        match msg {
+            LidarMsg::Driver(LidarMessage::Scan(s)) => {
+                let received_s = ports.clock.seconds_std(s.received);
+                let stamp_s = s.stamp.map_or(received_s, |t| ports.clock.seconds_std(t));
+                let scan = mapping::scan(&s.scan);
+                if scan.valid_count() == 0 {
+                    self.counters.rejected("lidar: scan without a valid beam");
+                    return Ok(());
+                }
+                state.seq += 1;
+                self.counters.count("lidar.scans");
+                ports.scans.send(LidarScan { seq: state.seq, stamp_s, received_s, scan: Arc::new(scan) });
+                state.health.set(ports, Health::Ok, "scanning");
+            }
+            LidarMsg::Driver(LidarMessage::Health(h)) => match h {
+                LinkHealth::Starting => state.health.set(ports, Health::Starting, "start-up sequence"),
+                LinkHealth::Ok(info) => {
+                    let what = format!("{info:?}");
+                    state.health.set(ports, Health::Ok, what);
+                }
+                LinkHealth::Lost { retry_in } => {
+                    self.counters.count("lidar.link_lost");
+                    state.health.set(ports, Health::Lost, format!("reconnecting in {retry_in:?}"));
+                }
+            },
+            LidarMsg::Driver(LidarMessage::Error(e)) => {
+                tracing::debug!(robot = %ports.robot, error = %e, "lidar error");
+                self.counters.rejected("lidar: protocol or device error");
+            }
+            LidarMsg::DriverEnded => return Err("the SOPAS driver task ended".into()),
+            LidarMsg::InjectFailure(why) => return Err(why.into()),
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,258 @@
+//! The robot's actor tree (ARCHITECTURE.md, issue 9 §1, §3):
+//!
+//! ```text
+//! robot-<id>            one-for-one
+//! ├── lidar             LidarActor     (SOPAS/TCP)
+//! ├── imu               ImuActor       (LPBUS/serial)
+//! ├── drives            rest-for-one
+//! │   ├── can-bus       CanBusActor    (transport + CANopen master)
+//! │   └── drive         DriveActor     (CiA 402 diff drive, wheel travel)
+//! ├── odometry          OdometryActor  (wheels + gyro)
+//! ├── safety            SafetyActor    (limits, watchdog, e-stop latch)
+//! └── uplink            UplinkActor    (scans with odometry, health, safety → link)
+//! ```
+//!
+//! The actors talk through [`RobotPorts`], which outlive every actor, so a restart re-subscribes
+//! and nothing holds a stale reference. If the top supervisor escalates (restart intensity
+//! exceeded), every child has been stopped — the drive actor quick-stops on its way out and the
+//! drives' own heartbeat consumer stops them if the master is gone — and the robot reports
+//! `Fault` up the link.
+
+pub mod canbus;
+pub mod drive;
+pub mod imu;
+pub mod lidar;
+pub mod odometry;
+pub mod ports;
+pub mod safety;
+pub mod status;
+pub mod uplink;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use amr_core::config::{CanTransport, RobotConfig};
+use ractor::{Actor, ActorRef};
+
+use crate::clock::FleetClock;
+use crate::link::{RobotEnd, UplinkSender};
+use crate::mapping;
+use crate::messages::{SafetyState, Uplink};
+use crate::supervisor::{
+    ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
+};
+use canbus::{CanBusActor, CanLink};
+use drive::DriveActor;
+use imu::ImuActor;
+use lidar::LidarActor;
+use odometry::OdometryActor;
+use ports::{AbortOnDrop, RobotPorts};
+pub use safety::SafetyControl;
+use safety::{SafetyActor, SafetyParams};
+use status::Counters;
+use uplink::UplinkActor;
+
+/// Where the devices are, when not where the configuration says (mock devices in a simulation).
+#[derive(Debug, Clone, Default)]
+pub struct DeviceOverrides {
+    pub lidar: Option<(String, u16)>,
+    pub imu_path: Option<String>,
+    pub can: Option<CanLink>,
+}
+
+/// Supervision settings of the robot tree.
+#[derive(Debug, Clone, Copy)]
+pub struct RobotOptions {
+    /// The top supervisor's policy (devices, odometry, safety, uplink).
+    pub policy: RestartPolicy,
+    /// The drives subtree's policy (CAN bus, then drives).
+    pub drives_policy: RestartPolicy,
+    /// Send every n-th odometry update up the link.
+    pub odom_decimation: u64,
+}
+
+impl Default for RobotOptions {
+    fn default() -> Self {
+        // OTP's default intensity is 1 restart in 5 s; devices deserve a few more, with backoff.
+        let policy = RestartPolicy {
+            max_restarts: 3,
+            window: Duration::from_secs(10),
+            backoff_initial: Duration::from_millis(100),
+            backoff_max: Duration::from_secs(5),
+        };
+        RobotOptions { policy, drives_policy: policy, odom_decimation: 5 }
+    }
+}
+
+/// Why a robot could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotError {
+    #[error("devices.can.transport is in-process but no bus was given (only a simulation has one)")]
+    NoInProcessBus,
+    #[error("the robot supervisor did not start: {0}")]
+    Spawn(#[from] ractor::SpawnErr),
+}
+
+/// A running robot.
+#[derive(Debug)]
+pub struct RobotTree {
+    pub id: String,
+    pub supervisor: ActorRef<SupervisorMsg>,
+    pub ports: Arc<RobotPorts>,
+    pub events: EventLog,
+    pub counters: Counters,
+    /// Sends e-stop, reset and fault to whichever safety actor is running.
+    pub control: Arc<ractor::OutputPort<SafetyControl>>,
+    join: tokio::task::JoinHandle<()>,
+    _tasks: Vec<AbortOnDrop<()>>,
+}
+
+impl RobotTree {
+    /// Latch the e-stop.
+    pub fn estop(&self) {
+        self.control.send(SafetyControl::EStop);
+    }
+
+    /// Clear the e-stop (the robot stays disarmed until armed).
+    pub fn reset_estop(&self) {
+        self.control.send(SafetyControl::ResetEStop);
+    }
+
+    /// Orderly shutdown: children stop in reverse order (the drives quick-stop), bounded in time.
+    pub async fn shutdown(self) {
+        self.supervisor.stop(Some("shutdown".into()));
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.join).await;
+    }
+
+    /// Whether the tree is still running.
+    #[must_use]
+    pub fn is_running(&self) -> bool {
+        !self.join.is_finished()
+    }
+}
+
+/// The safety parameters of a robot configuration.
+#[must_use]
+pub fn safety_params(cfg: &RobotConfig) -> SafetyParams {
+    SafetyParams {
+        max_speed_mps: cfg.limits.max_speed_mps.get(),
+        max_yaw_rate_radps: cfg.limits.max_yaw_rate_radps.get(),
+        max_accel_mps2: cfg.limits.max_accel_mps2.get(),
+        track_width_m: cfg.kinematics.track_width_m.get(),
+        command_timeout_s: f64::from(cfg.safety.command_timeout_ms.ms()) / 1000.0,
+        period_s: f64::from(cfg.devices.can.sync_period_ms.ms()) / 1000.0,
+    }
+}
+
+/// Start robot `cfg`'s tree on `link`.
+pub async fn start_robot(
+    cfg: &RobotConfig,
+    overrides: DeviceOverrides,
+    link: RobotEnd,
+    clock: FleetClock,
+    options: RobotOptions,
+) -> Result<RobotTree, RobotError> {
+    let id = cfg.id.as_str().to_owned();
+    let ports = RobotPorts::new(id.clone(), clock);
+    let counters = Counters::default();
+    let events = EventLog::default();
+    let control = Arc::new(ractor::OutputPort::<SafetyControl>::default());
+
+    let mut lidar_cfg = mapping::lidar(cfg);
+    if let Some((host, port)) = overrides.lidar {
+        (lidar_cfg.host, lidar_cfg.port) = (host, port);
+    }
+    let mut imu_cfg = mapping::imu(cfg);
+    if let Some(path) = overrides.imu_path {
+        imu_cfg.path = path;
+    }
+    let can = match (overrides.can, &cfg.devices.can.transport) {
+        (Some(c), _) => c,
+        (None, CanTransport::Socketcan { interface }) => CanLink::SocketCan { interface: interface.clone() },
+        (None, CanTransport::Socketcand { address, channel }) => {
+            CanLink::Socketcand { address: address.clone(), channel: channel.clone() }
+        }
+        (None, CanTransport::InProcess) => return Err(RobotError::NoInProcessBus),
+    };
+    let reconnect = &cfg.devices.can.reconnect;
+
+    let lidar = LidarActor { ports: Arc::clone(&ports), config: lidar_cfg, counters: counters.clone() };
+    let imu = ImuActor { ports: Arc::clone(&ports), config: imu_cfg, counters: counters.clone() };
+    let bus = CanBusActor {
+        ports: Arc::clone(&ports),
+        link: can,
+        master: mapping::master(cfg),
+        backoff: (reconnect.initial_ms.duration(), reconnect.max_ms.duration()),
+        counters: counters.clone(),
+    };
+    let drive =
+        DriveActor { ports: Arc::clone(&ports), drive: mapping::diff_drive(cfg), counters: counters.clone() };
+    let odometry =
+        OdometryActor { ports: Arc::clone(&ports), track_width_m: cfg.kinematics.track_width_m.get() };
+    let safety = SafetyActor {
+        ports: Arc::clone(&ports),
+        params: safety_params(cfg),
+        counters: counters.clone(),
+        control: Arc::clone(&control),
+    };
+    let uplink = UplinkActor {
+        ports: Arc::clone(&ports),
+        link: link.up.clone(),
+        odom_decimation: options.odom_decimation,
+    };
+
+    let drives = SupervisorSpec {
+        name: format!("{id}/drives"),
+        strategy: Strategy::RestForOne,
+        policy: options.drives_policy,
+        children: vec![
+            ChildSpec::new("can-bus", move || (bus.clone(), ())),
+            ChildSpec::new("drive", move || (drive.clone(), ())),
+        ],
+        events: events.clone(),
+    };
+    let top = SupervisorSpec {
+        name: id.clone(),
+        strategy: Strategy::OneForOne,
+        policy: options.policy,
+        children: vec![
+            ChildSpec::new("lidar", move || (lidar.clone(), ())),
+            ChildSpec::new("imu", move || (imu.clone(), ())),
+            ChildSpec::new("drives", move || (Supervisor, drives.clone())),
+            ChildSpec::new("odometry", move || (odometry.clone(), ())),
+            ChildSpec::new("safety", move || (safety.clone(), ())),
+            ChildSpec::new("uplink", move || (uplink.clone(), ())),
+        ],
+        events: events.clone(),
+    };
+    let (supervisor, join) = Supervisor::spawn(None, Supervisor, top).await?;
+
+    // What comes down the link goes to whichever safety actor is running.
+    let mut down = link.down;
+    let p = Arc::clone(&ports);
+    let pump = tokio::spawn(async move {
+        while let Some(msg) = down.recv().await {
+            p.downlink.send(msg);
+        }
+    });
+    // The top supervisor ending on its own means it escalated: report Fault, and keep reporting
+    // it (the server may not be listening yet) until the tree is dropped.
+    let (p, up, sup) = (Arc::clone(&ports), link.up.clone(), supervisor.clone());
+    let join = tokio::spawn(async move {
+        let _ = join.await;
+        tracing::error!(robot = %p.robot, "robot supervisor ended: robot stopped");
+        report_fault(&p, &up);
+        drop(sup);
+    });
+    Ok(RobotTree { id, supervisor, ports, events, counters, control, join, _tasks: vec![AbortOnDrop(pump)] })
+}
+
+fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
+    ports.safety.send(SafetyState::Fault);
+    up.send(Uplink::Safety {
+        robot: ports.robot.clone(),
+        seq: u64::MAX,
+        stamp_s: ports.clock.now_s(),
+        state: SafetyState::Fault,
+    });
+}

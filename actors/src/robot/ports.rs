@@ -1,0 +1,112 @@
+//! The robot's wiring: output ports that outlive any one actor, so an actor restarted by its
+//! supervisor subscribes again in `pre_start` and the rest of the tree never holds a stale
+//! reference. Ports are lossy (a lagging subscriber skips messages), which suits sensor data; the
+//! safety loop re-sends its output every cycle.
+
+use std::sync::Arc;
+
+use amr_core::scan::Scan;
+use amr_drivers::canopen::master::MasterEvent;
+use amr_drivers::canopen::shell::MasterCommand;
+use ractor::OutputPort;
+use tokio::sync::{mpsc, watch};
+
+use crate::clock::FleetClock;
+use crate::messages::{Downlink, HealthReport, OdomMsg, SafetyState};
+
+/// One scan as the LiDAR actor publishes it.
+#[derive(Debug, Clone)]
+pub struct LidarScan {
+    /// Per-connection scan counter of the actor.
+    pub seq: u64,
+    /// When the scan was taken (device clock mapped to the fleet clock; the receive time until
+    /// the clock fit has a pair).
+    pub stamp_s: f64,
+    pub received_s: f64,
+    pub scan: Arc<Scan>,
+}
+
+/// One gyro reading.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuReading {
+    pub stamp_s: f64,
+    /// Yaw rate about the robot's z axis, rad/s.
+    pub yaw_rate_radps: f64,
+}
+
+/// Wheel travel since the previous cycle, from the encoders.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WheelTravel {
+    pub stamp_s: f64,
+    /// Time since the previous travel, s.
+    pub dt_s: f64,
+    pub left_m: f64,
+    pub right_m: f64,
+}
+
+/// What the safety layer asks of the drives, every cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WheelCommand {
+    pub v_mps: f64,
+    pub w_radps: f64,
+    /// Quick stop the drives (e-stop, fault) instead of ramping.
+    pub quick_stop: bool,
+}
+
+/// A connected CAN bus: the running master's command queue and which connection it is.
+#[derive(Debug, Clone)]
+pub struct BusLink {
+    /// Increases with every (re)connection of the bus.
+    pub generation: u64,
+    pub commands: mpsc::Sender<MasterCommand>,
+}
+
+/// Every port of one robot.
+#[derive(Debug)]
+pub struct RobotPorts {
+    pub robot: String,
+    pub clock: FleetClock,
+    pub scans: OutputPort<LidarScan>,
+    pub imu: OutputPort<ImuReading>,
+    pub wheels: OutputPort<WheelTravel>,
+    pub odom: OutputPort<OdomMsg>,
+    pub health: OutputPort<HealthReport>,
+    pub safety: OutputPort<SafetyState>,
+    /// What came down the link.
+    pub downlink: OutputPort<Downlink>,
+    pub wheel_cmd: OutputPort<WheelCommand>,
+    /// The current bus, set by the CAN bus actor (`None` while disconnected).
+    pub bus: watch::Sender<Option<BusLink>>,
+    pub bus_events: OutputPort<MasterEvent>,
+}
+
+impl RobotPorts {
+    #[must_use]
+    pub fn new(robot: impl Into<String>, clock: FleetClock) -> Arc<Self> {
+        Arc::new(RobotPorts {
+            robot: robot.into(),
+            clock,
+            scans: OutputPort::default(),
+            imu: OutputPort::default(),
+            wheels: OutputPort::default(),
+            odom: OutputPort::default(),
+            health: OutputPort::default(),
+            safety: OutputPort::default(),
+            downlink: OutputPort::default(),
+            wheel_cmd: OutputPort::default(),
+            bus: watch::Sender::new(None),
+            bus_events: OutputPort::default(),
+        })
+    }
+}
+
+/// Aborts a task when dropped: an actor keeps its driver tasks in its state, so a panic, an error
+/// or a stop ends them with it.
+#[derive(Debug)]
+pub struct AbortOnDrop<T>(pub tokio::task::JoinHandle<T>);
+
+impl<T> Drop for AbortOnDrop<T> {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}

@@ -1,0 +1,477 @@
+//! SafetyActor: the robot's own safety layer, whatever the server or the network does.
+//!
+//! - Commands are accepted only while armed, only newer than the last one accepted (sequence
+//!   number) and not older than the command timeout (stamp); anything else is refused and counted.
+//! - Velocity limits clamp every command; each wheel's speed changes by at most
+//!   `max_accel · dt` per cycle, so turning obeys the acceleration limit as well as driving.
+//! - Command watchdog: no fresh command for `command_timeout_ms` → disarm and ramp to zero at the
+//!   acceleration limit. Only an explicit arm (with a new sequence floor) lets commands through
+//!   again, so nothing queued during an outage is ever applied.
+//! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed).
+//! - A supervisor escalation or a lost drive latches or disarms likewise.
+//!
+//! The decisions live in [`SafetyCore`] (no IO, time passed in); the actor ticks it every cycle and
+//! publishes the wheel command.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+
+use super::ports::{RobotPorts, WheelCommand};
+use super::status::{Counters, HealthCell};
+use crate::messages::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
+
+/// The limits and timings of the safety layer (from `[limits]` and `[safety]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SafetyParams {
+    pub max_speed_mps: f64,
+    pub max_yaw_rate_radps: f64,
+    pub max_accel_mps2: f64,
+    pub track_width_m: f64,
+    pub command_timeout_s: f64,
+    /// Control cycle (the CAN SYNC period).
+    pub period_s: f64,
+}
+
+/// Why a command was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    NotArmed,
+    /// Its sequence number is not above the last accepted one (a replay or reordering), or below
+    /// the floor set by the last arm.
+    Stale,
+    /// Its stamp is older than the command timeout.
+    Expired,
+    NotFinite,
+}
+
+/// The safety layer's decisions.
+#[derive(Debug, Clone)]
+pub struct SafetyCore {
+    params: SafetyParams,
+    state: SafetyState,
+    /// The last accepted command and when it arrived.
+    command: Option<(Command, f64)>,
+    last_seq: Option<u64>,
+    seq_floor: u64,
+    /// The twist being output.
+    output: (f64, f64),
+    last_tick_s: Option<f64>,
+}
+
+impl SafetyCore {
+    #[must_use]
+    pub fn new(params: SafetyParams) -> Self {
+        SafetyCore {
+            params,
+            state: SafetyState::Disarmed(DisarmReason::Startup),
+            command: None,
+            last_seq: None,
+            seq_floor: 0,
+            output: (0.0, 0.0),
+            last_tick_s: None,
+        }
+    }
+
+    #[must_use]
+    pub fn state(&self) -> SafetyState {
+        self.state
+    }
+
+    /// The twist currently output.
+    #[must_use]
+    pub fn output(&self) -> (f64, f64) {
+        self.output
+    }
+
+    /// Arm: accept commands with `seq >= floor`, starting the watchdog now.
+    pub fn arm(&mut self, floor: u64, now_s: f64) -> bool {
+        match self.state {
+            SafetyState::Disarmed(_) => {
+                self.state = SafetyState::Armed;
+                self.seq_floor = floor;
+                self.command = None;
+                self.last_tick_s.get_or_insert(now_s);
+                // The watchdog runs from the arm: a first command must come within the timeout.
+                self.command = Some((Command { seq: 0, stamp_s: now_s, v_mps: 0.0, w_radps: 0.0 }, now_s));
+                true
+            }
+            SafetyState::Armed => {
+                self.seq_floor = self.seq_floor.max(floor);
+                true
+            }
+            SafetyState::EStop | SafetyState::Fault => false,
+        }
+    }
+
+    /// Disarm (ramp to zero); kept if already e-stopped or faulted.
+    pub fn disarm(&mut self, reason: DisarmReason) {
+        if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
+            self.state = SafetyState::Disarmed(reason);
+            self.command = None;
+        }
+    }
+
+    /// Latch the e-stop (a fault stays a fault).
+    pub fn estop(&mut self) {
+        if self.state != SafetyState::Fault {
+            self.state = SafetyState::EStop;
+            self.command = None;
+            self.output = (0.0, 0.0);
+        }
+    }
+
+    /// Clear the e-stop: the robot is disarmed until armed again.
+    pub fn reset_estop(&mut self) -> bool {
+        if self.state == SafetyState::EStop {
+            self.state = SafetyState::Disarmed(DisarmReason::EStopReset);
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Latch a fault: stopped until the robot is restarted.
+    pub fn fault(&mut self) {
+        self.state = SafetyState::Fault;
+        self.command = None;
+        self.output = (0.0, 0.0);
+    }
+
+    /// Offer a command that arrived at `now_s`.
+    pub fn offer(&mut self, c: Command, now_s: f64) -> Result<(), Refusal> {
+        if self.state != SafetyState::Armed {
+            return Err(Refusal::NotArmed);
+        }
+        if !(c.v_mps.is_finite() && c.w_radps.is_finite() && c.stamp_s.is_finite()) {
+            return Err(Refusal::NotFinite);
+        }
+        if c.seq < self.seq_floor || self.last_seq.is_some_and(|s| c.seq <= s) {
+            return Err(Refusal::Stale);
+        }
+        if now_s - c.stamp_s > self.params.command_timeout_s {
+            return Err(Refusal::Expired);
+        }
+        self.last_seq = Some(c.seq);
+        self.command = Some((c, now_s));
+        Ok(())
+    }
+
+    /// One control cycle at `now_s`: the wheel command to apply.
+    pub fn tick(&mut self, now_s: f64) -> WheelCommand {
+        let p = self.params;
+        let dt = self.last_tick_s.map_or(p.period_s, |t| (now_s - t).clamp(0.0, 10.0 * p.period_s));
+        self.last_tick_s = Some(now_s);
+        if matches!(self.state, SafetyState::EStop | SafetyState::Fault) {
+            self.output = (0.0, 0.0);
+            return WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: true };
+        }
+        if self.state == SafetyState::Armed
+            && self.command.is_none_or(|(_, at)| now_s - at > p.command_timeout_s)
+        {
+            tracing::warn!(timeout_s = p.command_timeout_s, "command watchdog: no fresh command, stopping");
+            self.disarm(DisarmReason::Watchdog);
+        }
+        let target = match (self.state, self.command) {
+            (SafetyState::Armed, Some((c, _))) => (
+                c.v_mps.clamp(-p.max_speed_mps, p.max_speed_mps),
+                c.w_radps.clamp(-p.max_yaw_rate_radps, p.max_yaw_rate_radps),
+            ),
+            _ => (0.0, 0.0),
+        };
+        self.output = ramp_wheels(self.output, target, p.max_accel_mps2 * dt, p.track_width_m);
+        WheelCommand { v_mps: self.output.0, w_radps: self.output.1, quick_stop: false }
+    }
+}
+
+/// Move from twist `from` towards `to`, changing each wheel's surface speed by at most `dv`.
+fn ramp_wheels(from: (f64, f64), to: (f64, f64), dv: f64, track_m: f64) -> (f64, f64) {
+    let half = track_m / 2.0;
+    let wheels = |(v, w): (f64, f64)| [v - w * half, v + w * half];
+    let (a, b) = (wheels(from), wheels(to));
+    let l = a[0] + (b[0] - a[0]).clamp(-dv, dv);
+    let r = a[1] + (b[1] - a[1]).clamp(-dv, dv);
+    let out = (0.5 * (l + r), (r - l) / track_m);
+    // Snap exact zeros so a stopped robot outputs exactly zero.
+    (if out.0.abs() < 1e-12 { 0.0 } else { out.0 }, if out.1.abs() < 1e-12 { 0.0 } else { out.1 })
+}
+
+/// Messages of the safety actor.
+#[derive(Debug)]
+pub enum SafetyMsg {
+    Tick,
+    Link(Downlink),
+    Health(HealthReport),
+    EStop,
+    ResetEStop,
+    /// A supervisor escalated.
+    Fault(String),
+    /// The current state (for tests and the CLI).
+    State(ractor::RpcReplyPort<SafetyState>),
+}
+
+/// Operator controls of the safety layer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SafetyControl {
+    EStop,
+    ResetEStop,
+}
+
+/// The safety actor.
+#[derive(Debug, Clone)]
+pub struct SafetyActor {
+    pub ports: Arc<RobotPorts>,
+    pub params: SafetyParams,
+    pub counters: Counters,
+    /// The operator's controls (e-stop, reset), for whichever safety actor is running.
+    pub control: Arc<ractor::OutputPort<SafetyControl>>,
+}
+
+#[derive(Debug)]
+pub struct SafetyActorState {
+    core: SafetyCore,
+    published: Option<SafetyState>,
+    health: HealthCell,
+}
+
+impl SafetyActor {
+    fn publish(&self, s: &mut SafetyActorState) {
+        let now = s.core.state();
+        if s.published != Some(now) {
+            tracing::info!(robot = %self.ports.robot, state = ?now, "safety");
+            s.published = Some(now);
+            self.ports.safety.send(now);
+            let health = match now {
+                SafetyState::Fault => Health::Fault,
+                SafetyState::EStop => Health::Degraded,
+                _ => Health::Ok,
+            };
+            s.health.set(&self.ports, health, format!("{now:?}"));
+        }
+    }
+
+    fn output(&self, s: &mut SafetyActorState) {
+        let cmd = s.core.tick(self.ports.clock.now_s());
+        self.ports.wheel_cmd.send(cmd);
+    }
+}
+
+impl Actor for SafetyActor {
+    type Msg = SafetyMsg;
+    type State = SafetyActorState;
+    type Arguments = ();
+
+    async fn pre_start(
+        &self,
+        myself: ActorRef<SafetyMsg>,
+        (): (),
+    ) -> Result<SafetyActorState, ActorProcessingErr> {
+        self.ports.downlink.subscribe(myself.clone(), |d| Some(SafetyMsg::Link(d)));
+        self.ports.health.subscribe(myself.clone(), |h| Some(SafetyMsg::Health(h)));
+        self.control.subscribe(myself.clone(), |c| {
+            Some(match c {
+                SafetyControl::EStop => SafetyMsg::EStop,
+                SafetyControl::ResetEStop => SafetyMsg::ResetEStop,
+            })
+        });
+        let period = Duration::from_secs_f64(self.params.period_s.max(0.001));
+        myself.send_interval(period, || SafetyMsg::Tick);
+        let mut s = SafetyActorState {
+            core: SafetyCore::new(self.params),
+            published: None,
+            health: HealthCell::new(Device::Safety),
+        };
+        self.publish(&mut s);
+        Ok(s)
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<SafetyMsg>,
+        msg: SafetyMsg,
+        s: &mut SafetyActorState,
+    ) -> Result<(), ActorProcessingErr> {
+        let now = self.ports.clock.now_s();
+        match msg {
+            SafetyMsg::Tick => self.output(s),
+            SafetyMsg::Link(Downlink::Command(c)) => {
+                if let Err(why) = s.core.offer(c, now) {
+                    self.counters.count(match why {
+                        Refusal::NotArmed => "safety.refused.not_armed",
+                        Refusal::Stale => "safety.refused.stale",
+                        Refusal::Expired => "safety.refused.expired",
+                        Refusal::NotFinite => "safety.refused.not_finite",
+                    });
+                }
+            }
+            SafetyMsg::Link(Downlink::Arm { seq }) => {
+                if !s.core.arm(seq, now) {
+                    self.counters.count("safety.refused.arm");
+                }
+            }
+            SafetyMsg::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested),
+            SafetyMsg::Health(h) => {
+                // Without working drives commands cannot be followed: disarm, so motion needs a
+                // fresh arm once they are back.
+                if matches!(h.device, Device::Drives | Device::CanBus)
+                    && matches!(h.health, Health::Lost | Health::Fault)
+                    && s.core.state() == SafetyState::Armed
+                {
+                    s.core.disarm(DisarmReason::Requested);
+                }
+            }
+            SafetyMsg::EStop => {
+                s.core.estop();
+                // Not waiting for the next cycle.
+                self.output(s);
+            }
+            SafetyMsg::ResetEStop => {
+                s.core.reset_estop();
+            }
+            SafetyMsg::Fault(why) => {
+                tracing::error!(robot = %self.ports.robot, %why, "safety: fault latched");
+                s.core.fault();
+                self.output(s);
+            }
+            SafetyMsg::State(reply) => {
+                let _ = reply.send(s.core.state());
+            }
+        }
+        self.publish(s);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: SafetyParams = SafetyParams {
+        max_speed_mps: 0.22,
+        max_yaw_rate_radps: 0.2,
+        max_accel_mps2: 0.05,
+        track_width_m: 0.33,
+        command_timeout_s: 0.2,
+        period_s: 0.02,
+    };
+
+    fn cmd(seq: u64, stamp_s: f64, v: f64, w: f64) -> Command {
+        Command { seq, stamp_s, v_mps: v, w_radps: w }
+    }
+
+    /// Ticks every 20 ms from `t0` for `n` cycles, offering a command before each if `feed`.
+    fn run(core: &mut SafetyCore, t0: f64, n: u32, feed: Option<(&mut u64, f64, f64)>) -> Vec<WheelCommand> {
+        let mut out = Vec::new();
+        let mut feed = feed;
+        for k in 0..n {
+            let t = t0 + f64::from(k) * 0.02;
+            if let Some((seq, v, w)) = feed.as_mut() {
+                **seq += 1;
+                let _ = core.offer(cmd(**seq, t, *v, *w), t);
+            }
+            out.push(core.tick(t));
+        }
+        out
+    }
+
+    #[test]
+    fn starts_disarmed_and_refuses_commands_until_armed() {
+        let mut c = SafetyCore::new(P);
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Startup));
+        assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Err(Refusal::NotArmed));
+        assert_eq!(c.tick(0.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
+        assert!(c.arm(1, 0.0));
+        assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Ok(()));
+    }
+
+    #[test]
+    fn limits_speed_and_ramps_each_wheel_at_the_acceleration_limit() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        let out = run(&mut c, 0.0, 400, Some((&mut seq, 5.0, 0.0)));
+        // 0.05 m/s² → 0.001 m/s per 20 ms cycle.
+        for w in out.windows(2) {
+            assert!((w[1].v_mps - w[0].v_mps).abs() <= 0.001 + 1e-12);
+        }
+        // The first tick is at the arm time (no time has passed), then 1 mm/s per cycle.
+        assert_eq!(out[0].v_mps, 0.0);
+        assert!((out[10].v_mps - 0.010).abs() < 1e-9, "{}", out[10].v_mps);
+        assert!((out.last().map_or(0.0, |o| o.v_mps) - 0.22).abs() < 1e-12, "capped at max speed");
+        // A turn on the spot: each wheel ramps at the limit, the yaw rate is capped.
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        let out = run(&mut c, 0.0, 400, Some((&mut seq, 0.0, 9.0)));
+        let dw = 0.001 / (P.track_width_m / 2.0);
+        assert!((out[1].w_radps - dw).abs() < 1e-9);
+        assert!((out.last().map_or(0.0, |o| o.w_radps) - 0.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn watchdog_ramps_to_zero_and_needs_a_rearm() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
+        let v0 = out.last().map_or(0.0, |o| o.v_mps);
+        assert!(v0 > 0.19);
+        // Commands stop at t = 5.98; the watchdog fires once 200 ms have passed.
+        let after = run(&mut c, 6.0, 400, None);
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Watchdog));
+        // It ramped: never faster than the limit, and reached zero exactly.
+        for w in after.windows(2) {
+            assert!(w[0].v_mps - w[1].v_mps <= 0.001 + 1e-12);
+        }
+        assert_eq!(after.last().map(|o| o.v_mps), Some(0.0));
+        // Full speed for the first 10 cycles (the timeout), then down.
+        assert!((after[8].v_mps - v0).abs() < 1e-12);
+        assert!(after[12].v_mps < v0);
+        // A command that was queued during the outage (older seq, or stamped long ago) is refused
+        // even after the re-arm.
+        assert_eq!(c.offer(cmd(seq + 1, 6.0, 0.2, 0.0), 14.0), Err(Refusal::NotArmed));
+        assert!(c.arm(seq + 10, 14.0));
+        assert_eq!(c.offer(cmd(seq + 1, 13.9, 0.2, 0.0), 14.0), Err(Refusal::Stale));
+        assert_eq!(c.offer(cmd(seq + 10, 13.0, 0.2, 0.0), 14.0), Err(Refusal::Expired));
+        assert_eq!(c.offer(cmd(seq + 11, 14.0, 0.2, 0.0), 14.0), Ok(()));
+        // Replays and reordering are refused.
+        assert_eq!(c.offer(cmd(seq + 11, 14.0, 0.2, 0.0), 14.0), Err(Refusal::Stale));
+        assert_eq!(c.offer(cmd(seq + 10, 14.0, 0.2, 0.0), 14.0), Err(Refusal::Stale));
+        assert_eq!(c.offer(cmd(seq + 12, 14.0, f64::NAN, 0.0), 14.0), Err(Refusal::NotFinite));
+    }
+
+    #[test]
+    fn an_armed_robot_that_never_hears_a_command_stops_at_the_timeout() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 1.0);
+        c.tick(1.0);
+        c.tick(1.19);
+        assert_eq!(c.state(), SafetyState::Armed);
+        c.tick(1.21);
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Watchdog));
+    }
+
+    #[test]
+    fn estop_latches_until_reset_and_a_fault_never_clears() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        run(&mut c, 0.0, 100, Some((&mut seq, 0.2, 0.0)));
+        c.estop();
+        assert_eq!(c.output(), (0.0, 0.0));
+        assert_eq!(c.tick(2.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: true });
+        assert!(!c.arm(1000, 2.0), "arming does not clear an e-stop");
+        assert_eq!(c.offer(cmd(1001, 2.0, 0.1, 0.0), 2.0), Err(Refusal::NotArmed));
+        assert!(c.reset_estop());
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::EStopReset));
+        assert!(!c.tick(2.02).quick_stop);
+        assert!(c.arm(1000, 2.04));
+        c.fault();
+        assert!(!c.reset_estop());
+        assert!(!c.arm(2000, 3.0));
+        c.estop();
+        assert_eq!(c.state(), SafetyState::Fault);
+        assert!(c.tick(3.0).quick_stop);
+    }
+}
