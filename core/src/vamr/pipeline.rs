@@ -148,6 +148,15 @@ impl Pipeline {
         }
     }
 
+    /// Forget robot `robot`'s track and heading (its data stopped): the next update acquires it
+    /// again in its expected area with the full heading search.
+    pub fn reset_robot(&mut self, robot: usize) {
+        if let Some(i) = robot.checked_sub(1).filter(|i| *i < self.trackers.len()) {
+            self.trackers[i] = Tracker::new(self.params.tracker);
+            self.headings[i] = None;
+        }
+    }
+
     /// Switch T1–T4 between updates (trackers and headings are kept).
     pub fn set_configuration(&mut self, configuration: Configuration) {
         self.configuration = configuration;

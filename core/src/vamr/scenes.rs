@@ -181,10 +181,14 @@ fn t1_to_t4_run_on_the_same_inputs() {
             "{cfg:?}: {:?}",
             out.relative[1]
         );
-        // The second update refines around the first heading.
+        // The second update refines around the first heading; after a reset of the robot the
+        // full search runs again.
         let again = pipeline.update(&packets(&w, &scans, &poses, true)).unwrap();
         if matches!(cfg, Configuration::T2 | Configuration::T4) {
             assert_eq!(again.pairs[0].heading_source, Source::RefinedSearch);
+            pipeline.reset_robot(1);
+            let fresh = pipeline.update(&packets(&w, &scans, &poses, true)).unwrap();
+            assert_eq!(fresh.pairs[0].heading_source, Source::FullSearch);
         }
     }
     // Without AMCL poses T1–T3 cannot run; T4 needs none.
