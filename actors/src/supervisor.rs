@@ -1,1 +1,0 @@
-//! Supervision: placeholder, being written.
