@@ -9,4 +9,6 @@ pub mod config;
 pub mod link;
 pub mod mapping;
 pub mod messages;
+pub mod robot;
+pub mod server;
 pub mod supervisor;

@@ -1,0 +1,362 @@
+//! FormationActor: drives the pair (or N robots) as one rigid body. It follows V's reference plan
+//! (the scenario's segments, trapezoidal profiles inside the limits) and sends each robot its Eq. 20
+//! twist plus a correction towards its slot, closed on the latest localisation carried forward
+//! with odometry.
+//!
+//! It arms the robots only when every one is healthy and localised; when a robot is lost it holds
+//! (zero twist, robots stay armed, the plan pauses) or stops (robots disarmed), as configured. A
+//! robot that stopped on its own — watchdog, e-stop, fault — stops the formation, and only an
+//! explicit re-arm resumes it.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use amr_core::config::{OnRobotLost, ScenarioLimits};
+use amr_core::formation::{FormationGains, limit_twist, member_command};
+use amr_core::plan::Reference;
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+
+use super::ports::{Anchored, Estimate, EstimateSource, FusionStatus, ServerPorts};
+use crate::link::DownlinkSender;
+use crate::messages::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
+
+/// An estimate older than this is not used for control, s.
+pub const ESTIMATE_FRESH_S: f64 = 0.5;
+/// Robots that do not confirm an arm within this long are asked again, s.
+const ARM_TIMEOUT_S: f64 = 2.0;
+
+/// Where the formation is.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Phase {
+    /// Waiting for every robot to be healthy and localised.
+    Waiting,
+    /// Arm sent; waiting for every robot to confirm.
+    Arming {
+        since_s: f64,
+    },
+    Running,
+    /// A robot is lost: zero twist, the plan paused, resuming by itself when it returns.
+    Holding {
+        reason: String,
+    },
+    /// Stopped: robots disarmed, waiting for an explicit re-arm.
+    Stopped {
+        reason: String,
+    },
+    /// The plan is done; robots disarmed.
+    Finished,
+}
+
+/// What the formation actor reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FormationStatus {
+    pub phase: Phase,
+    /// Time into the plan, s.
+    pub plan_s: f64,
+    pub plan_len_s: f64,
+}
+
+/// Settings of the formation actor.
+#[derive(Debug, Clone)]
+pub struct FormationParams {
+    /// V's reference, sampled every `period_s`.
+    pub plan: Arc<Vec<Reference>>,
+    pub period_s: f64,
+    /// Per robot: lateral slot in V.
+    pub slots: Vec<f64>,
+    pub gains: FormationGains,
+    pub limits: ScenarioLimits,
+    pub on_robot_lost: OnRobotLost,
+    /// Arm by itself as soon as everything is ready (a simulation); otherwise wait for
+    /// [`FormationMsg::Rearm`].
+    pub auto_arm: bool,
+}
+
+/// Messages of the formation actor.
+#[derive(Debug)]
+pub enum FormationMsg {
+    Tick,
+    Uplink(Box<Uplink>),
+    Estimate(Box<Estimate>),
+    Fusion(FusionStatus),
+    /// The operator allows the formation to (re)start.
+    Rearm,
+    /// The operator stops the formation.
+    Stop,
+    Status(ractor::RpcReplyPort<FormationStatus>),
+}
+
+/// The formation actor.
+#[derive(Debug, Clone)]
+pub struct FormationActor {
+    pub ports: Arc<ServerPorts>,
+    pub params: FormationParams,
+    pub link: DownlinkSender,
+    pub status: Arc<ractor::OutputPort<FormationStatus>>,
+}
+
+#[derive(Debug, Default, Clone)]
+struct RobotView {
+    health: BTreeMap<Device, Health>,
+    safety: Option<SafetyState>,
+    odom: Option<OdomMsg>,
+    fused: Option<Anchored>,
+    own: Option<Anchored>,
+    seq: u64,
+    last_cmd: (f64, f64),
+}
+
+#[derive(Debug)]
+pub struct FormationState {
+    phase: Phase,
+    robots: Vec<RobotView>,
+    plan_s: f64,
+    lost: Option<usize>,
+    arm_allowed: bool,
+    published: Option<FormationStatus>,
+}
+
+impl RobotView {
+    fn devices_ok(&self) -> bool {
+        [Device::Lidar, Device::CanBus, Device::Drives]
+            .iter()
+            .all(|d| self.health.get(d).is_some_and(|h| *h == Health::Ok))
+    }
+
+    /// The robot's pose in the map now: the freshest usable estimate carried forward by odometry.
+    fn pose_now(&self, now_s: f64) -> Option<amr_core::se2::Se2> {
+        let odom = self.odom?;
+        let fresh = |a: &Option<Anchored>| a.filter(|a| now_s - a.stamp_s <= ESTIMATE_FRESH_S);
+        let a = fresh(&self.fused).or(fresh(&self.own))?;
+        Some(a.map * (a.odom.inverse() * odom.pose))
+    }
+}
+
+impl FormationActor {
+    fn send(&self, robot: usize, state: &mut FormationState, msg: impl FnOnce(u64) -> Downlink) {
+        let r = &mut state.robots[robot];
+        r.seq += 1;
+        let m = msg(r.seq);
+        if !self.link.send(&self.ports.robots[robot], m) {
+            tracing::debug!(robot = %self.ports.robots[robot], "formation: downlink full or closed");
+        }
+    }
+
+    fn command_all_zero(&self, state: &mut FormationState, now: f64) {
+        for i in 0..state.robots.len() {
+            state.robots[i].last_cmd = (0.0, 0.0);
+            self.send(i, state, |seq| {
+                Downlink::Command(Command { seq, stamp_s: now, v_mps: 0.0, w_radps: 0.0 })
+            });
+        }
+    }
+
+    fn disarm_all(&self, state: &mut FormationState) {
+        for i in 0..state.robots.len() {
+            self.send(i, state, |_| Downlink::Disarm);
+        }
+    }
+
+    fn stop(&self, state: &mut FormationState, reason: String) {
+        tracing::warn!(%reason, "formation stopped");
+        self.disarm_all(state);
+        state.phase = Phase::Stopped { reason };
+        state.arm_allowed = false;
+    }
+
+    fn tick(&self, state: &mut FormationState) {
+        let now = self.ports.clock.now_s();
+        let dt = self.params.period_s;
+        let localised = state.robots.iter().all(|r| r.pose_now(now).is_some());
+        let healthy = state.robots.iter().all(RobotView::devices_ok);
+        let ready = localised && healthy && state.lost.is_none();
+        let stopped_by_robot = state.robots.iter().enumerate().find_map(|(i, r)| match r.safety {
+            Some(s @ (SafetyState::EStop | SafetyState::Fault | SafetyState::Disarmed(_))) => Some((i, s)),
+            _ => None,
+        });
+        match state.phase.clone() {
+            Phase::Waiting => {
+                if ready && state.arm_allowed {
+                    for i in 0..state.robots.len() {
+                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1 });
+                    }
+                    state.phase = Phase::Arming { since_s: now };
+                }
+            }
+            Phase::Arming { since_s } => {
+                if state.robots.iter().all(|r| r.safety == Some(SafetyState::Armed)) {
+                    tracing::info!(plan_s = state.plan_s, "formation running");
+                    state.phase = Phase::Running;
+                } else if now - since_s > ARM_TIMEOUT_S {
+                    state.phase = Phase::Waiting;
+                } else {
+                    self.command_all_zero(state, now);
+                }
+            }
+            Phase::Running | Phase::Holding { .. } => {
+                if let Some((i, s)) = stopped_by_robot {
+                    let reason = format!("{} is {s:?}", self.ports.robots[i]);
+                    self.stop(state, reason);
+                } else if !ready {
+                    let reason = match state.lost {
+                        Some(i) => format!("{}'s scans stopped", self.ports.robots[i]),
+                        None if !healthy => "a robot's devices are not all Ok".to_owned(),
+                        None => "a robot is not localised".to_owned(),
+                    };
+                    match self.params.on_robot_lost {
+                        OnRobotLost::Stop => self.stop(state, reason),
+                        OnRobotLost::Hold => {
+                            if !matches!(state.phase, Phase::Holding { .. }) {
+                                tracing::warn!(%reason, "formation holding");
+                            }
+                            self.command_all_zero(state, now);
+                            state.phase = Phase::Holding { reason };
+                        }
+                    }
+                } else {
+                    state.phase = Phase::Running;
+                    let k = (state.plan_s / dt).round() as usize;
+                    let Some(r) = self.params.plan.get(k).copied() else {
+                        tracing::info!("formation: plan finished");
+                        self.command_all_zero(state, now);
+                        self.disarm_all(state);
+                        state.phase = Phase::Finished;
+                        return;
+                    };
+                    for i in 0..state.robots.len() {
+                        let Some(pose) = state.robots[i].pose_now(now) else { continue };
+                        let in_v = r.pose.inverse() * pose;
+                        let cmd = member_command(
+                            r.v_mps,
+                            r.w_radps,
+                            self.params.slots[i],
+                            &in_v,
+                            &self.params.gains,
+                        );
+                        let lim = &self.params.limits;
+                        let cmd = limit_twist(
+                            cmd,
+                            state.robots[i].last_cmd,
+                            dt,
+                            lim.max_speed_mps.get(),
+                            lim.max_yaw_rate_radps.get(),
+                            lim.max_accel_mps2.get(),
+                        );
+                        state.robots[i].last_cmd = cmd;
+                        self.send(i, state, |seq| {
+                            Downlink::Command(Command { seq, stamp_s: now, v_mps: cmd.0, w_radps: cmd.1 })
+                        });
+                    }
+                    state.plan_s += dt;
+                }
+            }
+            Phase::Stopped { .. } => {
+                if state.arm_allowed {
+                    state.phase = Phase::Waiting;
+                }
+            }
+            Phase::Finished => {}
+        }
+    }
+
+    fn publish(&self, state: &mut FormationState) {
+        let s = FormationStatus {
+            phase: state.phase.clone(),
+            plan_s: state.plan_s,
+            plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
+        };
+        if state.published.as_ref().map(|p| &p.phase) != Some(&s.phase) {
+            self.status.send(s.clone());
+        }
+        state.published = Some(s);
+    }
+}
+
+impl Actor for FormationActor {
+    type Msg = FormationMsg;
+    type State = FormationState;
+    type Arguments = ();
+
+    async fn pre_start(
+        &self,
+        myself: ActorRef<FormationMsg>,
+        (): (),
+    ) -> Result<FormationState, ActorProcessingErr> {
+        self.ports.uplink.subscribe(myself.clone(), |u| match u {
+            Uplink::Scan(_) => None,
+            other => Some(FormationMsg::Uplink(Box::new(other))),
+        });
+        self.ports.estimates.subscribe(myself.clone(), |e| Some(FormationMsg::Estimate(Box::new(e))));
+        self.ports.status.subscribe(myself.clone(), |s| Some(FormationMsg::Fusion(s)));
+        myself.send_interval(Duration::from_secs_f64(self.params.period_s.max(0.01)), || FormationMsg::Tick);
+        Ok(FormationState {
+            phase: Phase::Waiting,
+            robots: vec![RobotView::default(); self.ports.robots.len()],
+            plan_s: 0.0,
+            lost: None,
+            arm_allowed: self.params.auto_arm,
+            published: None,
+        })
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<FormationMsg>,
+        msg: FormationMsg,
+        state: &mut FormationState,
+    ) -> Result<(), ActorProcessingErr> {
+        match msg {
+            FormationMsg::Tick => self.tick(state),
+            FormationMsg::Uplink(u) => {
+                let Some(i) = self.ports.index(u.robot()) else { return Ok(()) };
+                let r = &mut state.robots[i];
+                match *u {
+                    Uplink::Odom { msg, .. } => {
+                        if r.odom.is_none_or(|o| msg.seq > o.seq) {
+                            r.odom = Some(msg);
+                        }
+                    }
+                    Uplink::Health { report, .. } => {
+                        r.health.insert(report.device, report.health);
+                    }
+                    Uplink::Safety { state: s, .. } => r.safety = Some(s),
+                    Uplink::Scan(_) => {}
+                }
+            }
+            FormationMsg::Estimate(e) => {
+                for (i, a) in e.robots.iter().enumerate() {
+                    if let (Some(a), Some(r)) = (a, state.robots.get_mut(i)) {
+                        match e.source {
+                            EstimateSource::Fused(_) => r.fused = Some(*a),
+                            EstimateSource::Robot(_) => r.own = Some(*a),
+                        }
+                    }
+                }
+            }
+            FormationMsg::Fusion(s) => {
+                state.lost = match s {
+                    FusionStatus::Fusing => None,
+                    FusionStatus::RobotLost(i) => Some(i),
+                };
+            }
+            FormationMsg::Rearm => {
+                tracing::info!("formation: re-arm by the operator");
+                state.arm_allowed = true;
+                if matches!(state.phase, Phase::Stopped { .. }) {
+                    state.phase = Phase::Waiting;
+                }
+            }
+            FormationMsg::Stop => self.stop(state, "the operator stopped it".to_owned()),
+            FormationMsg::Status(reply) => {
+                let _ = reply.send(FormationStatus {
+                    phase: state.phase.clone(),
+                    plan_s: state.plan_s,
+                    plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
+                });
+            }
+        }
+        self.publish(state);
+        Ok(())
+    }
+}

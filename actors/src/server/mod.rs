@@ -1,0 +1,207 @@
+//! The fusion server's actor tree (ARCHITECTURE.md, issue 9 §2):
+//!
+//! ```text
+//! server          one-for-one
+//! ├── amcl        AmclActor       (per-robot AMCL + AMCL on the virtual scan)
+//! ├── fusion      FusionActor     (sync gate, Virtual-AMR pipeline in T1–T4)
+//! └── formation   FormationActor  (reference → per-robot (v, ω), Eq. 20; arming, hold/stop)
+//! ```
+//!
+//! Everything the robots send arrives on [`ServerPorts::uplink`]; commands leave through the
+//! link's [`DownlinkSender`].
+
+pub mod amcl;
+pub mod formation;
+pub mod fusion;
+pub mod ports;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use amr_core::amcl::LikelihoodField;
+use amr_core::config::{AmclParams, RobotConfig, ScenarioConfig, ServerConfig, VamrParams};
+use amr_core::formation::{FormationGains, slots};
+use amr_core::map::OccupancyGrid;
+use amr_core::plan::reference;
+use amr_core::se2::Se2;
+use ractor::{Actor, ActorRef, OutputPort};
+
+use crate::clock::FleetClock;
+use crate::link::ServerEnd;
+use crate::mapping::TIM551_RANGE_M;
+use crate::robot::ports::AbortOnDrop;
+use crate::supervisor::{
+    ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
+};
+use amcl::AmclActor;
+use formation::{FormationActor, FormationMsg, FormationParams, FormationStatus};
+use fusion::{FusionActor, FusionParams, Member};
+use ports::ServerPorts;
+
+/// Control period of the formation, s.
+pub const FORMATION_PERIOD_S: f64 = 0.05;
+/// A robot whose scans stop for this long is lost, s (about 7 scan periods at 15 Hz).
+pub const LOST_AFTER_S: f64 = 0.5;
+
+/// Everything the server needs.
+#[derive(Debug, Clone)]
+pub struct ServerSetup {
+    pub server: ServerConfig,
+    pub vamr: VamrParams,
+    pub amcl: AmclParams,
+    pub map: OccupancyGrid,
+    /// The formation's robots, in the server's order.
+    pub robots: Vec<RobotConfig>,
+    /// V's plan and where the formation starts.
+    pub scenario: ScenarioConfig,
+    pub seed: u64,
+    /// Arm as soon as ready (simulation) or wait for the operator.
+    pub auto_arm: bool,
+    pub policy: RestartPolicy,
+}
+
+/// Why the server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error("server.toml lists robot `{0}` but no robot file has that id")]
+    UnknownRobot(String),
+    #[error("the server supervisor did not start: {0}")]
+    Spawn(#[from] ractor::SpawnErr),
+}
+
+/// A running server.
+#[derive(Debug)]
+pub struct ServerTree {
+    pub supervisor: ActorRef<SupervisorMsg>,
+    pub ports: Arc<ServerPorts>,
+    pub events: EventLog,
+    pub formation: Arc<OutputPort<FormationStatus>>,
+    join: tokio::task::JoinHandle<()>,
+    _pump: AbortOnDrop<()>,
+}
+
+impl ServerTree {
+    /// The running formation actor, if any.
+    pub async fn formation_actor(&self) -> Option<ActorRef<FormationMsg>> {
+        let children = ractor::call!(self.supervisor, SupervisorMsg::Children).ok()?;
+        children.into_iter().find(|c| c.name == "formation").and_then(|c| c.cell).map(ActorRef::from)
+    }
+
+    /// The formation's status now.
+    pub async fn formation_status(&self) -> Option<FormationStatus> {
+        let f = self.formation_actor().await?;
+        ractor::call!(f, FormationMsg::Status).ok()
+    }
+
+    /// Allow the formation to (re)start.
+    pub async fn rearm(&self) -> bool {
+        self.formation_actor().await.is_some_and(|f| f.cast(FormationMsg::Rearm).is_ok())
+    }
+
+    /// Orderly shutdown, bounded in time.
+    pub async fn shutdown(self) {
+        self.supervisor.stop(Some("shutdown".into()));
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.join).await;
+    }
+}
+
+/// Order `all` as the server's formation lists them.
+pub fn formation_robots(server: &ServerConfig, all: &[RobotConfig]) -> Result<Vec<RobotConfig>, ServerError> {
+    server
+        .robots
+        .iter()
+        .map(|m| {
+            all.iter()
+                .find(|r| r.id == m.id)
+                .cloned()
+                .ok_or_else(|| ServerError::UnknownRobot(m.id.as_str().to_owned()))
+        })
+        .collect()
+}
+
+/// Start the server tree on `link`.
+pub async fn start_server(
+    setup: ServerSetup,
+    link: ServerEnd,
+    clock: FleetClock,
+) -> Result<ServerTree, ServerError> {
+    let ids: Vec<String> = setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect();
+    let ports = ServerPorts::new(ids, clock);
+    let events = EventLog::default();
+    let formation_status = Arc::new(OutputPort::<FormationStatus>::default());
+    let sc = &setup.scenario;
+    let slot_y = slots(setup.robots.len(), sc.spacing_m.get());
+    let start_v = sc.start_pose();
+    let members: Vec<Member> = setup
+        .robots
+        .iter()
+        .zip(&slot_y)
+        .zip(&setup.server.robots)
+        .map(|((r, y), m)| Member {
+            lidar_to_base: r.lidar_mount.to_se2(),
+            chassis: r.chassis.outline_m.clone(),
+            weight: m.weight.get(),
+            slot_y_m: *y,
+        })
+        .collect();
+    let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1));
+    let initial_v = setup.amcl.initial_pose.map_or(start_v, |p| p.pose());
+    let amcl = AmclActor {
+        ports: Arc::clone(&ports),
+        params: setup.amcl.clone(),
+        field,
+        mounts: setup.robots.iter().map(|r| r.lidar_mount.to_se2()).collect(),
+        initial_robots: slot_y.iter().map(|y| initial_v * Se2::new(0.0, *y, 0.0)).collect(),
+        initial_v,
+        seed: setup.seed,
+    };
+    let s = &setup.server.sync;
+    let fusion = FusionActor {
+        ports: Arc::clone(&ports),
+        members,
+        params: FusionParams {
+            configuration: setup.server.configuration,
+            vamr: setup.vamr.clone(),
+            max_spread_s: f64::from(s.max_stamp_spread_ms.ms()) / 1000.0,
+            max_age_s: f64::from(s.max_age_ms.ms()) / 1000.0,
+            lost_after_s: LOST_AFTER_S,
+        },
+    };
+    let formation = FormationActor {
+        ports: Arc::clone(&ports),
+        params: FormationParams {
+            plan: Arc::new(reference(sc, FORMATION_PERIOD_S)),
+            period_s: FORMATION_PERIOD_S,
+            slots: slot_y,
+            gains: FormationGains::DEFAULT,
+            limits: sc.limits,
+            on_robot_lost: setup.server.on_robot_lost,
+            auto_arm: setup.auto_arm,
+        },
+        link: link.down.clone(),
+        status: Arc::clone(&formation_status),
+    };
+    let spec = SupervisorSpec {
+        name: "server".into(),
+        strategy: Strategy::OneForOne,
+        policy: setup.policy,
+        children: vec![
+            ChildSpec::new("amcl", move || (amcl.clone(), ())),
+            ChildSpec::new("fusion", move || (fusion.clone(), ())),
+            ChildSpec::new("formation", move || (formation.clone(), ())),
+        ],
+        events: events.clone(),
+    };
+    let (supervisor, join) = Supervisor::spawn(None, Supervisor, spec).await?;
+    let mut up = link.up;
+    let p = Arc::clone(&ports);
+    let pump = tokio::spawn(async move {
+        while let Some(msg) = up.recv().await {
+            p.uplink.send(msg);
+        }
+    });
+    let join = tokio::spawn(async move {
+        let _ = join.await;
+    });
+    Ok(ServerTree { supervisor, ports, events, formation: formation_status, join, _pump: AbortOnDrop(pump) })
+}
