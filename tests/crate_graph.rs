@@ -1,12 +1,12 @@
 //! The crate graph points one way (`../shared/ARCHITECTURE.md`): core and drivers depend on nothing
-//! of ours, actors and hil-mocks only on core and drivers, the tests on everything but host, and
-//! nothing at all depends on host.
+//! of ours, actors and hil-mocks only on core and drivers, the simulation on those four, the tests
+//! on everything but host, and nothing at all depends on host.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 6] = ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "host", "hil-tests"];
+const OURS: [&str; 7] = ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "host", "hil-tests"];
 
 fn our_deps(member_dir: &str) -> (String, BTreeSet<String>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(member_dir).join("Cargo.toml");
@@ -35,9 +35,11 @@ fn dependencies_point_one_way() {
         match name {
             "amr-core" | "amr-drivers" => &[],
             "amr-actors" | "hil-mocks" => &["amr-core", "amr-drivers"],
-            "hil-tests" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks"],
+            // The simulation wires the actors to the mocks; `amr sim` and the HIL tests share it.
+            "amr-sim" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks"],
+            "hil-tests" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim"],
             // host is the wiring: it may use every library, and its tests use the fixtures crate.
-            "host" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "hil-tests"],
+            "host" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "hil-tests"],
             other => panic!("unknown member {other}"),
         }
     };

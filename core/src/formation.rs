@@ -60,7 +60,12 @@ pub fn member_command(
     let (v, w) = member_twist(v_mps, w_radps, slot_y_m);
     let slot = Se2::new(0.0, slot_y_m, 0.0);
     let e = measured_in_v.inverse() * slot;
-    (v + gains.k_x * e.x, w + gains.k_y * e.y + gains.k_theta * e.theta)
+    // Turning moves a robot sideways only while it moves, and the other way round when it
+    // reverses: the lateral term follows the sign of the member's own speed (without this, a
+    // reversing formation turns away from its slots, as in Kanayama's tracking law where the
+    // lateral term is scaled by the reference speed).
+    let lateral = if v.abs() < 1e-3 { 0.0 } else { v.signum() };
+    (v + gains.k_x * e.x, w + lateral * gains.k_y * e.y + gains.k_theta * e.theta)
 }
 
 /// Clamp a twist to the robot's limits: `|v| ≤ v_max`, `|ω| ≤ ω_max`, and the change from
@@ -150,6 +155,26 @@ mod tests {
             member_command(0.1, 0.05, 0.45, &Se2::new(0.0, 0.45, 0.0), &FormationGains::DEFAULT),
             member_twist(0.1, 0.05, 0.45)
         );
+    }
+
+    #[test]
+    fn correction_converges_driving_forwards_and_reversing() {
+        // A member starts 5 cm right of its slot and 3° off; V drives straight at ±0.2 m/s.
+        for v_ref in [0.2, -0.2] {
+            let dt = 0.02;
+            let mut vpose = Se2::IDENTITY;
+            let mut m = Se2::new(0.0, 0.40, 3f64.to_radians());
+            for _ in 0..1500 {
+                let c = member_command(v_ref, 0.0, 0.45, &(vpose.inverse() * m), &FormationGains::DEFAULT);
+                m = m * arc(c.0 * dt, c.1 * dt);
+                vpose = vpose * arc(v_ref * dt, 0.0);
+            }
+            let e = vpose.inverse() * m;
+            assert!(
+                (e.y - 0.45).abs() < 0.005 && e.x.abs() < 0.005 && e.theta.abs() < 0.01,
+                "v = {v_ref}: ends at {e:?}"
+            );
+        }
     }
 
     #[test]

@@ -103,6 +103,7 @@ pub struct RobotTree {
     pub counters: Counters,
     /// Sends e-stop, reset and fault to whichever safety actor is running.
     pub control: Arc<ractor::OutputPort<SafetyControl>>,
+    stopping: Arc<std::sync::atomic::AtomicBool>,
     join: tokio::task::JoinHandle<()>,
     _tasks: Vec<AbortOnDrop<()>>,
 }
@@ -120,6 +121,7 @@ impl RobotTree {
 
     /// Orderly shutdown: children stop in reverse order (the drives quick-stop), bounded in time.
     pub async fn shutdown(self) {
+        self.stopping.store(true, std::sync::atomic::Ordering::SeqCst);
         self.supervisor.stop(Some("shutdown".into()));
         let _ = tokio::time::timeout(Duration::from_secs(5), self.join).await;
     }
@@ -237,17 +239,34 @@ pub async fn start_robot(
     });
     // The top supervisor ending on its own means it escalated: report Fault, and keep reporting
     // it (the server may not be listening yet) until the tree is dropped.
-    let (p, up, sup) = (Arc::clone(&ports), link.up.clone(), supervisor.clone());
+    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (p, up, sup, asked) =
+        (Arc::clone(&ports), link.up.clone(), supervisor.clone(), Arc::clone(&stopping));
     let join = tokio::spawn(async move {
         let _ = join.await;
-        tracing::error!(robot = %p.robot, "robot supervisor ended: robot stopped");
-        report_fault(&p, &up);
+        if asked.load(std::sync::atomic::Ordering::SeqCst) {
+            tracing::info!(robot = %p.robot, "robot stopped");
+        } else {
+            tracing::error!(robot = %p.robot, "robot supervisor escalated: robot stopped, Fault");
+            report_fault(&p, &up);
+        }
         drop(sup);
     });
-    Ok(RobotTree { id, supervisor, ports, events, counters, control, join, _tasks: vec![AbortOnDrop(pump)] })
+    Ok(RobotTree {
+        id,
+        supervisor,
+        ports,
+        events,
+        counters,
+        control,
+        stopping,
+        join,
+        _tasks: vec![AbortOnDrop(pump)],
+    })
 }
 
 fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
+    ports.safety_now.send_replace(Some(SafetyState::Fault));
     ports.safety.send(SafetyState::Fault);
     up.send(Uplink::Safety {
         robot: ports.robot.clone(),

@@ -3,6 +3,7 @@
 //! reference. Ports are lossy (a lagging subscriber skips messages), which suits sensor data; the
 //! safety loop re-sends its output every cycle.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use amr_core::scan::Scan;
@@ -12,7 +13,7 @@ use ractor::OutputPort;
 use tokio::sync::{mpsc, watch};
 
 use crate::clock::FleetClock;
-use crate::messages::{Downlink, HealthReport, OdomMsg, SafetyState};
+use crate::messages::{Device, Downlink, HealthReport, OdomMsg, SafetyState};
 
 /// One scan as the LiDAR actor publishes it.
 #[derive(Debug, Clone)]
@@ -71,7 +72,12 @@ pub struct RobotPorts {
     pub wheels: OutputPort<WheelTravel>,
     pub odom: OutputPort<OdomMsg>,
     pub health: OutputPort<HealthReport>,
+    /// Every device's current health (the port carries the changes; this holds the state, for
+    /// whoever starts listening late, e.g. a restarted uplink).
+    pub health_board: watch::Sender<BTreeMap<Device, HealthReport>>,
     pub safety: OutputPort<SafetyState>,
+    /// The safety layer's current state.
+    pub safety_now: watch::Sender<Option<SafetyState>>,
     /// What came down the link.
     pub downlink: OutputPort<Downlink>,
     pub wheel_cmd: OutputPort<WheelCommand>,
@@ -91,7 +97,9 @@ impl RobotPorts {
             wheels: OutputPort::default(),
             odom: OutputPort::default(),
             health: OutputPort::default(),
+            health_board: watch::Sender::new(BTreeMap::new()),
             safety: OutputPort::default(),
+            safety_now: watch::Sender::new(None),
             downlink: OutputPort::default(),
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),

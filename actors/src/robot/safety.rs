@@ -241,6 +241,7 @@ impl SafetyActor {
         if s.published != Some(now) {
             tracing::info!(robot = %self.ports.robot, state = ?now, "safety");
             s.published = Some(now);
+            self.ports.safety_now.send_replace(Some(now));
             self.ports.safety.send(now);
             let health = match now {
                 SafetyState::Fault => Health::Fault,

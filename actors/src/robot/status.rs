@@ -40,7 +40,11 @@ impl HealthCell {
             }
         }
         self.current = Some(health);
-        ports.health.send(HealthReport { device: self.device, health, detail });
+        let report = HealthReport { device: self.device, health, detail };
+        ports.health_board.send_modify(|b| {
+            b.insert(self.device, report.clone());
+        });
+        ports.health.send(report);
     }
 }
 

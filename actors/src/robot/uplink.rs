@@ -22,7 +22,13 @@ pub enum UplinkMsg {
     Odom(OdomMsg),
     Health(HealthReport),
     Safety(SafetyState),
+    /// Re-send every device's health and the safety state (periodically, and at start).
+    Resend,
 }
+
+/// Period of the full health re-send: the server learns the state even of what changed before it
+/// (or this actor) was listening.
+pub const RESEND_PERIOD: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// The uplink actor.
 #[derive(Debug, Clone)]
@@ -70,7 +76,9 @@ impl Actor for UplinkActor {
         self.ports.scans.subscribe(myself.clone(), |s| Some(UplinkMsg::Scan(s)));
         self.ports.odom.subscribe(myself.clone(), |o| Some(UplinkMsg::Odom(o)));
         self.ports.health.subscribe(myself.clone(), |h| Some(UplinkMsg::Health(h)));
-        self.ports.safety.subscribe(myself, |s| Some(UplinkMsg::Safety(s)));
+        self.ports.safety.subscribe(myself.clone(), |s| Some(UplinkMsg::Safety(s)));
+        let _ = myself.cast(UplinkMsg::Resend);
+        myself.send_interval(RESEND_PERIOD, || UplinkMsg::Resend);
         Ok(UplinkState::default())
     }
 
@@ -102,6 +110,21 @@ impl Actor for UplinkActor {
             }
             UplinkMsg::Health(report) => Uplink::Health { robot, seq, stamp_s: now, report },
             UplinkMsg::Safety(s) => Uplink::Safety { robot, seq, stamp_s: now, state: s },
+            UplinkMsg::Resend => {
+                let board: Vec<HealthReport> = self.ports.health_board.borrow().values().cloned().collect();
+                for report in board {
+                    state.seq += 1;
+                    self.link.send(Uplink::Health {
+                        robot: robot.clone(),
+                        seq: state.seq,
+                        stamp_s: now,
+                        report,
+                    });
+                }
+                let Some(s) = *self.ports.safety_now.borrow() else { return Ok(()) };
+                state.seq += 1;
+                Uplink::Safety { robot, seq: state.seq, stamp_s: now, state: s }
+            }
         };
         self.link.send(up);
         Ok(())

@@ -96,9 +96,11 @@ impl Actor for AmclActor {
             }
             AmclMsg::Fused(f) => {
                 let started = std::time::Instant::now();
+                let mut ran = false;
                 let v = match (&f.points, f.configuration) {
                     (Some(points), _) => {
-                        state.virtual_filter.update(f.v_odom, points, false);
+                        let outcome = state.virtual_filter.update(f.v_odom, points, false);
+                        ran = matches!(outcome, amr_core::amcl::UpdateOutcome::Updated { .. });
                         state.virtual_filter.pose_at(&f.v_odom)
                     }
                     // T1: V from the reference robot's own AMCL (the relative poses came from AMCL).
@@ -108,7 +110,7 @@ impl Actor for AmclActor {
                     }
                 };
                 let mut times = f.times;
-                times.amcl_s = started.elapsed().as_secs_f64();
+                times.amcl_s = ran.then(|| started.elapsed().as_secs_f64());
                 if let Some(v) = v {
                     let robots = f
                         .robots

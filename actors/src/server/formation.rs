@@ -266,8 +266,12 @@ impl FormationActor {
             plan_s: state.plan_s,
             plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
         };
-        if state.published.as_ref().map(|p| &p.phase) != Some(&s.phase) {
+        // Changes at once; progress while running about once a second.
+        let progressed = state.published.as_ref().is_none_or(|p| (s.plan_s - p.plan_s).abs() >= 1.0);
+        if state.published.as_ref().map(|p| &p.phase) != Some(&s.phase) || progressed {
             self.status.send(s.clone());
+        } else {
+            return;
         }
         state.published = Some(s);
     }

@@ -19,7 +19,8 @@ pub struct StageTimes {
     pub tracking_s: f64,
     pub heading_s: f64,
     pub virtual_scan_s: f64,
-    pub amcl_s: f64,
+    /// AMCL's update; `None` when the filter skipped it (moved less than `update_min_d`/`update_min_a`).
+    pub amcl_s: Option<f64>,
     /// From the oldest scan's stamp to the published estimate.
     pub end_to_end_s: f64,
 }

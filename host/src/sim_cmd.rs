@@ -1,0 +1,163 @@
+//! `amr sim`, `amr robot` and `amr server`: wiring around amr-sim and the actor trees.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use amr_actors::clock::FleetClock;
+use amr_actors::config::{ConfigSource, load};
+use amr_actors::robot::{DeviceOverrides, RobotOptions, start_robot};
+use amr_actors::server::{ServerSetup, formation_robots, start_server};
+use amr_actors::supervisor::RestartPolicy;
+use amr_core::config::{Config, Configuration};
+use amr_sim::{Sim, SimCan, SimOptions};
+use anyhow::Context;
+use hil_mocks::world::Noise;
+
+use crate::mock_cmd::runtime;
+
+/// `amr sim` options.
+#[derive(Debug, Clone)]
+pub(crate) struct SimArgs {
+    pub scenario: String,
+    pub seed: u64,
+    pub configuration: Option<Configuration>,
+    pub duration: Option<Duration>,
+    pub can: SimCan,
+    pub json: Option<PathBuf>,
+    pub config: Option<PathBuf>,
+    pub quiet: bool,
+}
+
+pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
+    match s.to_ascii_uppercase().as_str() {
+        "T1" => Ok(Configuration::T1),
+        "T2" => Ok(Configuration::T2),
+        "T3" => Ok(Configuration::T3),
+        "T4" => Ok(Configuration::T4),
+        _ => Err(format!("`{s}`: expected T1, T2, T3 or T4")),
+    }
+}
+
+pub(crate) fn parse_can(s: &str) -> Result<SimCan, String> {
+    match s {
+        "socketcand" => Ok(SimCan::Socketcand),
+        "in-process" => Ok(SimCan::InProcess),
+        _ => Err(format!("`{s}`: expected socketcand or in-process")),
+    }
+}
+
+/// Run the whole system against the mocks and print the report.
+pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
+    let scenario = config.scenarios.get(&args.scenario).cloned().with_context(|| {
+        format!("no scenario `{}` (have: {:?})", args.scenario, config.scenarios.keys().collect::<Vec<_>>())
+    })?;
+    let options = SimOptions {
+        scenario_name: args.scenario.clone(),
+        scenario,
+        seed: args.seed,
+        noise: Noise::TYPICAL,
+        can: args.can,
+        configuration: args.configuration,
+        max_duration: args.duration,
+    };
+    runtime()?.block_on(async move {
+        let sim = Sim::start(&config, options).await.context("starting the simulation")?;
+        let quiet = args.quiet;
+        tokio::select! {
+            () = sim.run(|s| {
+                if !quiet {
+                    #[allow(clippy::print_stderr, reason = "live status on the terminal")]
+                    {
+                        eprintln!("{}", s.status_line());
+                    }
+                }
+            }) => {}
+            r = tokio::signal::ctrl_c() => {
+                r.context("waiting for Ctrl-C")?;
+                tracing::info!("interrupted: stopping");
+            }
+        }
+        let report = sim.report();
+        sim.shutdown().await;
+        #[allow(clippy::print_stdout, reason = "the command's report")]
+        {
+            print!("\n{}", report.to_text());
+        }
+        if let Some(path) = &args.json {
+            std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        Ok(())
+    })
+}
+
+/// The configuration set around `file` (its directory), and the id written in it.
+fn config_around(file: &Path) -> anyhow::Result<(Config, String)> {
+    let dir = file.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let config = load(&ConfigSource::Dir(dir.to_path_buf()))?;
+    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let table: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", file.display()))?;
+    let id = table.get("id").and_then(toml::Value::as_str).unwrap_or_default().to_owned();
+    Ok((config, id))
+}
+
+/// `amr robot --config FILE`: one robot's tree on its real devices, until Ctrl-C.
+pub(crate) fn robot(file: &Path) -> anyhow::Result<()> {
+    let (config, id) = config_around(file)?;
+    let robot = config
+        .robots
+        .iter()
+        .find(|r| r.id.as_str() == id)
+        .with_context(|| format!("{}: no robot with id `{id}`", file.display()))?
+        .clone();
+    runtime()?.block_on(async move {
+        // The network link to the server arrives with the fleet-networking issue; until then the
+        // robot runs its devices and its safety layer alone (disarmed: it never moves).
+        let (_server, mut ends, _control) = amr_actors::link::in_process(std::slice::from_ref(&id));
+        let end = ends.pop().context("no link end")?;
+        let tree = start_robot(
+            &robot,
+            DeviceOverrides::default(),
+            end,
+            FleetClock::start(),
+            RobotOptions::default(),
+        )
+        .await
+        .context("starting the robot")?;
+        tracing::info!(robot = %id, "robot running; Ctrl-C stops it (the drives quick-stop)");
+        tokio::signal::ctrl_c().await.context("waiting for Ctrl-C")?;
+        tree.shutdown().await;
+        Ok(())
+    })
+}
+
+/// `amr server --config FILE`: the fusion server tree, until Ctrl-C.
+pub(crate) fn server(file: &Path, scenario: &str, seed: u64) -> anyhow::Result<()> {
+    let (config, _) = config_around(file)?;
+    let robots = formation_robots(&config.server, &config.robots)?;
+    let sc = config.scenarios.get(scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
+    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
+    let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
+    runtime()?.block_on(async move {
+        // As for `amr robot`: the robots reach the server over the network link of the fleet
+        // issue; until then the server waits for them on its in-process link.
+        let (end, _robots, _control) = amr_actors::link::in_process(&ids);
+        let setup = ServerSetup {
+            server: config.server.clone(),
+            vamr: config.vamr.clone(),
+            amcl: config.amcl.clone(),
+            map,
+            robots,
+            scenario: sc,
+            seed,
+            auto_arm: false,
+            policy: RestartPolicy::default(),
+        };
+        let tree = start_server(setup, end, FleetClock::start()).await.context("starting the server")?;
+        tracing::info!("server running; Ctrl-C stops it");
+        tokio::signal::ctrl_c().await.context("waiting for Ctrl-C")?;
+        tree.shutdown().await;
+        Ok(())
+    })
+}

@@ -1,0 +1,568 @@
+//! `amr-sim`: the whole system in one process, in real time, against the mock devices (issue 9 §6).
+//!
+//! The world (hil-mocks) moves the robots; each robot's mock TiM551 serves SOPAS on a loopback TCP
+//! port, its mock LPMS-B2 serves LPBUS on a pseudo-terminal, and its two mock TECO drives sit on a
+//! CAN bus (in-process, or behind a socketcand server on loopback). The robot trees reach them
+//! through their real drivers and transports. The drives' shaft speeds drive the world's wheels;
+//! the world's true poses score the server's estimates.
+//!
+//! The world's noise is seeded, but a real-time run depends on the scheduler, so two runs are close,
+//! not identical; `amr eval` is the bit-reproducible one.
+
+pub mod report;
+pub mod truth;
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use amr_actors::clock::FleetClock;
+use amr_actors::link::{LinkControl, in_process};
+use amr_actors::messages::{Device, Health, HealthReport};
+use amr_actors::robot::canbus::CanLink;
+use amr_actors::robot::ports::AbortOnDrop;
+use amr_actors::robot::{DeviceOverrides, RobotOptions, RobotTree, start_robot};
+use amr_actors::server::formation::{FormationStatus, Phase};
+use amr_actors::server::ports::{Estimate, EstimateSource};
+use amr_actors::server::{ServerSetup, ServerTree, formation_robots, start_server};
+use amr_actors::supervisor::RestartPolicy;
+use amr_core::config::{Config, Configuration, RobotConfig, ScenarioConfig};
+use amr_core::metrics::ErrorStats;
+use amr_core::se2::{Se2, angle_diff};
+use amr_core::vamr::frame::virtual_frame;
+use amr_drivers::canopen::transport::in_process::InProcessBus;
+use hil_mocks::lpms::{MockImuHandle, MockImuOptions, start_mock_imu};
+use hil_mocks::teco_drive::{DriveHandle, TecoDrive, TecoDriveConfig, spawn_drive};
+use hil_mocks::tim551::{MockConfig, Tim551Mock};
+use hil_mocks::world::{Noise, RobotSpec, SharedWorld, World, WorldImu, WorldLidar, paper_site};
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+use tokio::time::{Instant, MissedTickBehavior};
+
+pub use report::{SimReport, latency_table};
+pub use truth::TruthLog;
+
+/// World physics step, s.
+pub const PHYSICS_DT_S: f64 = 0.005;
+
+/// How the robots reach their mock drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimCan {
+    /// The in-process bus.
+    InProcess,
+    /// A socketcand server on loopback in front of the in-process bus.
+    Socketcand,
+}
+
+/// Run settings.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    pub scenario_name: String,
+    pub scenario: ScenarioConfig,
+    pub seed: u64,
+    pub noise: Noise,
+    pub can: SimCan,
+    /// T1–T4 (default: the server file's).
+    pub configuration: Option<Configuration>,
+    /// Stop after this much wall time even if the plan is not done.
+    pub max_duration: Option<Duration>,
+}
+
+/// Why a simulation could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("scenario map `{0}`: the simulated world only has the paper's site (`paper-site`)")]
+    UnknownSite(String),
+    #[error("no map `{0}` in the configuration")]
+    NoMap(String),
+    #[error("the world's site: {0}")]
+    Site(String),
+    #[error(transparent)]
+    Server(#[from] amr_actors::server::ServerError),
+    #[error(transparent)]
+    Robot(#[from] amr_actors::robot::RobotError),
+    #[error("mock {0}: {1}")]
+    Mock(&'static str, String),
+}
+
+/// One robot's mock devices.
+#[derive(Debug)]
+pub struct RobotMocks {
+    pub lidar: Tim551Mock,
+    pub imu: MockImuHandle,
+    pub bus: InProcessBus,
+    /// Left, right.
+    pub drives: Vec<DriveHandle>,
+    pub socketcand: Option<(std::net::SocketAddr, AbortOnDrop<()>)>,
+}
+
+/// What the observer collected.
+#[derive(Debug, Default)]
+struct Observed {
+    samples: Vec<report::ErrorSample>,
+    /// Fused estimates of V waiting for the truth to pass their stamp (the world is sampled every
+    /// physics step, so the latest estimate is usually a little ahead of it).
+    pending: std::collections::VecDeque<(f64, Se2)>,
+    health: BTreeMap<String, BTreeMap<String, (Health, Health)>>,
+    formation: Option<FormationStatus>,
+}
+
+/// A running simulation.
+#[derive(Debug)]
+pub struct Sim {
+    pub clock: FleetClock,
+    pub world: SharedWorld,
+    pub truth: TruthLog,
+    pub robots: Vec<RobotTree>,
+    pub server: ServerTree,
+    pub mocks: Vec<RobotMocks>,
+    pub link: LinkControl,
+    pub options: SimOptions,
+    configuration: Configuration,
+    observed: Arc<std::sync::Mutex<Observed>>,
+    observer: ActorRef<ObserverMsg>,
+    started: Instant,
+    _tasks: Vec<AbortOnDrop<()>>,
+}
+
+fn drive_config(robot: &RobotConfig, node: u8, noise: &Noise, seed: u64) -> TecoDriveConfig {
+    let d = &robot.devices.drives;
+    TecoDriveConfig {
+        encoder_counts_per_rev: d.encoder_counts_per_rev.get(),
+        velocity_units_per_rps: d.velocity_units_per_rps.get(),
+        encoder_noise_counts: noise.encoder_sigma_counts,
+        seed: seed.wrapping_mul(1000).wrapping_add(u64::from(node)),
+        ..TecoDriveConfig::new(node)
+    }
+}
+
+/// V in the map from the robots' poses, Eq. 16 with equal weights.
+#[must_use]
+pub fn v_of(poses: &[Se2]) -> Option<Se2> {
+    let first = poses.first()?;
+    let rel: Vec<(Se2, f64)> = poses.iter().map(|p| (first.inverse() * *p, 1.0)).collect();
+    Some(*first * virtual_frame(&rel))
+}
+
+impl Sim {
+    /// Start the world, the mocks, the server and every robot of the server's formation.
+    pub async fn start(config: &Config, options: SimOptions) -> Result<Sim, SimError> {
+        let sc = &options.scenario;
+        if sc.map != "paper-site" {
+            return Err(SimError::UnknownSite(sc.map.clone()));
+        }
+        let map = config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone();
+        let robots = formation_robots(&config.server, &config.robots)?;
+        let clock = FleetClock::start();
+        let site = paper_site().map_err(|e| SimError::Site(format!("{e:?}")))?;
+        let mut world = World::new(site, options.noise, options.seed);
+        let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
+        let start_v = sc.start_pose();
+        for (r, y) in robots.iter().zip(&slots) {
+            let mut spec = RobotSpec::from_config(r);
+            // The drives ramp (and quick-stop) the wheels; the world only must not be slower.
+            spec.max_accel_mps2 = spec.max_accel_mps2.max(r.devices.drives.quick_stop_decel_mps2.get());
+            world.add_robot(spec, start_v * Se2::new(0.0, *y, 0.0));
+        }
+        let world: SharedWorld = Arc::new(std::sync::Mutex::new(world));
+        let truth = TruthLog::default();
+
+        // The mock devices.
+        let mut mocks = Vec::new();
+        for (i, r) in robots.iter().enumerate() {
+            let lidar = Tim551Mock::spawn(
+                "127.0.0.1:0",
+                MockConfig {
+                    serial: 0x0100_0000 + i as u32,
+                    initial_tick_us: 1_000_000 * i as u32,
+                    ..MockConfig::default()
+                },
+                Arc::new(WorldLidar { world: Arc::clone(&world), robot: i }),
+            )
+            .await
+            .map_err(|e| SimError::Mock("lidar", e.to_string()))?;
+            let mut imu_opts = MockImuOptions::default();
+            imu_opts.device.stream_hz = r.devices.imu.stream_hz;
+            imu_opts.device.imu_id = r.devices.imu.imu_id;
+            let imu = start_mock_imu(imu_opts, Box::new(WorldImu { world: Arc::clone(&world), robot: i }))
+                .await
+                .map_err(|e| SimError::Mock("imu", e.to_string()))?;
+            let bus = InProcessBus::default();
+            let now = Instant::now().into_std();
+            let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
+                .iter()
+                .map(|n| {
+                    spawn_drive(
+                        TecoDrive::new(drive_config(r, *n, &options.noise, options.seed), now),
+                        bus.port(),
+                    )
+                })
+                .collect();
+            let socketcand = match options.can {
+                SimCan::InProcess => None,
+                SimCan::Socketcand => {
+                    let (addr, task) = hil_mocks::teco_drive::socketcand::bind("127.0.0.1:0", bus.clone())
+                        .await
+                        .map_err(|e| SimError::Mock("socketcand", e.to_string()))?;
+                    Some((addr, AbortOnDrop(task)))
+                }
+            };
+            mocks.push(RobotMocks { lidar, imu, bus, drives, socketcand });
+        }
+
+        // The world loop: drive speeds in, physics, truth out.
+        let wheels: Vec<(RobotConfig, Vec<watch_drive::Snapshot>)> = robots
+            .iter()
+            .zip(&mocks)
+            .map(|(r, m)| (r.clone(), m.drives.iter().map(watch_drive::Snapshot::of).collect()))
+            .collect();
+        let (w, t, c) = (Arc::clone(&world), truth.clone(), clock);
+        let world_task = tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs_f64(PHYSICS_DT_S));
+            tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+            let mut last = Instant::now();
+            loop {
+                tick.tick().await;
+                let now = Instant::now();
+                let dt = now.duration_since(last).as_secs_f64();
+                last = now;
+                let mut world = w.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+                for (i, (robot, drives)) in wheels.iter().enumerate() {
+                    let (l, r) = watch_drive::wheel_speeds(robot, drives);
+                    let b = robot.kinematics.track_width_m.get();
+                    world.command(i, 0.5 * (l + r), (r - l) / b);
+                }
+                world.step(dt);
+                let poses: Vec<Se2> = (0..world.robot_count()).filter_map(|i| world.pose(i)).collect();
+                drop(world);
+                t.push(c.now_s(), poses);
+            }
+        });
+
+        // The link, the server, the robots.
+        let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
+        let (server_end, robot_ends, link) = in_process(&ids);
+        let mut server_cfg = config.server.clone();
+        if let Some(c) = options.configuration {
+            server_cfg.configuration = c;
+        }
+        let configuration = server_cfg.configuration;
+        let server = start_server(
+            ServerSetup {
+                server: server_cfg,
+                vamr: config.vamr.clone(),
+                amcl: config.amcl.clone(),
+                map,
+                robots: robots.clone(),
+                scenario: sc.clone(),
+                seed: options.seed,
+                auto_arm: true,
+                policy: RestartPolicy::default(),
+            },
+            server_end,
+            clock,
+        )
+        .await?;
+        let mut trees = Vec::new();
+        for ((r, end), m) in robots.iter().zip(robot_ends).zip(&mocks) {
+            let overrides = DeviceOverrides {
+                lidar: Some(("127.0.0.1".to_owned(), m.lidar.port())),
+                imu_path: Some(m.imu.tty_path().display().to_string()),
+                can: Some(match &m.socketcand {
+                    Some((addr, _)) => {
+                        CanLink::Socketcand { address: addr.to_string(), channel: "can0".into() }
+                    }
+                    None => CanLink::InProcess(m.bus.clone()),
+                }),
+            };
+            trees.push(start_robot(r, overrides, end, clock, RobotOptions::default()).await?);
+        }
+
+        // The observer scores estimates and records health.
+        let observed = Arc::new(std::sync::Mutex::new(Observed::default()));
+        let (observer, _) = Observer::spawn(
+            None,
+            Observer { observed: Arc::clone(&observed), truth: truth.clone(), weights_equal: true },
+            (),
+        )
+        .await
+        .map_err(|e| SimError::Mock("observer", e.to_string()))?;
+        server.ports.estimates.subscribe(observer.clone(), |e| Some(ObserverMsg::Estimate(Box::new(e))));
+        server.formation.subscribe(observer.clone(), |s| Some(ObserverMsg::Formation(s)));
+        // Health: the boards hold every device's state; sampling them misses nothing that lasts.
+        let boards: Vec<(String, Arc<amr_actors::robot::ports::RobotPorts>)> =
+            trees.iter().map(|t| (t.id.clone(), Arc::clone(&t.ports))).collect();
+        let obs = observer.clone();
+        let health_task = tokio::spawn(async move {
+            let mut every = tokio::time::interval(Duration::from_millis(50));
+            loop {
+                every.tick().await;
+                for (id, ports) in &boards {
+                    let board: Vec<HealthReport> = ports.health_board.borrow().values().cloned().collect();
+                    for report in board {
+                        if obs.cast(ObserverMsg::Health(id.clone(), report)).is_err() {
+                            return;
+                        }
+                    }
+                }
+            }
+        });
+
+        Ok(Sim {
+            clock,
+            world,
+            truth,
+            robots: trees,
+            server,
+            mocks,
+            link,
+            configuration,
+            options,
+            observed,
+            observer,
+            started: Instant::now(),
+            _tasks: vec![AbortOnDrop(world_task), AbortOnDrop(health_task)],
+        })
+    }
+
+    /// The formation's latest status.
+    #[must_use]
+    pub fn formation(&self) -> Option<FormationStatus> {
+        self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner).formation.clone()
+    }
+
+    /// A one-line live status.
+    #[must_use]
+    pub fn status_line(&self) -> String {
+        let o = self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let phase = o.formation.as_ref().map_or("starting".to_owned(), |f| format!("{:?}", f.phase));
+        let plan = o.formation.as_ref().map_or(0.0, |f| f.plan_s);
+        let err =
+            o.samples.last().map_or("-".to_owned(), |s| format!("{:.1} cm", s.e_x_m.hypot(s.e_y_m) * 100.0));
+        let health: Vec<String> = o
+            .health
+            .iter()
+            .map(|(robot, d)| {
+                let bad: Vec<String> = d
+                    .iter()
+                    .filter(|(_, (_, last))| *last != Health::Ok)
+                    .map(|(k, (_, l))| format!("{k}:{l:?}"))
+                    .collect();
+                if bad.is_empty() { format!("{robot} ok") } else { format!("{robot} {}", bad.join(" ")) }
+            })
+            .collect();
+        format!(
+            "t={:5.1}s plan={plan:5.1}s {phase} | V error {err} | {}",
+            self.started.elapsed().as_secs_f64(),
+            health.join(" | ")
+        )
+    }
+
+    /// Run until the plan is done, the formation stops, or `max_duration` passes; `status` is
+    /// called about once a second.
+    pub async fn run(&self, mut status: impl FnMut(&Sim)) {
+        let limit = self.options.max_duration.unwrap_or(Duration::MAX);
+        let mut every = tokio::time::interval(Duration::from_secs(1));
+        every.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        // Bounded by `limit` and by the plan's end.
+        loop {
+            every.tick().await;
+            status(self);
+            if self.started.elapsed() >= limit {
+                return;
+            }
+            if matches!(self.formation().map(|f| f.phase), Some(Phase::Finished | Phase::Stopped { .. })) {
+                return;
+            }
+        }
+    }
+
+    /// The report so far.
+    #[must_use]
+    pub fn report(&self) -> SimReport {
+        let o = self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let e2d: Vec<f64> = o.samples.iter().map(|s| s.e_x_m.hypot(s.e_y_m)).collect();
+        let eth: Vec<f64> = o.samples.iter().map(|s| s.e_theta_rad).collect();
+        let slots = amr_core::formation::slots(self.robots.len(), self.options.scenario.spacing_m.get());
+        let final_formation_error_m = match self.truth.latest().and_then(|(_, p)| v_of(&p).map(|v| (v, p))) {
+            Some((v, poses)) => poses
+                .iter()
+                .zip(&slots)
+                .map(|(p, y)| (v * Se2::new(0.0, *y, 0.0)).inverse().compose_xy(p))
+                .collect(),
+            None => Vec::new(),
+        };
+        SimReport {
+            scenario: self.options.scenario_name.clone(),
+            seed: self.options.seed,
+            configuration: format!("{:?}", self.configuration),
+            duration_s: self.started.elapsed().as_secs_f64(),
+            plan_s: o.formation.as_ref().map_or(0.0, |f| f.plan_s),
+            plan_len_s: o.formation.as_ref().map_or(0.0, |f| f.plan_len_s),
+            final_phase: o.formation.as_ref().map_or("none".to_owned(), |f| format!("{:?}", f.phase)),
+            error_2d: ErrorStats::of(&e2d),
+            error_heading: ErrorStats::of(&eth),
+            samples: o.samples.clone(),
+            latency: latency_table(&self.server.ports.latency.snapshot()),
+            health: o
+                .health
+                .iter()
+                .map(|(r, d)| {
+                    (
+                        r.clone(),
+                        d.iter()
+                            .map(|(k, (b, l))| (k.clone(), (format!("{b:?}"), format!("{l:?}"))))
+                            .collect(),
+                    )
+                })
+                .collect(),
+            counters: self.robots.iter().map(|t| (t.id.clone(), t.counters.snapshot())).collect(),
+            final_formation_error_m,
+            final_truth: self
+                .truth
+                .latest()
+                .map(|(_, p)| p.iter().map(|q| [q.x, q.y, q.theta]).collect())
+                .unwrap_or_default(),
+        }
+    }
+
+    /// Stop everything in order: the robots (their drives quick-stop), the server, the mocks.
+    pub async fn shutdown(self) {
+        for r in self.robots {
+            r.shutdown().await;
+        }
+        self.server.shutdown().await;
+        self.observer.stop(None);
+        for m in self.mocks {
+            m.imu.shutdown();
+        }
+    }
+}
+
+/// Distance helper for the final formation check.
+trait ComposeXy {
+    fn compose_xy(&self, p: &Se2) -> f64;
+}
+
+impl ComposeXy for Se2 {
+    /// The distance of `p` from this pose's origin, m.
+    fn compose_xy(&self, p: &Se2) -> f64 {
+        let d = *self * *p;
+        d.x.hypot(d.y)
+    }
+}
+
+mod watch_drive {
+    //! The drives' shaft speeds, read from their snapshots without holding the handles.
+    use amr_core::config::RobotConfig;
+    use hil_mocks::teco_drive::{DriveHandle, DriveSnapshot};
+    use tokio::sync::watch;
+
+    #[derive(Debug, Clone)]
+    pub(crate) struct Snapshot {
+        pub(crate) node: u8,
+        pub(crate) rx: watch::Receiver<DriveSnapshot>,
+    }
+
+    impl Snapshot {
+        pub(crate) fn of(h: &DriveHandle) -> Self {
+            Snapshot { node: h.node_id, rx: h.snapshot.clone() }
+        }
+    }
+
+    /// Wheel surface speeds (left, right), m/s.
+    pub(crate) fn wheel_speeds(robot: &RobotConfig, drives: &[Snapshot]) -> (f64, f64) {
+        let d = &robot.devices.drives;
+        let r = robot.kinematics.wheel_radius_m.get();
+        let speed = |node: u8, inverted: bool| {
+            let cps = drives.iter().find(|h| h.node == node).map_or(0.0, |h| h.rx.borrow().velocity_cps);
+            let sign = if inverted { -1.0 } else { 1.0 };
+            sign * cps / f64::from(d.encoder_counts_per_rev.get()) / d.gear_ratio.get()
+                * std::f64::consts::TAU
+                * r
+        };
+        (speed(d.left.node_id.get(), d.left.inverted), speed(d.right.node_id.get(), d.right.inverted))
+    }
+}
+
+/// Messages of the observer.
+#[derive(Debug)]
+enum ObserverMsg {
+    Estimate(Box<Estimate>),
+    Formation(FormationStatus),
+    Health(String, HealthReport),
+}
+
+#[derive(Debug)]
+struct Observer {
+    observed: Arc<std::sync::Mutex<Observed>>,
+    truth: TruthLog,
+    weights_equal: bool,
+}
+
+impl Observer {
+    /// Score every pending estimate the truth has caught up with.
+    fn score(&self, o: &mut Observed) {
+        let Some((latest, _)) = self.truth.latest() else { return };
+        while let Some((t, v)) = o.pending.front().copied() {
+            if t > latest {
+                return;
+            }
+            o.pending.pop_front();
+            if let Some(truth) = self.truth.at(t).and_then(|p| v_of(&p)) {
+                o.samples.push(report::ErrorSample {
+                    t_s: t,
+                    e_x_m: v.x - truth.x,
+                    e_y_m: v.y - truth.y,
+                    e_theta_rad: angle_diff(v.theta, truth.theta),
+                });
+            }
+        }
+    }
+}
+
+impl Actor for Observer {
+    type Msg = ObserverMsg;
+    type State = ();
+    type Arguments = ();
+
+    async fn pre_start(&self, _myself: ActorRef<ObserverMsg>, (): ()) -> Result<(), ActorProcessingErr> {
+        Ok(())
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<ObserverMsg>,
+        msg: ObserverMsg,
+        (): &mut (),
+    ) -> Result<(), ActorProcessingErr> {
+        let mut o = self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        match msg {
+            ObserverMsg::Estimate(e) => {
+                if let (EstimateSource::Fused(_), Some(v)) = (e.source, e.v)
+                    && self.weights_equal
+                {
+                    o.pending.push_back((e.stamp_s, v));
+                }
+                self.score(&mut o);
+            }
+            ObserverMsg::Formation(s) => o.formation = Some(s),
+            ObserverMsg::Health(robot, h) => {
+                let entry = o
+                    .health
+                    .entry(robot)
+                    .or_default()
+                    .entry(format!("{:?}", h.device))
+                    .or_insert((h.health, h.health));
+                if report::rank(h.health) < report::rank(entry.0) {
+                    entry.0 = h.health;
+                }
+                entry.1 = h.health;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The devices every robot has.
+pub const DEVICES: [Device; 6] =
+    [Device::Lidar, Device::Imu, Device::CanBus, Device::Drives, Device::Odometry, Device::Safety];
