@@ -6,7 +6,8 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 7] = ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "host", "hil-tests"];
+const OURS: [&str; 7] =
+    ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "host", "hil-tests"];
 
 fn our_deps(member_dir: &str) -> (String, BTreeSet<String>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(member_dir).join("Cargo.toml");
