@@ -153,90 +153,14 @@ impl Sim {
         let map = config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone();
         let robots = formation_robots(&config.server, &config.robots)?;
         let clock = FleetClock::start();
-        let site = paper_site().map_err(|e| SimError::Site(format!("{e:?}")))?;
-        let mut world = World::new(site, options.noise, options.seed);
-        let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
-        let start_v = sc.start_pose();
-        for (r, y) in robots.iter().zip(&slots) {
-            let mut spec = RobotSpec::from_config(r);
-            // The drives ramp (and quick-stop) the wheels; the world only must not be slower.
-            spec.max_accel_mps2 = spec.max_accel_mps2.max(r.devices.drives.quick_stop_decel_mps2.get());
-            world.add_robot(spec, start_v * Se2::new(0.0, *y, 0.0));
-        }
-        let world: SharedWorld = Arc::new(std::sync::Mutex::new(world));
+        let world = build_world(&robots, sc, &options.noise, options.seed)?;
         let truth = TruthLog::default();
 
-        // The mock devices.
         let mut mocks = Vec::new();
         for (i, r) in robots.iter().enumerate() {
-            let lidar = Tim551Mock::spawn(
-                "127.0.0.1:0",
-                MockConfig {
-                    serial: 0x0100_0000 + i as u32,
-                    initial_tick_us: 1_000_000 * i as u32,
-                    ..MockConfig::default()
-                },
-                Arc::new(WorldLidar { world: Arc::clone(&world), robot: i }),
-            )
-            .await
-            .map_err(|e| SimError::Mock("lidar", e.to_string()))?;
-            let mut imu_opts = MockImuOptions::default();
-            imu_opts.device.stream_hz = r.devices.imu.stream_hz;
-            imu_opts.device.imu_id = r.devices.imu.imu_id;
-            let imu = start_mock_imu(imu_opts, Box::new(WorldImu { world: Arc::clone(&world), robot: i }))
-                .await
-                .map_err(|e| SimError::Mock("imu", e.to_string()))?;
-            let bus = InProcessBus::default();
-            let now = Instant::now().into_std();
-            let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
-                .iter()
-                .map(|n| {
-                    spawn_drive(
-                        TecoDrive::new(drive_config(r, *n, &options.noise, options.seed), now),
-                        bus.port(),
-                    )
-                })
-                .collect();
-            let socketcand = match options.can {
-                SimCan::InProcess => None,
-                SimCan::Socketcand => {
-                    let (addr, task) = hil_mocks::teco_drive::socketcand::bind("127.0.0.1:0", bus.clone())
-                        .await
-                        .map_err(|e| SimError::Mock("socketcand", e.to_string()))?;
-                    Some((addr, AbortOnDrop(task)))
-                }
-            };
-            mocks.push(RobotMocks { lidar, imu, bus, drives, socketcand });
+            mocks.push(start_mocks(&world, i, r, &options.noise, options.seed, options.can).await?);
         }
-
-        // The world loop: drive speeds in, physics, truth out.
-        let wheels: Vec<(RobotConfig, Vec<watch_drive::Snapshot>)> = robots
-            .iter()
-            .zip(&mocks)
-            .map(|(r, m)| (r.clone(), m.drives.iter().map(watch_drive::Snapshot::of).collect()))
-            .collect();
-        let (w, t, c) = (Arc::clone(&world), truth.clone(), clock);
-        let world_task = tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_secs_f64(PHYSICS_DT_S));
-            tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
-            let mut last = Instant::now();
-            loop {
-                tick.tick().await;
-                let now = Instant::now();
-                let dt = now.duration_since(last).as_secs_f64();
-                last = now;
-                let mut world = w.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                for (i, (robot, drives)) in wheels.iter().enumerate() {
-                    let (l, r) = watch_drive::wheel_speeds(robot, drives);
-                    let b = robot.kinematics.track_width_m.get();
-                    world.command(i, 0.5 * (l + r), (r - l) / b);
-                }
-                world.step(dt);
-                let poses: Vec<Se2> = (0..world.robot_count()).filter_map(|i| world.pose(i)).collect();
-                drop(world);
-                t.push(c.now_s(), poses);
-            }
-        });
+        let world_task = spawn_world_loop(&world, &truth, clock, &robots, &mocks);
 
         // The link, the server, the robots.
         let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
@@ -320,7 +244,7 @@ impl Sim {
             observed,
             observer,
             started: Instant::now(),
-            _tasks: vec![AbortOnDrop(world_task), AbortOnDrop(health_task)],
+            _tasks: vec![world_task, AbortOnDrop(health_task)],
         })
     }
 
@@ -435,6 +359,167 @@ impl Sim {
         for m in self.mocks {
             m.imu.shutdown();
         }
+    }
+}
+
+/// The world with the formation's robots at their slots around the scenario's start.
+pub fn build_world(
+    robots: &[RobotConfig],
+    sc: &ScenarioConfig,
+    noise: &Noise,
+    seed: u64,
+) -> Result<SharedWorld, SimError> {
+    let site = paper_site().map_err(|e| SimError::Site(format!("{e:?}")))?;
+    let mut world = World::new(site, *noise, seed);
+    let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
+    let start_v = sc.start_pose();
+    for (r, y) in robots.iter().zip(&slots) {
+        let mut spec = RobotSpec::from_config(r);
+        // The drives ramp (and quick-stop) the wheels; the world only must not be slower.
+        spec.max_accel_mps2 = spec.max_accel_mps2.max(r.devices.drives.quick_stop_decel_mps2.get());
+        world.add_robot(spec, start_v * Se2::new(0.0, *y, 0.0));
+    }
+    Ok(Arc::new(std::sync::Mutex::new(world)))
+}
+
+/// Robot `i`'s mock devices, backed by `world`.
+pub async fn start_mocks(
+    world: &SharedWorld,
+    i: usize,
+    r: &RobotConfig,
+    noise: &Noise,
+    seed: u64,
+    can: SimCan,
+) -> Result<RobotMocks, SimError> {
+    let lidar = Tim551Mock::spawn(
+        "127.0.0.1:0",
+        MockConfig {
+            serial: 0x0100_0000 + i as u32,
+            initial_tick_us: 1_000_000 * i as u32,
+            ..MockConfig::default()
+        },
+        Arc::new(WorldLidar { world: Arc::clone(world), robot: i }),
+    )
+    .await
+    .map_err(|e| SimError::Mock("lidar", e.to_string()))?;
+    let mut imu_opts = MockImuOptions::default();
+    imu_opts.device.stream_hz = r.devices.imu.stream_hz;
+    imu_opts.device.imu_id = r.devices.imu.imu_id;
+    let imu = start_mock_imu(imu_opts, Box::new(WorldImu { world: Arc::clone(world), robot: i }))
+        .await
+        .map_err(|e| SimError::Mock("imu", e.to_string()))?;
+    let bus = InProcessBus::default();
+    let now = Instant::now().into_std();
+    let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
+        .iter()
+        .map(|n| spawn_drive(TecoDrive::new(drive_config(r, *n, noise, seed), now), bus.port()))
+        .collect();
+    let socketcand = match can {
+        SimCan::InProcess => None,
+        SimCan::Socketcand => {
+            let (addr, task) = hil_mocks::teco_drive::socketcand::bind("127.0.0.1:0", bus.clone())
+                .await
+                .map_err(|e| SimError::Mock("socketcand", e.to_string()))?;
+            Some((addr, AbortOnDrop(task)))
+        }
+    };
+    Ok(RobotMocks { lidar, imu, bus, drives, socketcand })
+}
+
+impl RobotMocks {
+    /// Where the robot finds these mocks.
+    #[must_use]
+    pub fn overrides(&self) -> DeviceOverrides {
+        DeviceOverrides {
+            lidar: Some(("127.0.0.1".to_owned(), self.lidar.port())),
+            imu_path: Some(self.imu.tty_path().display().to_string()),
+            can: Some(match &self.socketcand {
+                Some((addr, _)) => CanLink::Socketcand { address: addr.to_string(), channel: "can0".into() },
+                None => CanLink::InProcess(self.bus.clone()),
+            }),
+        }
+    }
+}
+
+/// The world loop: the mock drives' shaft speeds in, physics, the truth out; every physics step.
+pub fn spawn_world_loop(
+    world: &SharedWorld,
+    truth: &TruthLog,
+    clock: FleetClock,
+    robots: &[RobotConfig],
+    mocks: &[RobotMocks],
+) -> AbortOnDrop<()> {
+    let wheels: Vec<(RobotConfig, Vec<watch_drive::Snapshot>)> = robots
+        .iter()
+        .zip(mocks)
+        .map(|(r, m)| (r.clone(), m.drives.iter().map(watch_drive::Snapshot::of).collect()))
+        .collect();
+    let (w, t) = (Arc::clone(world), truth.clone());
+    AbortOnDrop(tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_secs_f64(PHYSICS_DT_S));
+        tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        let mut last = Instant::now();
+        // Runs until aborted with the simulation.
+        loop {
+            tick.tick().await;
+            let now = Instant::now();
+            let dt = now.duration_since(last).as_secs_f64();
+            last = now;
+            let mut world = w.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            for (i, (robot, drives)) in wheels.iter().enumerate() {
+                let (l, r) = watch_drive::wheel_speeds(robot, drives);
+                let b = robot.kinematics.track_width_m.get();
+                world.command(i, 0.5 * (l + r), (r - l) / b);
+            }
+            world.step(dt);
+            let poses: Vec<Se2> = (0..world.robot_count()).filter_map(|i| world.pose(i)).collect();
+            drop(world);
+            t.push(clock.now_s(), poses);
+        }
+    }))
+}
+
+/// One robot with its mock devices and the world, its link's far end in the test's hands: for
+/// supervision tests and drills.
+#[derive(Debug)]
+pub struct RobotRig {
+    pub clock: FleetClock,
+    pub world: SharedWorld,
+    pub truth: TruthLog,
+    pub tree: RobotTree,
+    pub mocks: RobotMocks,
+    /// The server's end of the link: read what the robot sends, send it commands.
+    pub server: amr_actors::link::ServerEnd,
+    pub link: LinkControl,
+    _world: AbortOnDrop<()>,
+}
+
+impl RobotRig {
+    /// Robot `config.server.robots[0]` alone in the scenario's world (its formation partner absent).
+    pub async fn start(
+        config: &Config,
+        scenario: &ScenarioConfig,
+        seed: u64,
+        can: SimCan,
+        options: RobotOptions,
+    ) -> Result<RobotRig, SimError> {
+        let robots = formation_robots(&config.server, &config.robots)?;
+        let robot = robots.into_iter().next().ok_or(SimError::Site("the formation is empty".into()))?;
+        let clock = FleetClock::start();
+        let world = build_world(std::slice::from_ref(&robot), scenario, &Noise::TYPICAL, seed)?;
+        let truth = TruthLog::default();
+        let mocks = start_mocks(&world, 0, &robot, &Noise::TYPICAL, seed, can).await?;
+        let world_task = spawn_world_loop(
+            &world,
+            &truth,
+            clock,
+            std::slice::from_ref(&robot),
+            std::slice::from_ref(&mocks),
+        );
+        let (server, mut ends, link) = in_process(&[robot.id.as_str().to_owned()]);
+        let end = ends.pop().ok_or(SimError::Site("no link end".into()))?;
+        let tree = start_robot(&robot, mocks.overrides(), end, clock, options).await?;
+        Ok(RobotRig { clock, world, truth, tree, mocks, server, link, _world: world_task })
     }
 }
 
