@@ -9,7 +9,7 @@ use amr_core::config::{AmclParams, Configuration};
 use amr_core::se2::Se2;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{Anchored, Estimate, EstimateSource, FusedFrame, ServerPorts};
+use super::ports::{Anchored, Estimate, EstimateSource, FusedFrame, ServerPorts, ServerStats};
 use crate::messages::{ScanMsg, Uplink};
 
 /// Spread of the initial particle clouds (a pose given by the operator or the scenario).
@@ -84,6 +84,9 @@ impl Actor for AmclActor {
                             *slot = Some(map * s.odom.inverse());
                         }
                     });
+                    if let Some(c) = self.ports.stats.own_estimates.get(i) {
+                        ServerStats::add(c);
+                    }
                     let mut robots = vec![None; self.mounts.len()];
                     robots[i] = Some(Anchored { map, odom: s.odom, stamp_s: s.stamp_s });
                     self.ports.estimates.send(Estimate {

@@ -15,6 +15,8 @@ use std::time::Duration;
 use amr_core::config::{OnRobotLost, ScenarioLimits};
 use amr_core::formation::{FormationGains, limit_twist, member_command};
 use amr_core::plan::Reference;
+use amr_core::se2::Se2;
+use amr_core::vamr::frame::virtual_frame;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{Anchored, Estimate, EstimateSource, FusionStatus, ServerPorts};
@@ -178,6 +180,9 @@ impl FormationActor {
         match state.phase.clone() {
             Phase::Waiting => {
                 if ready && state.arm_allowed {
+                    if state.plan_s > 0.0 {
+                        self.resync_plan(state, now);
+                    }
                     for i in 0..state.robots.len() {
                         self.send(i, state, |seq| Downlink::Arm { seq: seq + 1 });
                     }
@@ -215,6 +220,9 @@ impl FormationActor {
                         }
                     }
                 } else {
+                    if matches!(state.phase, Phase::Holding { .. }) {
+                        self.resync_plan(state, now);
+                    }
                     state.phase = Phase::Running;
                     let k = (state.plan_s / dt).round() as usize;
                     let Some(r) = self.params.plan.get(k).copied() else {
@@ -257,6 +265,37 @@ impl FormationActor {
                 }
             }
             Phase::Finished => {}
+        }
+    }
+
+    /// After a stop the robots coasted on (ramping down) while the plan was paused: resume the plan
+    /// at its point closest to where V is now, searching forward only.
+    fn resync_plan(&self, state: &mut FormationState, now: f64) {
+        let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
+        let weighted: Option<Vec<(Se2, f64)>> = poses.as_ref().and_then(|p| {
+            let first = p.first()?;
+            Some(p.iter().map(|q| (first.inverse() * *q, 1.0)).collect())
+        });
+        let (Some(poses), Some(rel)) = (poses, weighted) else { return };
+        let v = poses[0] * virtual_frame(&rel);
+        let dt = self.params.period_s;
+        let k0 = (state.plan_s / dt).round() as usize;
+        let best = self
+            .params
+            .plan
+            .iter()
+            .enumerate()
+            .skip(k0)
+            .take((30.0 / dt) as usize)
+            .min_by(|(_, a), (_, b)| {
+                let da = (a.pose.inverse() * v).translation_norm();
+                let db = (b.pose.inverse() * v).translation_norm();
+                da.total_cmp(&db)
+            })
+            .map(|(k, _)| k);
+        if let Some(k) = best {
+            tracing::info!(from_s = state.plan_s, to_s = k as f64 * dt, "formation: plan resumed where V is");
+            state.plan_s = k as f64 * dt;
         }
     }
 

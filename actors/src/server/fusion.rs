@@ -11,10 +11,10 @@ use amr_core::config::{Configuration, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::PacketTimes;
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket, Stage, UpdateError};
+use amr_core::vamr::pipeline::{Pipeline, RobotPacket, Source, Stage, UpdateError};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{FusedFrame, FusionStatus, ServerPorts, StageTimes};
+use super::ports::{FusedFrame, FusionStatus, ServerPorts, ServerStats, StageTimes};
 use crate::messages::{ScanMsg, Uplink};
 
 /// Scans kept per robot for pairing.
@@ -124,6 +124,10 @@ impl FusionActor {
         match result {
             Ok(u) => {
                 state.seq += 1;
+                ServerStats::add(&self.ports.stats.fused);
+                if u.pairs.iter().any(|p| p.heading_source == Source::FullSearch) {
+                    ServerStats::add(&self.ports.stats.full_searches);
+                }
                 let points = u
                     .virtual_scan
                     .as_ref()
@@ -141,6 +145,7 @@ impl FusionActor {
             }
             Err(UpdateError::Sync(f)) => {
                 state.gate_failures += 1;
+                ServerStats::add(&self.ports.stats.gate_failures);
                 tracing::debug!(failure = ?f, "fusion: sync gate");
             }
             Err(e) => tracing::debug!(error = %e, "fusion: no fused measurement"),
@@ -214,6 +219,7 @@ impl Actor for FusionActor {
                         }
                     }
                     tracing::info!(robot = i, "fusion: robot back, re-acquiring");
+                    ServerStats::add(&self.ports.stats.robots_back);
                     if !state.lost.iter().any(|l| *l) {
                         self.ports.status.send(FusionStatus::Fusing);
                     }
@@ -230,6 +236,7 @@ impl Actor for FusionActor {
                     if silent && !state.lost[i] {
                         state.lost[i] = true;
                         tracing::warn!(robot = %self.ports.robots[i], "fusion: scans stopped, robot lost");
+                        ServerStats::add(&self.ports.stats.robots_lost);
                         self.ports.status.send(FusionStatus::RobotLost(i));
                     }
                 }

@@ -1,5 +1,6 @@
 //! The server's wiring: ports that outlive its actors, and the latency log.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_core::config::Configuration;
@@ -95,6 +96,34 @@ impl LatencyLog {
     }
 }
 
+/// Counters of the server's work, for reports and tests.
+#[derive(Debug, Default)]
+pub struct ServerStats {
+    /// Fused frames handed to AMCL.
+    pub fused: AtomicU64,
+    /// Sets refused by the sync gate.
+    pub gate_failures: AtomicU64,
+    /// Heading searches over the full circle (first acquisition and every re-acquisition).
+    pub full_searches: AtomicU64,
+    /// Robots declared lost, and back.
+    pub robots_lost: AtomicU64,
+    pub robots_back: AtomicU64,
+    /// Estimates from each robot's own AMCL, per robot.
+    pub own_estimates: Vec<AtomicU64>,
+}
+
+impl ServerStats {
+    /// Read a counter.
+    #[must_use]
+    pub fn get(c: &AtomicU64) -> u64 {
+        c.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn add(c: &AtomicU64) {
+        c.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 /// Every port of the server.
 #[derive(Debug)]
 pub struct ServerPorts {
@@ -109,6 +138,7 @@ pub struct ServerPorts {
     /// Per robot: `T_odom^map` of its own AMCL (map pose = this · odometry pose).
     pub corrections: watch::Sender<Vec<Option<Se2>>>,
     pub latency: LatencyLog,
+    pub stats: ServerStats,
 }
 
 impl ServerPorts {
@@ -124,6 +154,10 @@ impl ServerPorts {
             status: OutputPort::default(),
             corrections: watch::Sender::new(vec![None; n]),
             latency: LatencyLog::default(),
+            stats: ServerStats {
+                own_estimates: (0..n).map(|_| AtomicU64::new(0)).collect(),
+                ..ServerStats::default()
+            },
         })
     }
 
