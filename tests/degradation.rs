@@ -110,6 +110,6 @@ async fn a_robot_whose_scans_stop_stops_the_formation_until_it_is_back_and_rearm
     let text = report.to_text();
     assert_eq!(report.final_phase, "Finished", "{text}");
     for e in &report.final_formation_error_m {
-        assert!(*e < 0.05, "a robot ended {e:.3} m from its slot\n{text}");
+        assert!(*e < 0.08, "a robot ended {e:.3} m from its slot\n{text}");
     }
 }

@@ -77,7 +77,7 @@ impl Actor for AmclActor {
                     return Ok(());
                 };
                 let points = scan_points(&s.scan, mount, &self.params);
-                filter.update(s.odom, &points, false);
+                super::compute(|| filter.update(s.odom, &points, false));
                 if let Some(map) = filter.pose_at(&s.odom) {
                     self.ports.corrections.send_modify(|c| {
                         if let Some(slot) = c.get_mut(i) {
@@ -102,7 +102,8 @@ impl Actor for AmclActor {
                 let mut ran = false;
                 let v = match (&f.points, f.configuration) {
                     (Some(points), _) => {
-                        let outcome = state.virtual_filter.update(f.v_odom, points, false);
+                        let filter = &mut state.virtual_filter;
+                        let outcome = super::compute(|| filter.update(f.v_odom, points, false));
                         ran = matches!(outcome, amr_core::amcl::UpdateOutcome::Updated { .. });
                         state.virtual_filter.pose_at(&f.v_odom)
                     }

@@ -107,16 +107,19 @@ impl FusionActor {
             .collect();
         let mut times = StageTimes { acquisition_sync_s: clock.now_s() - oldest, ..StageTimes::default() };
         let mut last = std::time::Instant::now();
-        let result = state.pipeline.update_with_laps(&packets, &mut |stage| {
-            let now = std::time::Instant::now();
-            let d = now.duration_since(last).as_secs_f64();
-            last = now;
-            match stage {
-                Stage::Preprocess => times.preprocess_s += d,
-                Stage::Tracking => times.tracking_s += d,
-                Stage::Heading => times.heading_s += d,
-                Stage::VirtualScan => times.virtual_scan_s += d,
-            }
+        let pipeline = &mut state.pipeline;
+        let result = super::compute(|| {
+            pipeline.update_with_laps(&packets, &mut |stage| {
+                let now = std::time::Instant::now();
+                let d = now.duration_since(last).as_secs_f64();
+                last = now;
+                match stage {
+                    Stage::Preprocess => times.preprocess_s += d,
+                    Stage::Tracking => times.tracking_s += d,
+                    Stage::Heading => times.heading_s += d,
+                    Stage::VirtualScan => times.virtual_scan_s += d,
+                }
+            })
         });
         for (i, (s, _)) in set.iter().enumerate() {
             state.fused_stamp[i] = s.stamp_s;

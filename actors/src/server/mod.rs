@@ -43,6 +43,16 @@ pub const FORMATION_PERIOD_S: f64 = 0.05;
 /// A robot whose scans stop for this long is lost, s (about 7 scan periods at 15 Hz).
 pub const LOST_AFTER_S: f64 = 0.5;
 
+/// Run CPU-heavy work (a pipeline update, an AMCL update) without stalling the runtime's other
+/// tasks — in a simulation the robots' safety loops share it: on a multi-thread runtime the worker
+/// hands its queued tasks to the others first.
+pub(crate) fn compute<R>(f: impl FnOnce() -> R) -> R {
+    match tokio::runtime::Handle::try_current().map(|h| h.runtime_flavor()) {
+        Ok(tokio::runtime::RuntimeFlavor::MultiThread) => tokio::task::block_in_place(f),
+        _ => f(),
+    }
+}
+
 /// Everything the server needs.
 #[derive(Debug, Clone)]
 pub struct ServerSetup {
