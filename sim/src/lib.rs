@@ -9,6 +9,7 @@
 //! The world's noise is seeded, but a real-time run depends on the scheduler, so two runs are close,
 //! not identical; `amr eval` is the bit-reproducible one.
 
+pub mod drills;
 pub mod report;
 pub mod truth;
 
@@ -503,6 +504,18 @@ impl RobotRig {
         can: SimCan,
         options: RobotOptions,
     ) -> Result<RobotRig, SimError> {
+        Self::start_with(config, scenario, seed, can, options, |_| {}).await
+    }
+
+    /// As [`RobotRig::start`], with the device addresses changed by `tweak` (a device absent, …).
+    pub async fn start_with(
+        config: &Config,
+        scenario: &ScenarioConfig,
+        seed: u64,
+        can: SimCan,
+        options: RobotOptions,
+        tweak: impl FnOnce(&mut DeviceOverrides),
+    ) -> Result<RobotRig, SimError> {
         let robots = formation_robots(&config.server, &config.robots)?;
         let robot = robots.into_iter().next().ok_or(SimError::Site("the formation is empty".into()))?;
         let clock = FleetClock::start();
@@ -518,7 +531,9 @@ impl RobotRig {
         );
         let (server, mut ends, link) = in_process(&[robot.id.as_str().to_owned()]);
         let end = ends.pop().ok_or(SimError::Site("no link end".into()))?;
-        let tree = start_robot(&robot, mocks.overrides(), end, clock, options).await?;
+        let mut overrides = mocks.overrides();
+        tweak(&mut overrides);
+        let tree = start_robot(&robot, overrides, end, clock, options).await?;
         Ok(RobotRig { clock, world, truth, tree, mocks, server, link, _world: world_task })
     }
 }

@@ -20,6 +20,8 @@ pub enum LidarMsg {
     DriverEnded,
     /// Fail now, as a bug would (drills).
     InjectFailure(String),
+    /// Panic now, as a bug would (drills).
+    InjectPanic(String),
 }
 
 /// The LiDAR actor.
@@ -101,6 +103,8 @@ impl Actor for LidarActor {
             }
             LidarMsg::DriverEnded => return Err("the SOPAS driver task ended".into()),
             LidarMsg::InjectFailure(why) => return Err(why.into()),
+            #[allow(clippy::panic, reason = "the drill hook: a panicking actor, on purpose")]
+            LidarMsg::InjectPanic(why) => panic!("{why}"),
         }
         Ok(())
     }

@@ -1,0 +1,550 @@
+//! Drills on one robot and its devices (drills 1–7 and 11 of issue 10).
+
+use std::time::Duration;
+
+use amr_actors::messages::{Command, Device, DisarmReason, Downlink, Health, SafetyState, Uplink};
+use amr_actors::robot::canbus::CanBusMsg;
+use amr_actors::robot::lidar::LidarMsg;
+use amr_actors::supervisor::{EventKind, SupervisorMsg};
+use amr_core::config::Config;
+use amr_drivers::canopen::cia402::State402;
+use hil_mocks::teco_drive::Fault as DriveFault;
+use hil_mocks::tim551::Fault as LidarFault;
+use ractor::ActorRef;
+
+use super::{
+    Check, all_ok, child, drive, events_from, health, keep_counters, rig, wheels_still, wheels_turning,
+};
+use crate::{RobotRig, SimCan};
+
+fn kinds(rig: &RobotRig, supervisor: &str, from: usize) -> Vec<EventKind> {
+    rig.tree
+        .events
+        .snapshot()
+        .iter()
+        .skip(from)
+        .filter(|e| e.supervisor == supervisor)
+        .map(|e| e.kind.clone())
+        .collect()
+}
+
+fn started(rig: &RobotRig, supervisor: &str, child: &str, from: usize) -> bool {
+    kinds(rig, supervisor, from).iter().any(|k| *k == EventKind::Started { child: child.into() })
+}
+
+fn targets_zero(rig: &RobotRig) -> bool {
+    rig.mocks.drives.iter().all(|d| d.now().target_velocity == 0)
+}
+
+/// Drill 1: the LiDAR actor panics; it alone is restarted.
+pub(crate) async fn lidar_panic(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let sup = rig.tree.supervisor.clone();
+    let others =
+        (child(&sup, "imu").await.map(|c| c.get_id()), child(&sup, "drives").await.map(|c| c.get_id()));
+    let enables = rig.mocks.drives[0].now().enables;
+    let n0 = rig.tree.events.len();
+    let Some(lidar) = child(&sup, "lidar").await else { return c.fail("no lidar actor") };
+    c.inject();
+    let _ = ActorRef::<LidarMsg>::from(lidar).cast(LidarMsg::InjectPanic("drill: lidar panic".into()));
+    c.detection = c
+        .within("the panic seen by the supervisor", Duration::from_secs(2), || {
+            kinds(&rig, "robot-a", n0)
+                .iter()
+                .any(|k| matches!(k, EventKind::Failed { child, .. } if child == "lidar"))
+        })
+        .await;
+    c.recovery = c
+        .within("the LiDAR restarted and Ok", Duration::from_secs(5), || {
+            started(&rig, "robot-a", "lidar", n0) && health(&rig, Device::Lidar) == Some(Health::Ok)
+        })
+        .await;
+    let k = kinds(&rig, "robot-a", n0);
+    c.that(
+        matches!(k.first(), Some(EventKind::Failed { child, reason }) if child == "lidar" && reason.contains("drill: lidar panic")),
+        format!("first event a failure of the LiDAR with the panic text: {k:?}"),
+    );
+    c.eq(
+        "then",
+        k.get(1..).map(<[EventKind]>::to_vec).unwrap_or_default(),
+        vec![
+            EventKind::RestartScheduled { child: "lidar".into(), attempt: 1, delay_ms: 100 },
+            EventKind::Started { child: "lidar".into() },
+        ],
+    );
+    let now = (child(&sup, "imu").await.map(|c| c.get_id()), child(&sup, "drives").await.map(|c| c.get_id()));
+    c.eq("IMU and drives actors (same ids)", now, others);
+    c.eq("drive enables", rig.mocks.drives[0].now().enables, enables);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 2: a device actor that fails every time it starts: escalation, the robot stopped and
+/// reporting Fault, and no restart storm.
+pub(crate) async fn fail_forever(config: &Config, seed: u64, c: &mut Check) {
+    let Some(mut rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let _feed = drive(&rig, 0.15);
+    if c.within("the wheels turning", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await
+        .is_none()
+    {
+        return;
+    }
+    let sup = rig.tree.supervisor.clone();
+    let n0 = rig.tree.events.len();
+    c.inject();
+    // Kill the LiDAR actor every time it is started again (bounded: the intensity is 3).
+    for k in 0..8 {
+        if k > 0 {
+            let seen = rig
+                .tree
+                .events
+                .wait_for_nth(
+                    |e| {
+                        e.supervisor == "robot-a"
+                            && (e.kind == EventKind::Started { child: "lidar".into() }
+                                || matches!(e.kind, EventKind::Escalated { .. }))
+                    },
+                    1 + k,
+                    Duration::from_secs(5),
+                )
+                .await;
+            if matches!(seen.map(|e| e.kind), Some(EventKind::Escalated { .. }) | None) {
+                break;
+            }
+        }
+        match child(&sup, "lidar").await {
+            Some(l) => l.kill(),
+            None => break,
+        }
+        if k == 0 {
+            c.detection = Some(c.since_injection());
+        }
+    }
+    let escalated = rig
+        .tree
+        .events
+        .wait_for(|e| matches!(e.kind, EventKind::Escalated { .. }), Duration::from_secs(10))
+        .await;
+    c.that(escalated.is_some(), "the robot supervisor escalated");
+    c.safe_state = c.within("the wheels stopped", Duration::from_secs(2), || wheels_still(&rig)).await;
+    let mut fault = false;
+    let until = tokio::time::Instant::now() + Duration::from_secs(3);
+    while !fault && tokio::time::Instant::now() < until {
+        if let Ok(Some(Uplink::Safety { state, .. })) =
+            tokio::time::timeout(Duration::from_millis(100), rig.server.up.recv()).await
+        {
+            fault = state == SafetyState::Fault;
+        }
+    }
+    c.that(fault, "Fault reported up the link");
+    c.that(!rig.tree.is_running(), "the robot tree stopped");
+    let failures =
+        kinds(&rig, "robot-a", n0).iter().filter(|k| matches!(k, EventKind::Failed { .. })).count();
+    c.eq("failures before escalation (max_restarts + 1)", failures, 4);
+    let n = rig.tree.events.len();
+    c.throughout("no restart after the escalation", Duration::from_secs(2), || rig.tree.events.len() == n)
+        .await;
+    c.that(wheels_still(&rig), "the wheels stay still");
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+}
+
+/// Drill 3: the CAN bus actor fails; the drives actor is restarted after it.
+pub(crate) async fn can_bus_restart(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::Socketcand, c).await else { return };
+    let Some(drives_cell) = child(&rig.tree.supervisor, "drives").await else { return };
+    let drives_sup: ActorRef<SupervisorMsg> = drives_cell.into();
+    let Some(bus) = child(&drives_sup, "can-bus").await else { return };
+    let (boots, enables) = (rig.mocks.drives[0].now().boots, rig.mocks.drives[0].now().enables);
+    let n0 = rig.tree.events.len();
+    c.inject();
+    let _ = ActorRef::<CanBusMsg>::from(bus).cast(CanBusMsg::InjectFailure("drill: bus bug".into()));
+    c.detection = c
+        .within("the failure seen", Duration::from_secs(2), || !kinds(&rig, "robot-a/drives", n0).is_empty())
+        .await;
+    c.recovery = c
+        .within("the drives enabled again", Duration::from_secs(10), || {
+            let d = rig.mocks.drives[0].now();
+            d.boots > boots && d.enables > enables && health(&rig, Device::Drives) == Some(Health::Ok)
+        })
+        .await;
+    c.eq(
+        "drives subtree events",
+        kinds(&rig, "robot-a/drives", n0),
+        vec![
+            EventKind::Failed { child: "can-bus".into(), reason: "drill: bus bug".into() },
+            EventKind::Stopped { child: "drive".into() },
+            EventKind::RestartScheduled { child: "can-bus".into(), attempt: 1, delay_ms: 100 },
+            EventKind::Started { child: "can-bus".into() },
+            EventKind::Started { child: "drive".into() },
+        ],
+    );
+    c.eq("top supervisor events", kinds(&rig, "robot-a", n0), vec![]);
+    c.eq(
+        "enables without configuration",
+        rig.mocks.drives.iter().map(|d| d.now().enables_unconfigured).sum::<u32>(),
+        0,
+    );
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 4a: the LiDAR's TCP connection is reset and refused for a while.
+pub(crate) async fn lidar_reset(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let n0 = rig.tree.events.len();
+    let conns = rig.mocks.lidar.handle.connections();
+    c.inject();
+    rig.mocks.lidar.handle.inject(LidarFault::Drop { refuse_for: Duration::from_millis(1000) });
+    c.detection = c
+        .within("LiDAR Lost", Duration::from_secs(1), || health(&rig, Device::Lidar) == Some(Health::Lost))
+        .await;
+    c.recovery = c
+        .within("LiDAR Ok again", Duration::from_secs(8), || health(&rig, Device::Lidar) == Some(Health::Ok))
+        .await;
+    // Backoff 100, 200, 400, 800 ms: a handful of attempts during the refusal, not a busy loop.
+    let attempts = rig.mocks.lidar.handle.connections() - conns;
+    c.that((1..=6).contains(&attempts), format!("{attempts} connection attempts to recover (1..=6)"));
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.that(all_ok(&rig), "every device Ok after");
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    c.that(c.counters.get("lidar.link_lost").copied().unwrap_or(0) >= 1, "the link loss counted");
+    rig.tree.shutdown().await;
+}
+
+/// Drill 4b: the LiDAR stays connected but sends nothing (half-open).
+pub(crate) async fn lidar_stall(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let n0 = rig.tree.events.len();
+    c.inject();
+    rig.mocks.lidar.handle.inject(LidarFault::Stall);
+    // The scan watchdog is 500 ms.
+    c.detection = c
+        .within("LiDAR Lost (scan watchdog)", Duration::from_millis(900), || {
+            health(&rig, Device::Lidar) == Some(Health::Lost)
+        })
+        .await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    rig.mocks.lidar.handle.inject(LidarFault::Resume);
+    c.recovery = c
+        .within("LiDAR Ok again", Duration::from_secs(8), || health(&rig, Device::Lidar) == Some(Health::Ok))
+        .await;
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 4c: the IMU's tty disappears and comes back.
+pub(crate) async fn imu_unplug(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let n0 = rig.tree.events.len();
+    c.inject();
+    if let Err(e) = rig.mocks.imu.unplug().await {
+        return c.fail(format!("unplug: {e}"));
+    }
+    // No data for 250 ms reopens the port.
+    c.detection = c
+        .within("IMU Lost", Duration::from_millis(800), || health(&rig, Device::Imu) == Some(Health::Lost))
+        .await;
+    c.within("odometry on the wheels alone", Duration::from_millis(500), || {
+        health(&rig, Device::Odometry) == Some(Health::Degraded)
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    if let Err(e) = rig.mocks.imu.replug().await {
+        return c.fail(format!("replug: {e}"));
+    }
+    c.recovery = c
+        .within("IMU and odometry Ok again", Duration::from_secs(8), || {
+            health(&rig, Device::Imu) == Some(Health::Ok)
+                && health(&rig, Device::Odometry) == Some(Health::Ok)
+        })
+        .await;
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drives heartbeat loss (drill 5) and bus-off (drill 4d) share this: the drive falls silent while
+/// the robot moves; the master notices within the consumer time, every target goes to zero, the
+/// robot disarms; once the drive is back it is reset, reconfigured and enabled again.
+async fn drive_silent(config: &Config, seed: u64, c: &mut Check, fault: DriveFault, end: Option<DriveFault>) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let _feed = drive(&rig, 0.15);
+    if c.within("the wheels turning", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await
+        .is_none()
+    {
+        return;
+    }
+    let n0 = rig.tree.events.len();
+    c.inject();
+    rig.mocks.drives[0].inject(fault);
+    // 300 ms consumer time + one SYNC cycle of slack.
+    c.detection = c
+        .within("drives Lost (heartbeat)", Duration::from_millis(600), || {
+            health(&rig, Device::Drives) == Some(Health::Lost)
+        })
+        .await;
+    c.safe_state = c.within("every target zero", Duration::from_millis(700), || targets_zero(&rig)).await;
+    c.within("the robot disarmed", Duration::from_millis(500), || {
+        matches!(*rig.tree.ports.safety_now.borrow(), Some(SafetyState::Disarmed(_)))
+    })
+    .await;
+    if let Some(f) = end {
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        rig.mocks.drives[0].inject(f);
+    }
+    c.recovery = c
+        .within("drives Ok again", Duration::from_secs(10), || {
+            health(&rig, Device::Drives) == Some(Health::Ok)
+        })
+        .await;
+    c.eq(
+        "enables without configuration",
+        rig.mocks.drives.iter().map(|d| d.now().enables_unconfigured).sum::<u32>(),
+        0,
+    );
+    c.that(
+        *rig.tree.ports.safety_now.borrow() != Some(SafetyState::Armed),
+        "still disarmed: motion needs a new arm",
+    );
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    c.that(c.counters.get("drives.heartbeat_lost").copied().unwrap_or(0) >= 1, "the heartbeat loss counted");
+    rig.tree.shutdown().await;
+}
+
+/// Drill 4d: a drive goes bus-off for a second.
+pub(crate) async fn drive_bus_off(config: &Config, seed: u64, c: &mut Check) {
+    drive_silent(config, seed, c, DriveFault::BusOff { duration: Duration::from_secs(1) }, None).await;
+}
+
+/// Drill 5a: a drive's heartbeat stops.
+pub(crate) async fn drive_heartbeat(config: &Config, seed: u64, c: &mut Check) {
+    drive_silent(config, seed, c, DriveFault::HeartbeatLoss(true), Some(DriveFault::HeartbeatLoss(false)))
+        .await;
+}
+
+/// Drill 5b: a drive reboots: it is reconfigured before it is enabled again.
+pub(crate) async fn drive_reboot(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let before = rig.mocks.drives[0].now();
+    let n0 = rig.tree.events.len();
+    c.inject();
+    rig.mocks.drives[0].inject(DriveFault::Reboot);
+    c.detection = c
+        .within("the boot-up seen", Duration::from_secs(1), || rig.tree.counters.get("drives.boot_up") >= 1)
+        .await;
+    c.recovery = c
+        .within("the drive enabled again", Duration::from_secs(10), || {
+            let d = rig.mocks.drives[0].now();
+            d.enables > before.enables
+                && d.state == State402::OperationEnabled
+                && health(&rig, Device::Drives) == Some(Health::Ok)
+        })
+        .await;
+    let after = rig.mocks.drives[0].now();
+    c.eq("boot-ups", after.boots, before.boots + 1);
+    c.eq("enables without configuration", after.enables_unconfigured, 0);
+    c.eq("0x1016 written again", after.master_consumer != 0, true);
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.
+pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
+    use hil_mocks::lpms::Fault as ImuFault;
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let n0 = rig.tree.events.len();
+    let rejected = rig.tree.counters.get("rejected");
+    c.inject();
+    let l = &rig.mocks.lidar.handle;
+    l.inject(LidarFault::Garbage(b"\x02sSN LMDscandata \xff\xfe garbage\x03\x00\x00".to_vec()));
+    l.inject(LidarFault::TruncateNext);
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    l.inject(LidarFault::CorruptNext);
+    for f in [
+        ImuFault::WrongLrc(5),
+        ImuFault::Truncate(5),
+        ImuFault::Garbage(vec![0x3a, 0x01, 0x00, 0xff, 0xff, 0x7f]),
+    ] {
+        if let Err(e) = rig.mocks.imu.inject(f).await {
+            c.that(false, format!("imu fault: {e}"));
+        }
+    }
+    // Commands that are not finite, replayed, stale or absurd.
+    let id = rig.tree.id.clone();
+    let down = &rig.server.down;
+    let now = rig.clock.now_s();
+    down.send(&id, Downlink::Arm { seq: 10 });
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let cmd = |seq, stamp_s, v_mps| Downlink::Command(Command { seq, stamp_s, v_mps, w_radps: 0.0 });
+    down.send(&id, cmd(10, now, f64::NAN));
+    down.send(&id, cmd(11, now - 5.0, 0.1));
+    down.send(&id, cmd(9, now, 0.1));
+    down.send(&id, cmd(12, rig.clock.now_s(), 50.0));
+    tokio::time::sleep(Duration::from_millis(60)).await;
+    down.send(&id, cmd(12, rig.clock.now_s(), 0.1));
+    c.detection = c
+        .within("rejections counted", Duration::from_secs(2), || {
+            rig.tree.counters.get("rejected") >= rejected + 3
+        })
+        .await;
+    // The absurd speed is clamped: the drives never get more than the robot's limit.
+    let max_cps = 0.22 / (std::f64::consts::TAU * 0.065) * 20.0 * 10_000.0;
+    c.throughout("the wheels within the speed limit", Duration::from_secs(1), || {
+        rig.mocks.drives.iter().all(|d| d.now().velocity_cps.abs() <= max_cps * 1.001)
+    })
+    .await;
+    keep_counters(&rig, c);
+    let counters = c.counters.clone();
+    let get = |k: &str| counters.get(k).copied().unwrap_or(0);
+    let (nan, expired, stale) =
+        (get("safety.refused.not_finite"), get("safety.refused.expired"), get("safety.refused.stale"));
+    c.eq("refused (not finite, expired, stale)", (nan, expired, stale), (1, 1, 2));
+    c.that(get("lidar: protocol or device error") >= 2, "LiDAR frames rejected and counted");
+    c.that(get("imu: protocol or device error") >= 2, "IMU frames rejected and counted");
+    c.eq("supervision events (nothing failed)", events_from(&rig, n0), vec![]);
+    c.recovery = c.within("every device Ok", Duration::from_secs(5), || all_ok(&rig)).await;
+    c.events = events_from(&rig, n0);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 7: the LiDAR is absent when the robot starts.
+pub(crate) async fn absent_at_start(config: &Config, seed: u64, c: &mut Check) {
+    let Some(scenario) = config.scenarios.get("straight").cloned() else { return };
+    // A port nobody listens on (yet).
+    let port = match std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()) {
+        Ok(a) => a.port(),
+        Err(e) => return c.fail(format!("no free port: {e}")),
+    };
+    c.inject();
+    let rig = match crate::RobotRig::start_with(
+        config,
+        &scenario,
+        seed,
+        SimCan::InProcess,
+        Default::default(),
+        |o| {
+            o.lidar = Some(("127.0.0.1".into(), port));
+        },
+    )
+    .await
+    {
+        Ok(r) => r,
+        Err(e) => return c.fail(format!("setup: {e}")),
+    };
+    c.within("IMU and drives Ok without the LiDAR", Duration::from_secs(15), || {
+        [Device::Imu, Device::CanBus, Device::Drives].iter().all(|d| health(&rig, *d) == Some(Health::Ok))
+    })
+    .await;
+    c.detection = c
+        .within("LiDAR Lost", Duration::from_secs(2), || health(&rig, Device::Lidar) == Some(Health::Lost))
+        .await;
+    let lost0 = rig.tree.counters.get("lidar.link_lost");
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let attempts = rig.tree.counters.get("lidar.link_lost") - lost0;
+    c.that((1..=6).contains(&attempts), format!("{attempts} retries in 3 s: retrying, with backoff"));
+    c.that(rig.tree.is_running(), "the robot runs without its LiDAR");
+    c.eq(
+        "supervision failures",
+        rig.tree
+            .events
+            .snapshot()
+            .iter()
+            .filter(|e| matches!(e.kind, EventKind::Failed { .. } | EventKind::StartFailed { .. }))
+            .count(),
+        0,
+    );
+    // The LiDAR appears.
+    let mock = hil_mocks::tim551::Tim551Mock::spawn(
+        &format!("127.0.0.1:{port}"),
+        hil_mocks::tim551::MockConfig::default(),
+        std::sync::Arc::new(hil_mocks::world::WorldLidar { world: rig.world.clone(), robot: 0 }),
+    )
+    .await;
+    if let Err(e) = &mock {
+        return c.fail(format!("mock on port {port}: {e}"));
+    }
+    let appeared = c.since_injection();
+    c.recovery = c
+        .within("LiDAR Ok once it appears", Duration::from_secs(8), || {
+            health(&rig, Device::Lidar) == Some(Health::Ok)
+        })
+        .await
+        .map(|t| t.saturating_sub(appeared));
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
+/// Drill 11: e-stop while moving: zero within 100 ms, latched until reset, orderly shutdown.
+pub(crate) async fn estop(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let _feed = drive(&rig, 0.2);
+    if c.within("the wheels turning", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await
+        .is_none()
+    {
+        return;
+    }
+    c.inject();
+    rig.tree.estop();
+    c.safe_state = c
+        .within("both drives commanded to zero and quick-stopping", Duration::from_millis(100), || {
+            targets_zero(&rig)
+                && rig
+                    .mocks
+                    .drives
+                    .iter()
+                    .all(|d| matches!(d.now().state, State402::QuickStopActive | State402::SwitchOnDisabled))
+        })
+        .await;
+    c.detection = c.safe_state;
+    // 0.2 m/s at the 0.5 m/s² quick-stop deceleration: 0.4 s.
+    c.within("the wheels at rest", Duration::from_millis(800), || wheels_still(&rig)).await;
+    c.eq("safety state", *rig.tree.ports.safety_now.borrow(), Some(SafetyState::EStop));
+    c.throughout("latched: commands keep coming, the wheels stay still", Duration::from_secs(1), || {
+        wheels_still(&rig)
+    })
+    .await;
+    rig.tree.reset_estop();
+    c.within("reset: disarmed, not moving", Duration::from_millis(500), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
+    })
+    .await;
+    c.throughout("still: a reset does not re-arm", Duration::from_millis(500), || wheels_still(&rig)).await;
+    keep_counters(&rig, c);
+    let n0 = rig.tree.events.len();
+    let log = rig.tree.events.clone();
+    let drives = rig.mocks.drives.iter().map(|d| d.snapshot.clone()).collect::<Vec<_>>();
+    rig.tree.shutdown().await;
+    let lines: Vec<String> =
+        log.snapshot().iter().skip(n0).map(|e| format!("{}: {:?}", e.supervisor, e.kind)).collect();
+    let stopped = |s: &str, ch: &str| format!("{s}: Stopped {{ child: \"{ch}\" }}");
+    c.eq(
+        "orderly shutdown, in reverse start order",
+        lines.clone(),
+        vec![
+            stopped("robot-a", "uplink"),
+            stopped("robot-a", "safety"),
+            stopped("robot-a", "odometry"),
+            stopped("robot-a/drives", "drive"),
+            stopped("robot-a/drives", "can-bus"),
+            stopped("robot-a", "drives"),
+            stopped("robot-a", "imu"),
+            stopped("robot-a", "lidar"),
+        ],
+    );
+    c.that(drives.iter().all(|d| d.borrow().state != State402::OperationEnabled), "no drive left enabled");
+    c.events = lines;
+}

@@ -1,0 +1,359 @@
+//! Fault-recovery drills (issue 10): each injects a fault through a mock device's fault plan (or
+//! kills an actor) in a running system and checks, with deadlines, (a) detection, (b) the safe
+//! state where the fault is safety-relevant, (c) recovery, (d) the exact ordered event log and
+//! (e) the counters. Real sockets and ptys are involved, so drills run in real time with short
+//! timeouts and bounded waits.
+//!
+//! A drill never panics on a failed expectation: it records it, so `amr drill all` can print the
+//! whole table; the tests assert that each drill passed and print what failed.
+
+mod devices;
+mod fleet;
+mod soak;
+
+pub use soak::SOAK_FULL;
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::time::Duration;
+
+use amr_actors::messages::{Command, Device, Downlink, Health};
+use amr_actors::robot::RobotOptions;
+use amr_actors::supervisor::{ChildInfo, SupervisorMsg};
+use amr_core::config::Config;
+use ractor::{ActorCell, ActorRef};
+use serde::Serialize;
+use tokio::time::Instant;
+
+use crate::{RobotRig, SimCan};
+
+/// One drill.
+#[derive(Debug, Clone, Copy)]
+pub struct Drill {
+    pub name: &'static str,
+    pub about: &'static str,
+}
+
+/// Every drill, in the issue's order.
+pub const DRILLS: &[Drill] = &[
+    Drill { name: "lidar-panic", about: "the LiDAR actor panics: restarted alone, drives and IMU untouched" },
+    Drill {
+        name: "fail-forever",
+        about: "a device actor that fails forever: escalation, Fault latched, robot stopped, no restart storm",
+    },
+    Drill {
+        name: "can-bus-restart",
+        about: "the CAN bus actor restarts: the drives restart after it (rest-for-one)",
+    },
+    Drill {
+        name: "lidar-reset",
+        about: "LiDAR TCP connection reset: reconnect with backoff, Lost → Ok, no restart",
+    },
+    Drill {
+        name: "lidar-stall",
+        about: "LiDAR half-open (connected, silent): detected by the scan watchdog, reconnect",
+    },
+    Drill {
+        name: "imu-unplug",
+        about: "IMU tty closed and back: reopened with backoff, odometry falls back to the wheels",
+    },
+    Drill {
+        name: "drive-bus-off",
+        about: "a drive goes bus-off: heartbeat lost, robot stopped, drive back and reconfigured",
+    },
+    Drill {
+        name: "drive-heartbeat",
+        about: "a drive's heartbeat stops: reported within the consumer time, the robot stops",
+    },
+    Drill { name: "drive-reboot", about: "a drive reboots: reconfigured before it is enabled again" },
+    Drill {
+        name: "bad-data",
+        about: "garbage, truncated frames, bad checksums, NaN: rejected and counted, nothing panics",
+    },
+    Drill {
+        name: "absent-at-start",
+        about: "the LiDAR is absent at start-up: the robot comes up without it and keeps retrying",
+    },
+    Drill {
+        name: "link-lost",
+        about: "robot ↔ server link lost: each robot stops within its watchdog; no stale command after; re-arm needed",
+    },
+    Drill {
+        name: "server-restart",
+        about: "the server crashes and restarts: robots stay stopped, reconnect, resume after re-arm",
+    },
+    Drill { name: "slow-consumer", about: "a stalled localisation does not delay the robot's safety loop" },
+    Drill { name: "estop", about: "e-stop: wheels commanded to zero within 100 ms; orderly shutdown" },
+    Drill {
+        name: "soak",
+        about: "seeded chaos: random faults from this list, invariants checked throughout",
+    },
+];
+
+/// What a drill measured and found.
+#[derive(Debug, Clone, Serialize)]
+pub struct DrillOutcome {
+    pub name: String,
+    pub passed: bool,
+    /// From the injection to the fault being noticed (health change, event, report).
+    pub detection_ms: Option<f64>,
+    /// From the injection to the safe state (wheels commanded to zero or quick stop).
+    pub safe_state_ms: Option<f64>,
+    /// From the injection (or the end of the fault) to working again.
+    pub recovery_ms: Option<f64>,
+    /// The supervision events after the injection, in order.
+    pub events: Vec<String>,
+    pub counters: BTreeMap<String, u64>,
+    /// Every expectation that did not hold.
+    pub failures: Vec<String>,
+    pub duration_s: f64,
+}
+
+/// Records expectations and timings of one drill.
+#[derive(Debug)]
+pub struct Check {
+    name: String,
+    started: Instant,
+    injected: Option<Instant>,
+    pub detection: Option<Duration>,
+    pub safe_state: Option<Duration>,
+    pub recovery: Option<Duration>,
+    pub events: Vec<String>,
+    pub counters: BTreeMap<String, u64>,
+    failures: Vec<String>,
+}
+
+impl Check {
+    #[must_use]
+    pub fn new(name: &str) -> Self {
+        Check {
+            name: name.to_owned(),
+            started: Instant::now(),
+            injected: None,
+            detection: None,
+            safe_state: None,
+            recovery: None,
+            events: Vec::new(),
+            counters: BTreeMap::new(),
+            failures: Vec::new(),
+        }
+    }
+
+    /// Mark the injection: later timings count from here.
+    pub fn inject(&mut self) {
+        self.injected = Some(Instant::now());
+    }
+
+    /// Time since the injection (or the start).
+    #[must_use]
+    pub fn since_injection(&self) -> Duration {
+        self.injected.unwrap_or(self.started).elapsed()
+    }
+
+    /// Record `what` as failed unless `ok`.
+    pub fn that(&mut self, ok: bool, what: impl Into<String>) -> bool {
+        if !ok {
+            let what = what.into();
+            tracing::warn!(drill = %self.name, %what, "drill expectation failed");
+            self.failures.push(what);
+        }
+        ok
+    }
+
+    /// Record a failure.
+    pub fn fail(&mut self, what: impl Into<String>) {
+        self.that(false, what);
+    }
+
+    /// `got == want`, or a failure showing both.
+    pub fn eq<T: PartialEq + std::fmt::Debug>(&mut self, what: &str, got: T, want: T) -> bool {
+        let ok = got == want;
+        self.that(ok, format!("{what}: got {got:?}, want {want:?}"))
+    }
+
+    /// Wait (polling every 10 ms) until `cond` holds, at most `deadline` from now; the time since the
+    /// injection when it held, or a failure.
+    pub async fn within(
+        &mut self,
+        what: &str,
+        deadline: Duration,
+        mut cond: impl FnMut() -> bool,
+    ) -> Option<Duration> {
+        let until = Instant::now() + deadline;
+        // Bounded by the deadline.
+        loop {
+            if cond() {
+                return Some(self.since_injection());
+            }
+            if Instant::now() >= until {
+                self.that(false, format!("{what}: not within {deadline:?}"));
+                return None;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
+    /// Check that `cond` holds throughout the next `period` (polling every 10 ms).
+    pub async fn throughout(&mut self, what: &str, period: Duration, mut cond: impl FnMut() -> bool) -> bool {
+        let until = Instant::now() + period;
+        while Instant::now() < until {
+            if !cond() {
+                return self.that(false, format!("{what}: broken after {:?}", self.since_injection()));
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        true
+    }
+
+    #[must_use]
+    pub fn finish(self) -> DrillOutcome {
+        let ms = |d: Option<Duration>| d.map(|d| d.as_secs_f64() * 1000.0);
+        DrillOutcome {
+            name: self.name,
+            passed: self.failures.is_empty(),
+            detection_ms: ms(self.detection),
+            safe_state_ms: ms(self.safe_state),
+            recovery_ms: ms(self.recovery),
+            events: self.events,
+            counters: self.counters,
+            failures: self.failures,
+            duration_s: self.started.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// A drill that could not even set up.
+    #[must_use]
+    pub fn aborted(mut self, why: impl Into<String>) -> DrillOutcome {
+        self.that(false, why);
+        self.finish()
+    }
+}
+
+/// Run drill `name` (`None` for an unknown name).
+pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome> {
+    let mut c = Check::new(name);
+    match name {
+        "lidar-panic" => devices::lidar_panic(config, seed, &mut c).await,
+        "fail-forever" => devices::fail_forever(config, seed, &mut c).await,
+        "can-bus-restart" => devices::can_bus_restart(config, seed, &mut c).await,
+        "lidar-reset" => devices::lidar_reset(config, seed, &mut c).await,
+        "lidar-stall" => devices::lidar_stall(config, seed, &mut c).await,
+        "imu-unplug" => devices::imu_unplug(config, seed, &mut c).await,
+        "drive-bus-off" => devices::drive_bus_off(config, seed, &mut c).await,
+        "drive-heartbeat" => devices::drive_heartbeat(config, seed, &mut c).await,
+        "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
+        "bad-data" => devices::bad_data(config, seed, &mut c).await,
+        "absent-at-start" => devices::absent_at_start(config, seed, &mut c).await,
+        "link-lost" => fleet::link_lost(config, seed, &mut c).await,
+        "server-restart" => fleet::server_restart(config, seed, &mut c).await,
+        "slow-consumer" => fleet::slow_consumer(config, seed, &mut c).await,
+        "estop" => devices::estop(config, seed, &mut c).await,
+        "soak" => soak::soak(config, seed, soak::SOAK_FULL, &mut c).await,
+        _ => return None,
+    }
+    Some(c.finish())
+}
+
+/// The soak drill for `length` (CI runs a shortened one).
+pub async fn soak(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
+    let mut c = Check::new("soak");
+    soak::soak(config, seed, length, &mut c).await;
+    c.finish()
+}
+
+/// The results as a Markdown table.
+#[must_use]
+pub fn table(outcomes: &[DrillOutcome]) -> String {
+    let ms = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.0}"));
+    let mut s = String::from(
+        "| drill | result | detection ms | safe state ms | recovery ms | time s |\n|---|---|---:|---:|---:|---:|\n",
+    );
+    for o in outcomes {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {:.1} |",
+            o.name,
+            if o.passed { "pass" } else { "FAIL" },
+            ms(o.detection_ms),
+            ms(o.safe_state_ms),
+            ms(o.recovery_ms),
+            o.duration_s
+        );
+    }
+    for o in outcomes.iter().filter(|o| !o.passed) {
+        let _ = writeln!(s, "\n{} failed:", o.name);
+        for f in &o.failures {
+            let _ = writeln!(s, "- {f}");
+        }
+    }
+    s
+}
+
+// ---- helpers shared by the drills ----
+
+/// A robot alone with its mocks, every device Ok.
+pub(crate) async fn rig(config: &Config, seed: u64, can: SimCan, c: &mut Check) -> Option<RobotRig> {
+    let scenario = config.scenarios.get("straight")?.clone();
+    let rig = match RobotRig::start(config, &scenario, seed, can, RobotOptions::default()).await {
+        Ok(r) => r,
+        Err(e) => {
+            c.that(false, format!("setup: {e}"));
+            return None;
+        }
+    };
+    c.within("setup: every device Ok", Duration::from_secs(15), || all_ok(&rig)).await?;
+    Some(rig)
+}
+
+/// LiDAR, IMU, bus and drives all Ok.
+pub(crate) fn all_ok(rig: &RobotRig) -> bool {
+    [Device::Lidar, Device::Imu, Device::CanBus, Device::Drives]
+        .iter()
+        .all(|d| health(rig, *d) == Some(Health::Ok))
+}
+
+/// A device's health now.
+pub(crate) fn health(rig: &RobotRig, d: Device) -> Option<Health> {
+    rig.tree.ports.health_board.borrow().get(&d).map(|r| r.health)
+}
+
+/// The current child `name` of `sup`.
+pub(crate) async fn child(sup: &ActorRef<SupervisorMsg>, name: &str) -> Option<ActorCell> {
+    let children: Vec<ChildInfo> = ractor::call!(sup, SupervisorMsg::Children).ok()?;
+    children.into_iter().find(|c| c.name == name).and_then(|c| c.cell)
+}
+
+/// The supervision events from index `from`, as `supervisor: kind` lines.
+pub(crate) fn events_from(rig: &RobotRig, from: usize) -> Vec<String> {
+    rig.tree.events.snapshot().iter().skip(from).map(|e| format!("{}: {:?}", e.supervisor, e.kind)).collect()
+}
+
+/// Arm the robot and feed it `v` at 20 Hz until the returned guard is dropped.
+pub(crate) fn drive(rig: &RobotRig, v_mps: f64) -> crate::AbortOnDrop<()> {
+    let id = rig.tree.id.clone();
+    let down = rig.server.down.clone();
+    let clock = rig.clock;
+    down.send(&id, Downlink::Arm { seq: 1 });
+    crate::AbortOnDrop(tokio::spawn(async move {
+        // Bounded: at most 10 minutes of commands.
+        for seq in 1..=12_000u64 {
+            down.send(&id, Downlink::Command(Command { seq, stamp_s: clock.now_s(), v_mps, w_radps: 0.0 }));
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }))
+}
+
+/// Both mock drives turning faster than `cps` counts/s.
+pub(crate) fn wheels_turning(rig: &RobotRig, cps: f64) -> bool {
+    rig.mocks.drives.iter().all(|d| d.now().velocity_cps.abs() > cps)
+}
+
+/// Both mock drives at rest.
+pub(crate) fn wheels_still(rig: &RobotRig) -> bool {
+    rig.mocks.drives.iter().all(|d| d.now().velocity_cps.abs() < 1.0)
+}
+
+/// The robot's counters into the outcome.
+pub(crate) fn keep_counters(rig: &RobotRig, c: &mut Check) {
+    c.counters = rig.tree.counters.snapshot();
+}
