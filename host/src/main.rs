@@ -127,6 +127,21 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Fault-recovery drills against the mock devices in real time: each injects a fault and checks
+    /// detection, the safe state, recovery, the event log and the counters. Prints a table; exits
+    /// non-zero if a drill failed.
+    Drill {
+        /// A drill name, or `all` (the list: `amr drill list`).
+        name: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Also write the outcomes as JSON to this file (`-`: standard output, after the table).
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Configuration directory (default: ./config if present, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// One robot's actor tree on its real devices (from its configuration file), until Ctrl-C.
     Robot {
         #[arg(long)]
@@ -284,6 +299,14 @@ fn main() -> ExitCode {
             }
         }
         Command::Robot { config } => sim_cmd::robot(&config),
+        Command::Drill { name, .. } if name == "list" => {
+            #[allow(clippy::print_stdout, reason = "the command's report")]
+            for d in amr_sim::drills::DRILLS {
+                println!("{:16} {}", d.name, d.about);
+            }
+            Ok(())
+        }
+        Command::Drill { name, seed, json, config } => sim_cmd::drill(&name, seed, json.as_deref(), config),
         Command::Server { config, scenario, seed } => sim_cmd::server(&config, &scenario, seed),
         Command::Eval { scenario, trials, seed, out, config, robots, sweep } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;

@@ -161,3 +161,49 @@ pub(crate) fn server(file: &Path, scenario: &str, seed: u64) -> anyhow::Result<(
         Ok(())
     })
 }
+
+/// `amr drill NAME|all`: run drills, print the table (and JSON), fail if any failed.
+pub(crate) fn drill(
+    name: &str,
+    seed: u64,
+    json: Option<&Path>,
+    config: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(config))?;
+    let names: Vec<&str> = if name == "all" {
+        amr_sim::drills::DRILLS.iter().map(|d| d.name).collect()
+    } else if amr_sim::drills::DRILLS.iter().any(|d| d.name == name) {
+        vec![name]
+    } else {
+        let known: Vec<&str> = amr_sim::drills::DRILLS.iter().map(|d| d.name).collect();
+        anyhow::bail!("no drill `{name}` (have: all, {})", known.join(", "));
+    };
+    let outcomes = runtime()?.block_on(async {
+        let mut out = Vec::new();
+        for n in names {
+            tracing::info!(drill = n, "running");
+            if let Some(o) = amr_sim::drills::run(n, &config, seed).await {
+                out.push(o);
+            }
+        }
+        out
+    });
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    {
+        print!("{}", amr_sim::drills::table(&outcomes));
+    }
+    match json {
+        Some(path) if path == Path::new("-") => {
+            #[allow(clippy::print_stdout, reason = "the command's report")]
+            {
+                println!("{}", serde_json::to_string_pretty(&outcomes)?);
+            }
+        }
+        Some(path) => std::fs::write(path, serde_json::to_string_pretty(&outcomes)? + "\n")
+            .with_context(|| format!("writing {}", path.display()))?,
+        None => {}
+    }
+    let failed: Vec<&str> = outcomes.iter().filter(|o| !o.passed).map(|o| o.name.as_str()).collect();
+    anyhow::ensure!(failed.is_empty(), "drills failed: {}", failed.join(", "));
+    Ok(())
+}

@@ -19,6 +19,9 @@ use super::ports::{AbortOnDrop, BusLink, RobotPorts, WheelCommand, WheelTravel};
 use super::status::{Counters, HealthCell};
 use crate::messages::{Device, Health};
 
+/// Time given to the master to send the quick stop before the bus goes down on shutdown.
+pub const SHUTDOWN_FLUSH: std::time::Duration = std::time::Duration::from_millis(60);
+
 /// Fault resets tried per drive before its fault is latched (the drive needs attention).
 pub const MAX_FAULT_RESETS: u32 = 3;
 
@@ -150,6 +153,12 @@ impl Actor for DriveActor {
         tracing::info!(robot = %self.ports.robot, "drives: quick stop on shutdown");
         self.send(state, MasterCommand::SetTargets(self.nodes().map(|n| (n, 0)).to_vec()));
         self.send(state, MasterCommand::QuickStop);
+        // The CAN bus actor is stopped next and takes the master with it: give the master a few
+        // SYNC cycles to put the quick stop on the bus first (bounded; a panic skips this, and
+        // then the drives' own heartbeat consumer stops them).
+        if state.bus.is_some() {
+            tokio::time::sleep(SHUTDOWN_FLUSH).await;
+        }
         Ok(())
     }
 
