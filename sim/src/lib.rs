@@ -90,6 +90,8 @@ pub enum SimError {
 pub struct RobotMocks {
     pub lidar: Tim551Mock,
     pub imu: MockImuHandle,
+    /// Set to n: the IMU's next n samples carry a NaN or an out-of-range yaw rate (drills).
+    pub imu_bad: Arc<std::sync::atomic::AtomicU32>,
     pub bus: InProcessBus,
     /// Left, right.
     pub drives: Vec<DriveHandle>,
@@ -406,9 +408,11 @@ pub async fn start_mocks(
     let mut imu_opts = MockImuOptions::default();
     imu_opts.device.stream_hz = r.devices.imu.stream_hz;
     imu_opts.device.imu_id = r.devices.imu.imu_id;
-    let imu = start_mock_imu(imu_opts, Box::new(WorldImu { world: Arc::clone(world), robot: i }))
-        .await
-        .map_err(|e| SimError::Mock("imu", e.to_string()))?;
+    let imu_bad = Arc::new(std::sync::atomic::AtomicU32::new(0));
+    let source =
+        BadValues { inner: WorldImu { world: Arc::clone(world), robot: i }, left: Arc::clone(&imu_bad) };
+    let imu =
+        start_mock_imu(imu_opts, Box::new(source)).await.map_err(|e| SimError::Mock("imu", e.to_string()))?;
     let bus = InProcessBus::default();
     let now = Instant::now().into_std();
     let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
@@ -424,7 +428,7 @@ pub async fn start_mocks(
             Some((addr, AbortOnDrop(task)))
         }
     };
-    Ok(RobotMocks { lidar, imu, bus, drives, socketcand })
+    Ok(RobotMocks { lidar, imu, imu_bad, bus, drives, socketcand })
 }
 
 impl RobotMocks {
@@ -535,6 +539,26 @@ impl RobotRig {
         tweak(&mut overrides);
         let tree = start_robot(&robot, overrides, end, clock, options).await?;
         Ok(RobotRig { clock, world, truth, tree, mocks, server, link, _world: world_task })
+    }
+}
+
+/// The world's IMU motion, with bad values on demand: well-framed packets whose yaw rate is NaN
+/// or beyond the gyro's range, alternately.
+#[derive(Debug)]
+struct BadValues {
+    inner: WorldImu,
+    left: Arc<std::sync::atomic::AtomicU32>,
+}
+
+impl hil_mocks::lpms::MotionSource for BadValues {
+    fn motion_at(&mut self, t_s: f64) -> hil_mocks::lpms::Motion {
+        let mut m = self.inner.motion_at(t_s);
+        let n = self.left.load(std::sync::atomic::Ordering::Relaxed);
+        if n > 0 {
+            self.left.store(n - 1, std::sync::atomic::Ordering::Relaxed);
+            m.angular_velocity_radps[2] = if n % 2 == 0 { f64::NAN } else { 1.0e3 };
+        }
+        m
     }
 }
 

@@ -397,6 +397,10 @@ pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
             c.that(false, format!("imu fault: {e}"));
         }
     }
+    // Once the broken frames are through (10 frames at 100 Hz), well-framed IMU samples with a NaN
+    // or an impossible yaw rate.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    rig.mocks.imu_bad.store(6, std::sync::atomic::Ordering::Relaxed);
     // Commands that are not finite, replayed, stale or absurd.
     let id = rig.tree.id.clone();
     let down = &rig.server.down;
@@ -429,6 +433,11 @@ pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
     c.eq("refused (not finite, expired, stale)", (nan, expired, stale), (1, 1, 2));
     c.that(get("lidar: protocol or device error") >= 2, "LiDAR frames rejected and counted");
     c.that(get("imu: protocol or device error") >= 2, "IMU frames rejected and counted");
+    c.eq(
+        "IMU samples with NaN or out-of-range yaw rate rejected",
+        get("imu: yaw rate not finite or out of range"),
+        6,
+    );
     c.eq("supervision events (nothing failed)", events_from(&rig, n0), vec![]);
     c.recovery = c.within("every device Ok", Duration::from_secs(5), || all_ok(&rig)).await;
     c.events = events_from(&rig, n0);
