@@ -556,7 +556,7 @@ impl hil_mocks::lpms::MotionSource for BadValues {
         let n = self.left.load(std::sync::atomic::Ordering::Relaxed);
         if n > 0 {
             self.left.store(n - 1, std::sync::atomic::Ordering::Relaxed);
-            m.angular_velocity_radps[2] = if n % 2 == 0 { f64::NAN } else { 1.0e3 };
+            m.angular_velocity_radps[2] = if n.is_multiple_of(2) { f64::NAN } else { 1.0e3 };
         }
         m
     }
