@@ -33,6 +33,7 @@ drills! {
     lidar_reset => "lidar-reset",
     lidar_stall => "lidar-stall",
     imu_unplug => "imu-unplug",
+    can_link_reset => "can-link-reset",
     drive_bus_off => "drive-bus-off",
     drive_heartbeat => "drive-heartbeat",
     drive_reboot => "drive-reboot",
@@ -45,7 +46,7 @@ drills! {
 async fn every_drill_has_a_test_or_is_a_fleet_drill() {
     // The list in the library and the tests here stay in step.
     let names: Vec<&str> = amr_sim::drills::DRILLS.iter().map(|d| d.name).collect();
-    assert_eq!(names.len(), 16);
+    assert_eq!(names.len(), 17);
     let config = load(&ConfigSource::Embedded).unwrap();
     assert!(run("no-such-drill", &config, 1).await.is_none());
     let _ = Duration::ZERO;

@@ -85,6 +85,14 @@ pub enum SimError {
     Mock(&'static str, String),
 }
 
+/// The socketcand server in front of a robot's mock bus.
+#[derive(Debug)]
+pub struct SocketcandMock {
+    pub address: std::net::SocketAddr,
+    pub control: hil_mocks::teco_drive::socketcand::SocketcandControl,
+    _task: AbortOnDrop<()>,
+}
+
 /// One robot's mock devices.
 #[derive(Debug)]
 pub struct RobotMocks {
@@ -95,7 +103,7 @@ pub struct RobotMocks {
     pub bus: InProcessBus,
     /// Left, right.
     pub drives: Vec<DriveHandle>,
-    pub socketcand: Option<(std::net::SocketAddr, AbortOnDrop<()>)>,
+    pub socketcand: Option<SocketcandMock>,
 }
 
 /// What the observer collected.
@@ -191,17 +199,7 @@ impl Sim {
         .await?;
         let mut trees = Vec::new();
         for ((r, end), m) in robots.iter().zip(robot_ends).zip(&mocks) {
-            let overrides = DeviceOverrides {
-                lidar: Some(("127.0.0.1".to_owned(), m.lidar.port())),
-                imu_path: Some(m.imu.tty_path().display().to_string()),
-                can: Some(match &m.socketcand {
-                    Some((addr, _)) => {
-                        CanLink::Socketcand { address: addr.to_string(), channel: "can0".into() }
-                    }
-                    None => CanLink::InProcess(m.bus.clone()),
-                }),
-            };
-            trees.push(start_robot(r, overrides, end, clock, RobotOptions::default()).await?);
+            trees.push(start_robot(r, m.overrides(), end, clock, RobotOptions::default()).await?);
         }
 
         // The observer scores estimates and records health.
@@ -422,10 +420,12 @@ pub async fn start_mocks(
     let socketcand = match can {
         SimCan::InProcess => None,
         SimCan::Socketcand => {
-            let (addr, task) = hil_mocks::teco_drive::socketcand::bind("127.0.0.1:0", bus.clone())
-                .await
-                .map_err(|e| SimError::Mock("socketcand", e.to_string()))?;
-            Some((addr, AbortOnDrop(task)))
+            let control = hil_mocks::teco_drive::socketcand::SocketcandControl::default();
+            let (addr, task) =
+                hil_mocks::teco_drive::socketcand::bind_with("127.0.0.1:0", bus.clone(), control.clone())
+                    .await
+                    .map_err(|e| SimError::Mock("socketcand", e.to_string()))?;
+            Some(SocketcandMock { address: addr, control, _task: AbortOnDrop(task) })
         }
     };
     Ok(RobotMocks { lidar, imu, imu_bad, bus, drives, socketcand })
@@ -439,7 +439,7 @@ impl RobotMocks {
             lidar: Some(("127.0.0.1".to_owned(), self.lidar.port())),
             imu_path: Some(self.imu.tty_path().display().to_string()),
             can: Some(match &self.socketcand {
-                Some((addr, _)) => CanLink::Socketcand { address: addr.to_string(), channel: "can0".into() },
+                Some(s) => CanLink::Socketcand { address: s.address.to_string(), channel: "can0".into() },
                 None => CanLink::InProcess(self.bus.clone()),
             }),
         }

@@ -17,15 +17,73 @@ const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Serve `bus` to every client that connects to `listener`, on any channel name.
 pub fn serve(listener: TcpListener, bus: InProcessBus) -> tokio::task::JoinHandle<()> {
+    serve_with(listener, bus, SocketcandControl::default())
+}
+
+/// Faults of the socketcand server (devices.md §4: the link to the bus breaks).
+#[derive(Debug, Clone)]
+pub struct SocketcandControl {
+    drop: tokio::sync::broadcast::Sender<()>,
+    refuse_until: std::sync::Arc<std::sync::Mutex<Option<Instant>>>,
+    accepted: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl Default for SocketcandControl {
+    fn default() -> Self {
+        SocketcandControl {
+            drop: tokio::sync::broadcast::channel(4).0,
+            refuse_until: std::sync::Arc::default(),
+            accepted: std::sync::Arc::default(),
+        }
+    }
+}
+
+impl SocketcandControl {
+    /// Close every client connection now, and accept-and-close new ones for `refuse_for`.
+    pub fn drop_connections(&self, refuse_for: Duration) {
+        *self.refuse_until.lock().unwrap_or_else(std::sync::PoisonError::into_inner) =
+            Some(Instant::now() + refuse_for);
+        let _ = self.drop.send(());
+    }
+
+    /// Connections accepted so far (refused ones included).
+    pub fn accepted(&self) -> u64 {
+        self.accepted.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn refusing(&self) -> bool {
+        self.refuse_until
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .is_some_and(|t| Instant::now() < t)
+    }
+}
+
+/// [`serve`] with a fault control.
+pub fn serve_with(
+    listener: TcpListener,
+    bus: InProcessBus,
+    control: SocketcandControl,
+) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let start = Instant::now();
         // Bounded by the listener: one pass per accepted connection.
         loop {
             match listener.accept().await {
                 Ok((stream, peer)) => {
+                    control.accepted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if control.refusing() {
+                        drop(stream);
+                        continue;
+                    }
                     let bus = bus.clone();
+                    let mut dropped = control.drop.subscribe();
                     tokio::spawn(async move {
-                        if let Err(e) = client(stream, bus, start).await {
+                        let served = tokio::select! {
+                            r = client(stream, bus, start) => r,
+                            _ = dropped.recv() => Ok(()),
+                        };
+                        if let Err(e) = served {
                             tracing::debug!(%peer, %e, "socketcand client ended");
                         }
                     });
@@ -113,6 +171,17 @@ async fn client(mut stream: TcpStream, bus: InProcessBus, start: Instant) -> std
             }
         }
     }
+}
+
+/// Bind `addr` and serve `bus` with `control`; returns the bound address and the server task.
+pub async fn bind_with(
+    addr: &str,
+    bus: InProcessBus,
+    control: SocketcandControl,
+) -> std::io::Result<(SocketAddr, tokio::task::JoinHandle<()>)> {
+    let listener = TcpListener::bind(addr).await?;
+    let local = listener.local_addr()?;
+    Ok((local, serve_with(listener, bus, control)))
 }
 
 /// Bind `addr` and serve `bus`; returns the bound address and the server task.

@@ -280,6 +280,56 @@ pub(crate) async fn imu_unplug(config: &Config, seed: u64, c: &mut Check) {
     rig.tree.shutdown().await;
 }
 
+/// Drill 4e: the CAN link (socketcand over TCP) breaks and refuses connections for a while.
+pub(crate) async fn can_link_reset(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::Socketcand, c).await else { return };
+    let Some(control) = rig.mocks.socketcand.as_ref().map(|s| s.control.clone()) else {
+        return c.fail("no socketcand server");
+    };
+    let _feed = drive(&rig, 0.15);
+    if c.within("the wheels turning", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await
+        .is_none()
+    {
+        return;
+    }
+    let n0 = rig.tree.events.len();
+    let accepted = control.accepted();
+    c.inject();
+    control.drop_connections(Duration::from_millis(800));
+    c.detection = c
+        .within("CAN bus Lost", Duration::from_millis(500), || {
+            health(&rig, Device::CanBus) == Some(Health::Lost)
+        })
+        .await;
+    // Without the master's heartbeat each drive quick-stops by itself after its 300 ms consumer
+    // time (0x1016/0x6007).
+    c.safe_state =
+        c.within("the drives stopped by themselves", Duration::from_millis(800), || drives_safe(&rig)).await;
+    c.within("the robot disarmed", Duration::from_millis(500), || {
+        matches!(*rig.tree.ports.safety_now.borrow(), Some(SafetyState::Disarmed(_)))
+    })
+    .await;
+    c.recovery = c
+        .within("bus and drives Ok again", Duration::from_secs(10), || {
+            health(&rig, Device::CanBus) == Some(Health::Ok)
+                && health(&rig, Device::Drives) == Some(Health::Ok)
+        })
+        .await;
+    // Backoff 100, 200, 400, 800 ms during an 800 ms refusal: a few attempts, not a busy loop.
+    let attempts = control.accepted() - accepted;
+    c.that((1..=6).contains(&attempts), format!("{attempts} connection attempts to recover (1..=6)"));
+    c.eq(
+        "enables without configuration",
+        rig.mocks.drives.iter().map(|d| d.now().enables_unconfigured).sum::<u32>(),
+        0,
+    );
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
 /// Drives heartbeat loss (drill 5) and bus-off (drill 4d) share this: the drive falls silent while
 /// the robot moves; the master notices within the consumer time, every target goes to zero, the
 /// robot disarms; once the drive is back it is reset, reconfigured and enabled again.

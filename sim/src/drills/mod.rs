@@ -58,6 +58,10 @@ pub const DRILLS: &[Drill] = &[
         about: "IMU tty closed and back: reopened with backoff, odometry falls back to the wheels",
     },
     Drill {
+        name: "can-link-reset",
+        about: "the CAN link (socketcand TCP) breaks: drives stop by themselves, reconnect with backoff",
+    },
+    Drill {
         name: "drive-bus-off",
         about: "a drive goes bus-off: heartbeat lost, robot stopped, drive back and reconfigured",
     },
@@ -239,6 +243,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "lidar-reset" => devices::lidar_reset(config, seed, &mut c).await,
         "lidar-stall" => devices::lidar_stall(config, seed, &mut c).await,
         "imu-unplug" => devices::imu_unplug(config, seed, &mut c).await,
+        "can-link-reset" => devices::can_link_reset(config, seed, &mut c).await,
         "drive-bus-off" => devices::drive_bus_off(config, seed, &mut c).await,
         "drive-heartbeat" => devices::drive_heartbeat(config, seed, &mut c).await,
         "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
