@@ -4,7 +4,9 @@
 
 use std::time::Duration;
 
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use std::future::Future;
+
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
@@ -84,18 +86,33 @@ pub enum LidarMessage {
     Error(SopasError),
 }
 
-/// Runs the connection until the receiver is dropped.
+/// Runs the connection over TCP until the receiver is dropped.
 pub async fn run_tcp(config: LidarConfig, tx: mpsc::Sender<LidarMessage>) {
+    let connect = |addr: String| async move {
+        let s = TcpStream::connect(&addr).await?;
+        let _ = s.set_nodelay(true);
+        Ok(s)
+    };
+    run_stream(config, connect, tx).await;
+}
+
+/// Runs the connection over any byte stream `connect(address)` opens (TCP on a robot; an
+/// in-memory pipe in a virtual-time simulation), until the receiver is dropped.
+pub async fn run_stream<S, F, Fut>(config: LidarConfig, mut connect: F, tx: mpsc::Sender<LidarMessage>)
+where
+    S: AsyncRead + AsyncWrite + Unpin + Send,
+    F: FnMut(String) -> Fut,
+    Fut: Future<Output = std::io::Result<S>>,
+{
     let mut session = Session::new(config.session_config(), Instant::now().into_std());
-    let mut stream: Option<TcpStream> = None;
+    let mut stream: Option<S> = None;
     let mut buf = vec![0u8; 8192];
     loop {
         let now = Instant::now().into_std();
         if stream.is_none() && session.needs_connection(now) {
             let addr = format!("{}:{}", config.host, config.port);
-            match tokio::time::timeout(config.connect_timeout, TcpStream::connect(&addr)).await {
+            match tokio::time::timeout(config.connect_timeout, connect(addr.clone())).await {
                 Ok(Ok(s)) => {
-                    let _ = s.set_nodelay(true);
                     tracing::info!(%addr, "sopas connected");
                     stream = Some(s);
                     session.handle_connected(Instant::now().into_std());
@@ -188,6 +205,21 @@ pub async fn run_tcp(config: LidarConfig, tx: mpsc::Sender<LidarMessage>) {
             }
         }
     }
+}
+
+/// Spawns [`run_stream`] and returns its handle with the receiving end of the channel.
+pub fn spawn_stream<S, F, Fut>(
+    config: LidarConfig,
+    connect: F,
+    capacity: usize,
+) -> (JoinHandle<()>, mpsc::Receiver<LidarMessage>)
+where
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    F: FnMut(String) -> Fut + Send + 'static,
+    Fut: Future<Output = std::io::Result<S>> + Send + 'static,
+{
+    let (tx, rx) = mpsc::channel(capacity.max(1));
+    (tokio::spawn(run_stream(config, connect, tx)), rx)
 }
 
 /// Spawns [`run_tcp`] and returns its handle with the receiving end of the channel.

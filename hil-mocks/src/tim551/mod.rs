@@ -11,5 +11,5 @@ pub mod server;
 pub mod source;
 
 pub use device::Variant;
-pub use server::{Fault, MockConfig, MockHandle, Tim551Mock};
+pub use server::{Fault, MemoryConnector, MockConfig, MockHandle, Tim551Mock};
 pub use source::{RectRoom, ScanSource, SourceScan};

@@ -9,9 +9,10 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
 use amr_drivers::sopas::{Command, Dialect, ErrorCode, Framer, Reply, encode_frame};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, DuplexStream};
+use tokio::net::TcpListener;
 use tokio::sync::broadcast;
+use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
@@ -176,6 +177,24 @@ impl Tim551Mock {
     pub async fn spawn(addr: &str, config: MockConfig, source: Arc<dyn ScanSource>) -> std::io::Result<Self> {
         let listener = TcpListener::bind(addr).await?;
         let local_addr = listener.local_addr()?;
+        let shared = Self::shared(config, source);
+        let task = tokio::spawn(accept_loop(listener, shared.clone()));
+        tracing::info!(%local_addr, "mock TiM5xx listening");
+        Ok(Self { local_addr, handle: MockHandle { shared }, task })
+    }
+
+    /// A mock reached through in-memory pipes instead of TCP (a virtual-time simulation: no socket,
+    /// so nothing but tokio's clock decides the order of events). Connect with the returned
+    /// [`MemoryConnector`].
+    pub fn spawn_in_memory(config: MockConfig, source: Arc<dyn ScanSource>) -> (Self, MemoryConnector) {
+        let shared = Self::shared(config, source);
+        let (tx, rx) = mpsc::channel(4);
+        let task = tokio::spawn(accept_memory(rx, shared.clone()));
+        let local_addr = SocketAddr::from(([0, 0, 0, 0], 0));
+        (Self { local_addr, handle: MockHandle { shared }, task }, MemoryConnector { tx })
+    }
+
+    fn shared(config: MockConfig, source: Arc<dyn ScanSource>) -> Arc<Shared> {
         let (control, _) = broadcast::channel(16);
         let state = State {
             device: Device::new(config.variant, config.serial),
@@ -190,17 +209,14 @@ impl Tim551Mock {
             strict_dialect: config.dialect,
             log: Vec::new(),
         };
-        let shared = Arc::new(Shared {
+        Arc::new(Shared {
             config,
             source,
             state: Mutex::new(state),
             control,
             connections: AtomicU64::new(0),
             scans_sent: AtomicU64::new(0),
-        });
-        let task = tokio::spawn(accept_loop(listener, shared.clone()));
-        tracing::info!(%local_addr, "mock TiM5xx listening");
-        Ok(Self { local_addr, handle: MockHandle { shared }, task })
+        })
     }
 
     /// The bound port.
@@ -240,6 +256,37 @@ async fn accept_loop(listener: TcpListener, shared: Arc<Shared>) {
     }
 }
 
+/// Opens in-memory connections to a mock made by [`Tim551Mock::spawn_in_memory`].
+#[derive(Debug, Clone)]
+pub struct MemoryConnector {
+    tx: mpsc::Sender<DuplexStream>,
+}
+
+impl MemoryConnector {
+    /// A new connection (refused like a TCP connect when the mock is gone).
+    pub async fn connect(&self) -> std::io::Result<DuplexStream> {
+        let (client, server) = tokio::io::duplex(64 * 1024);
+        self.tx
+            .send(server)
+            .await
+            .map_err(|_| std::io::Error::from(std::io::ErrorKind::ConnectionRefused))?;
+        Ok(client)
+    }
+}
+
+async fn accept_memory(mut rx: mpsc::Receiver<DuplexStream>, shared: Arc<Shared>) {
+    // Bounded by the connector: one pass per connection.
+    while let Some(stream) = rx.recv().await {
+        let id = shared.connections.fetch_add(1, Ordering::Relaxed);
+        if shared.lock().refuse_until.is_some_and(|t| Instant::now() < t) {
+            drop(stream);
+            continue;
+        }
+        let control = shared.control.subscribe();
+        tokio::spawn(serve(id, stream, shared.clone(), control));
+    }
+}
+
 struct ConnState {
     id: u64,
     dialect: Option<Dialect>,
@@ -248,9 +295,9 @@ struct ConnState {
     telegram_counter: u16,
 }
 
-async fn serve(
+async fn serve<S: AsyncRead + AsyncWrite + Unpin>(
     id: u64,
-    mut stream: TcpStream,
+    mut stream: S,
     shared: Arc<Shared>,
     mut control: broadcast::Receiver<Control>,
 ) {
@@ -308,7 +355,7 @@ fn current_scan(shared: &Shared, now: Instant) -> u64 {
 async fn handle_frame(
     shared: &Shared,
     c: &mut ConnState,
-    stream: &mut TcpStream,
+    stream: &mut (impl AsyncWrite + Unpin),
     dialect: Dialect,
     payload: &[u8],
 ) -> std::io::Result<()> {
@@ -399,7 +446,7 @@ async fn handle_frame(
 async fn send_scan(
     shared: &Shared,
     c: &mut ConnState,
-    stream: &mut TcpStream,
+    stream: &mut (impl AsyncWrite + Unpin),
     event: bool,
 ) -> std::io::Result<()> {
     let dialect = c.dialect.unwrap_or(Dialect::ColaB);
@@ -462,5 +509,47 @@ fn corrupt_frame(dialect: Dialect, bytes: &mut [u8]) {
                 bytes[mid + i] = b'G';
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod memory_tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use amr_drivers::sopas::tcp::{LidarConfig, LidarMessage, spawn_stream};
+
+    use super::{MockConfig, Tim551Mock};
+    use crate::tim551::RectRoom;
+
+    /// The real SOPAS shell against the mock over in-memory pipes, in paused time: 10 simulated
+    /// seconds at 15 Hz give 150 scans, whatever the machine's load, and the same run twice gives
+    /// the same stamps.
+    #[tokio::test(start_paused = true)]
+    async fn the_shell_streams_from_the_in_memory_mock_in_virtual_time() {
+        let mut runs = Vec::new();
+        for _ in 0..2 {
+            let (mock, connector) =
+                Tim551Mock::spawn_in_memory(MockConfig::default(), Arc::new(RectRoom::default()));
+            let connect = move |_addr: String| {
+                let c = connector.clone();
+                async move { c.connect().await }
+            };
+            let (task, mut rx) = spawn_stream(LidarConfig::default(), connect, 64);
+            let start = tokio::time::Instant::now();
+            let mut stamps = Vec::new();
+            while start.elapsed() < Duration::from_secs(10) {
+                if let Some(LidarMessage::Scan(s)) = rx.recv().await {
+                    stamps.push(s.received.duration_since(start.into_std()).as_micros());
+                }
+            }
+            task.abort();
+            assert_eq!(mock.handle.connections(), 1);
+            runs.push(stamps);
+        }
+        assert!((148..=151).contains(&runs[0].len()), "{} scans", runs[0].len());
+        assert_eq!(runs[0], runs[1]);
     }
 }
