@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::messages::{Downlink, Uplink};
 
@@ -84,18 +84,41 @@ impl DownlinkSender {
     }
 }
 
-/// Drill control of the in-process link: cut and restore one robot's link, count what was lost.
+/// Drill control of the in-process link: cut and restore one robot's link, hold it (a stalled
+/// transport that delivers its backlog late), and attach a new server (a restarted one).
 #[derive(Debug, Clone, Default)]
 pub struct LinkControl {
     cut: Arc<BTreeMap<String, AtomicBool>>,
+    held: Arc<BTreeMap<String, watch::Sender<bool>>>,
     lost: Arc<AtomicU64>,
+    late: Arc<AtomicU64>,
+    server: Option<Arc<ServerSwitch>>,
+}
+
+/// Where the routers send: the current server's uplink queue, and each robot's router's supply of
+/// downlink queues.
+#[derive(Debug)]
+struct ServerSwitch {
+    robots: usize,
+    up: watch::Sender<mpsc::Sender<Uplink>>,
+    down: BTreeMap<String, mpsc::UnboundedSender<mpsc::Receiver<Downlink>>>,
 }
 
 impl LinkControl {
-    /// Cut (`true`) or restore (`false`) `robot`'s link in both directions.
+    /// Cut (`true`) or restore (`false`) `robot`'s link in both directions: what meets the cut is
+    /// lost.
     pub fn set_cut(&self, robot: &str, cut: bool) {
         if let Some(flag) = self.cut.get(robot) {
             flag.store(cut, Ordering::Relaxed);
+        }
+    }
+
+    /// Hold (`true`) or release (`false`) `robot`'s link in both directions: nothing passes while
+    /// held, the queues fill (up to their depth; then the senders drop and count) and the backlog is
+    /// delivered, late, on release — a stalled transport, the worst case for stale commands.
+    pub fn set_held(&self, robot: &str, held: bool) {
+        if let Some(flag) = self.held.get(robot) {
+            flag.send_replace(held);
         }
     }
 
@@ -103,52 +126,145 @@ impl LinkControl {
         self.cut.get(robot).is_some_and(|f| f.load(Ordering::Relaxed))
     }
 
+    /// Wait while `robot`'s link is held; true if it was.
+    async fn pass(&self, robot: &str) -> bool {
+        let Some(flag) = self.held.get(robot) else { return false };
+        if !*flag.borrow() {
+            return false;
+        }
+        let mut rx = flag.subscribe();
+        // Bounded by whoever holds the link (a drill); a dropped control releases it.
+        let _ = rx.wait_for(|held| !*held).await;
+        self.late.fetch_add(1, Ordering::Relaxed);
+        true
+    }
+
     /// Messages that met a cut link.
     #[must_use]
     pub fn lost(&self) -> u64 {
         self.lost.load(Ordering::Relaxed)
     }
+
+    /// Messages delivered late because the link was held.
+    #[must_use]
+    pub fn late(&self) -> u64 {
+        self.late.load(Ordering::Relaxed)
+    }
+
+    /// A new server end, replacing the current one (a restarted server): the robots' uplink goes
+    /// to it from now on and it reaches every robot; whatever was queued for or by the old server
+    /// is dropped with it. `None` for a control that came with no link.
+    #[must_use]
+    pub fn new_server_end(&self) -> Option<ServerEnd> {
+        self.server.as_ref().map(|s| s.new_end())
+    }
+}
+
+impl ServerSwitch {
+    fn new_end(&self) -> ServerEnd {
+        let (up_tx, up_rx) = mpsc::channel(DEPTH * self.robots.max(1));
+        self.up.send_replace(up_tx);
+        let mut downs = BTreeMap::new();
+        for (robot, supply) in &self.down {
+            let (tx, rx) = mpsc::channel(DEPTH);
+            if supply.send(rx).is_ok() {
+                downs.insert(robot.clone(), tx);
+            }
+        }
+        ServerEnd { up: up_rx, down: DownlinkSender::new(downs) }
+    }
+}
+
+/// What a downlink router waits for.
+enum DownEvent {
+    /// A new server's queue (`None`: no more will come).
+    Server(Option<mpsc::Receiver<Downlink>>),
+    /// From the current server (`None`: it is gone).
+    Msg(Option<Downlink>),
 }
 
 /// Build an in-process link for `robots`: the server's end, each robot's end (in the order given)
 /// and the control. Must be called inside a tokio runtime (it spawns the router tasks, which end
-/// when the ends are dropped).
+/// when their robot's end is dropped, or the server's end and every control).
 #[must_use]
 pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) {
+    let (first_up, _) = mpsc::channel(1);
+    let (up_switch, _) = watch::channel(first_up);
+    let mut supplies = BTreeMap::new();
+    let mut ends = Vec::new();
+    let mut routers = Vec::new();
+    for robot in robots {
+        let (supply, queues) = mpsc::unbounded_channel();
+        supplies.insert(robot.clone(), supply);
+        let (up_tx, up_rx) = mpsc::channel::<Uplink>(DEPTH);
+        let (to_robot, robot_rx) = mpsc::channel::<Downlink>(DEPTH);
+        ends.push(RobotEnd { robot: robot.clone(), up: UplinkSender::new(up_tx), down: robot_rx });
+        routers.push((robot.clone(), up_rx, to_robot, queues));
+    }
+    let switch = Arc::new(ServerSwitch { robots: robots.len(), up: up_switch, down: supplies });
+    let server_end = switch.new_end();
     let control = LinkControl {
         cut: Arc::new(robots.iter().map(|r| (r.clone(), AtomicBool::new(false))).collect()),
+        held: Arc::new(robots.iter().map(|r| (r.clone(), watch::Sender::new(false))).collect()),
         lost: Arc::default(),
+        late: Arc::default(),
+        server: Some(Arc::clone(&switch)),
     };
-    let (server_up_tx, server_up_rx) = mpsc::channel(DEPTH * robots.len().max(1));
-    let mut downs = BTreeMap::new();
-    let mut ends = Vec::new();
-    for robot in robots {
-        // Robot → router → server.
-        let (up_tx, mut up_rx) = mpsc::channel::<Uplink>(DEPTH);
-        let to_server = server_up_tx.clone();
-        let (ctl, name) = (control.clone(), robot.clone());
+    // The routers' own handle does not keep the switch: once every control is dropped no new
+    // server can come, and a router ends with its ends.
+    let routers_ctl = LinkControl { server: None, ..control.clone() };
+    for (name, mut up_rx, to_robot, mut queues) in routers {
+        // Robot → router → the current server.
+        let mut server_rx = switch.up.subscribe();
+        let mut to_server = server_rx.borrow_and_update().clone();
+        let ctl = routers_ctl.clone();
+        let robot = name.clone();
         tokio::spawn(async move {
             while let Some(msg) = up_rx.recv().await {
-                if ctl.is_cut(&name) || to_server.try_send(msg).is_err() {
+                ctl.pass(&robot).await;
+                if server_rx.has_changed().unwrap_or(false) {
+                    to_server = server_rx.borrow_and_update().clone();
+                }
+                if ctl.is_cut(&robot) || to_server.try_send(msg).is_err() {
                     ctl.lost.fetch_add(1, Ordering::Relaxed);
                 }
             }
         });
-        // Server → router → robot.
-        let (down_tx, mut down_rx) = mpsc::channel::<Downlink>(DEPTH);
-        let (to_robot, robot_rx) = mpsc::channel::<Downlink>(DEPTH);
-        let (ctl, name) = (control.clone(), robot.clone());
+        // The current server → router → robot.
+        let ctl = routers_ctl.clone();
         tokio::spawn(async move {
-            while let Some(msg) = down_rx.recv().await {
-                if ctl.is_cut(&name) || to_robot.try_send(msg).is_err() {
-                    ctl.lost.fetch_add(1, Ordering::Relaxed);
+            let mut current: Option<mpsc::Receiver<Downlink>> = None;
+            let mut more = true;
+            // Ends when no server is attached and none can come.
+            loop {
+                let event = match current.as_mut() {
+                    Some(rx) => tokio::select! {
+                        biased;
+                        q = queues.recv(), if more => DownEvent::Server(q),
+                        m = rx.recv() => DownEvent::Msg(m),
+                        () = to_robot.closed() => break,
+                    },
+                    None if more => tokio::select! {
+                        q = queues.recv() => DownEvent::Server(q),
+                        () = to_robot.closed() => break,
+                    },
+                    None => break,
+                };
+                match event {
+                    DownEvent::Server(Some(rx)) => current = Some(rx),
+                    DownEvent::Server(None) => more = false,
+                    DownEvent::Msg(None) => current = None,
+                    DownEvent::Msg(Some(msg)) => {
+                        ctl.pass(&name).await;
+                        if ctl.is_cut(&name) || to_robot.try_send(msg).is_err() {
+                            ctl.lost.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
                 }
             }
         });
-        downs.insert(robot.clone(), down_tx);
-        ends.push(RobotEnd { robot: robot.clone(), up: UplinkSender::new(up_tx), down: robot_rx });
     }
-    (ServerEnd { up: server_up_rx, down: DownlinkSender::new(downs) }, ends, control)
+    (server_end, ends, control)
 }
 
 #[cfg(test)]
@@ -199,5 +315,48 @@ mod tests {
         control.set_cut("a", false);
         assert!(server.down.send("a", cmd(5)));
         assert_eq!(ends[0].down.recv().await, Some(cmd(5)));
+    }
+
+    #[tokio::test]
+    async fn a_held_link_delivers_its_backlog_late() {
+        let robots = vec!["a".to_owned()];
+        let (server, mut ends, control) = in_process(&robots);
+        control.set_held("a", true);
+        assert!(server.down.send("a", cmd(1)));
+        assert!(server.down.send("a", cmd(2)));
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+        assert!(ends[0].down.try_recv().is_err(), "nothing passes while held");
+        control.set_held("a", false);
+        assert_eq!(ends[0].down.recv().await, Some(cmd(1)));
+        assert_eq!(ends[0].down.recv().await, Some(cmd(2)));
+        assert_eq!(control.late(), 1, "the message the router was holding");
+        assert_eq!(control.lost(), 0);
+    }
+
+    #[tokio::test]
+    async fn a_new_server_end_replaces_the_old_one() {
+        let robots = vec!["a".to_owned(), "b".to_owned()];
+        let (old, mut ends, control) = in_process(&robots);
+        let mut new = control.new_server_end().unwrap();
+        drop(old);
+        // The router may still hold the old queue for a moment: bounded retries.
+        let mut got = None;
+        for k in 0..100 {
+            assert!(new.down.send("b", cmd(k + 1)));
+            if let Ok(Some(m)) =
+                tokio::time::timeout(std::time::Duration::from_millis(10), ends[1].down.recv()).await
+            {
+                got = Some(m);
+                break;
+            }
+        }
+        assert!(matches!(got, Some(Downlink::Command(_))));
+        ends[0].up.send(Uplink::Safety {
+            robot: "a".into(),
+            seq: 1,
+            stamp_s: 0.0,
+            state: crate::messages::SafetyState::Armed,
+        });
+        assert_eq!(new.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
     }
 }
