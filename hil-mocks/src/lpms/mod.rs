@@ -14,5 +14,6 @@ pub mod pty;
 pub use device::{DeviceFaults, DeviceSettings, DeviceStats, MockDevice};
 pub use motion::{ConstantYawRate, Motion, MotionSource};
 pub use pty::{
-    Fault, MockImuError, MockImuHandle, MockImuOptions, MockImuStats, start_default_mock_imu, start_mock_imu,
+    Fault, ImuConnector, MockImuError, MockImuHandle, MockImuOptions, MockImuStats, start_default_mock_imu,
+    start_mock_imu, start_mock_imu_in_memory,
 };

@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use amr_drivers::lpms::command::CommandId;
 use thiserror::Error;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 use tokio::sync::{mpsc, oneshot};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
@@ -200,7 +200,9 @@ pub async fn start_mock_imu(
         Runner {
             device: MockDevice::new(options.device),
             motion,
-            master: Some(master),
+            master: Some(Box::new(master)),
+            pipes: None,
+            plugged: true,
             link_path: link_path.clone(),
             stats: stats.clone(),
             silent: false,
@@ -211,6 +213,50 @@ pub async fn start_mock_imu(
     Ok(MockImuHandle { link_path, control, stats, task })
 }
 
+/// Opens in-memory connections to a mock made by [`start_mock_imu_in_memory`] (what opening the
+/// tty is on a robot).
+#[derive(Debug, Clone)]
+pub struct ImuConnector {
+    tx: mpsc::Sender<DuplexStream>,
+}
+
+impl ImuConnector {
+    /// A new connection; the previous one is closed (one port, one user).
+    pub async fn connect(&self) -> std::io::Result<DuplexStream> {
+        let (client, server) = tokio::io::duplex(64 * 1024);
+        self.tx.send(server).await.map_err(|_| std::io::Error::from(std::io::ErrorKind::NotFound))?;
+        Ok(client)
+    }
+}
+
+/// The mock over in-memory pipes instead of a pty (a virtual-time simulation: no file descriptor,
+/// so nothing but tokio's clock decides the order of events). Unplug closes the current pipe and
+/// refuses new ones until replug; the returned path is only a name.
+pub fn start_mock_imu_in_memory(
+    options: MockImuOptions,
+    motion: Box<dyn MotionSource>,
+) -> (MockImuHandle, ImuConnector) {
+    let link_path = PathBuf::from("in-memory-imu");
+    let stats = Arc::new(Mutex::new(MockImuStats { plugs: 1, ..MockImuStats::default() }));
+    let (control, control_rx) = mpsc::channel(16);
+    let (tx, rx) = mpsc::channel(4);
+    let task = tokio::spawn(
+        Runner {
+            device: MockDevice::new(options.device),
+            motion,
+            master: None,
+            pipes: Some(rx),
+            plugged: true,
+            link_path: link_path.clone(),
+            stats: stats.clone(),
+            silent: false,
+            started: Instant::now(),
+        }
+        .run(control_rx),
+    );
+    (MockImuHandle { link_path, control, stats, task }, ImuConnector { tx })
+}
+
 /// Starts the mock the way `amr mock imu --rate <hz>` will: a slowly turning body
 /// (0.2 rad/s, 0.005 rad/s bias, 0.002 rad/s noise, seed 1).
 pub async fn start_default_mock_imu(rate_hz: u32) -> Result<MockImuHandle, MockImuError> {
@@ -218,10 +264,18 @@ pub async fn start_default_mock_imu(rate_hz: u32) -> Result<MockImuHandle, MockI
         .await
 }
 
+/// The mock's side of the link: the pty master, or one end of an in-memory pipe.
+trait Port: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send {}
+impl<T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send> Port for T {}
+
 struct Runner {
     device: MockDevice,
     motion: Box<dyn MotionSource>,
-    master: Option<SerialStream>,
+    master: Option<Box<dyn Port>>,
+    /// In-memory mode: new connections from the [`ImuConnector`]; `None` for the pty.
+    pipes: Option<mpsc::Receiver<DuplexStream>>,
+    /// In-memory mode: whether the "cable" is in (connections are refused while unplugged).
+    plugged: bool,
     link_path: PathBuf,
     stats: Arc<Mutex<MockImuStats>>,
     silent: bool,
@@ -291,6 +345,8 @@ impl Runner {
                         self.publish_device_stats();
                         self.write(&out).await;
                     }
+                    // A pipe's end closed: the driver let go of the port.
+                    _ if self.pipes.is_some() => self.master = None,
                     // EIO / EOF: no one holds the slave open right now; look again shortly.
                     _ => read_paused_until = Some(Instant::now() + NO_PEER_RETRY),
                 },
@@ -300,6 +356,20 @@ impl Runner {
                         None => std::future::pending().await,
                     }
                 } => read_paused_until = None,
+                pipe = async {
+                    match self.pipes.as_mut() {
+                        Some(rx) => rx.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => match pipe {
+                    Some(p) if self.plugged => {
+                        self.master = Some(Box::new(p));
+                        self.device.reset_link();
+                        interval = self.new_interval();
+                    }
+                    Some(refused) => drop(refused),
+                    None => self.pipes = None,
+                },
                 _ = interval.tick(), if stream_now => {
                     let motion = self.motion.motion_at(self.started.elapsed().as_secs_f64());
                     let packet = self.device.next_data_packet(&motion);
@@ -345,17 +415,25 @@ impl Runner {
             }
             Control::Unplug(done) => {
                 self.master = None;
-                let _ = std::fs::remove_file(&self.link_path);
+                self.plugged = false;
+                if self.pipes.is_none() {
+                    let _ = std::fs::remove_file(&self.link_path);
+                }
                 self.device.reset_link();
                 self.stats().pty_path = None;
                 tracing::info!(link = %self.link_path.display(), "mock LPMS unplugged");
                 let _ = done.send(());
             }
+            Control::Replug(done) if self.pipes.is_some() => {
+                self.plugged = true;
+                self.stats().plugs += 1;
+                let _ = done.send(Ok(self.link_path.clone()));
+            }
             Control::Replug(done) => {
                 self.master = None;
                 self.device.reset_link();
                 let result = plug(&self.link_path).map(|(master, path)| {
-                    self.master = Some(master);
+                    self.master = Some(Box::new(master));
                     let mut s = self.stats();
                     s.pty_path = Some(path.clone());
                     s.plugs += 1;
@@ -364,5 +442,64 @@ impl Runner {
                 let _ = done.send(result);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod memory_tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
+    use std::time::Duration;
+
+    use amr_drivers::lpms::serial::{ImuMessage, LpmsConfig, run};
+
+    use super::{ConstantYawRate, MockImuOptions, start_mock_imu_in_memory};
+
+    /// The real LPBUS shell against the in-memory mock in paused time: 100 Hz for 5 simulated
+    /// seconds, an unplug the shell recovers from, the same samples twice.
+    #[tokio::test(start_paused = true)]
+    async fn the_shell_streams_from_the_in_memory_mock_and_survives_an_unplug() {
+        let mut runs = Vec::new();
+        for _ in 0..2 {
+            let (mock, connector) = start_mock_imu_in_memory(
+                MockImuOptions::with_rate(100),
+                Box::new(ConstantYawRate::new(0.2, 0.0, 0.0, 1)),
+            );
+            let (tx, mut rx) = tokio::sync::mpsc::channel(256);
+            let config = LpmsConfig { stream_hz: 100, ..LpmsConfig::default() };
+            let task = tokio::spawn(run(
+                config.session_config(),
+                move || {
+                    let c = connector.clone();
+                    async move { c.connect().await }
+                },
+                tx,
+            ));
+            let start = tokio::time::Instant::now();
+            let mut samples = Vec::new();
+            let mut unplugged = false;
+            while start.elapsed() < Duration::from_secs(5) {
+                if !unplugged && start.elapsed() > Duration::from_secs(2) {
+                    mock.unplug().await.unwrap();
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                    mock.replug().await.unwrap();
+                    unplugged = true;
+                }
+                if let Ok(Some(ImuMessage::Sample(s))) =
+                    tokio::time::timeout(Duration::from_millis(50), rx.recv()).await
+                {
+                    samples.push((
+                        s.received_at.duration_since(start.into_std()).as_micros(),
+                        s.data.timestamp_ticks,
+                    ));
+                }
+            }
+            task.abort();
+            runs.push(samples);
+        }
+        // About 4.3 s of streaming at 100 Hz (the unplug and the reconnection cost the rest).
+        assert!((380..=470).contains(&runs[0].len()), "{} samples", runs[0].len());
+        assert!(runs[0].iter().any(|(t, _)| *t > 3_000_000), "streaming again after the replug");
+        assert_eq!(runs[0], runs[1]);
     }
 }
