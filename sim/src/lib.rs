@@ -442,6 +442,8 @@ impl RobotMocks {
                 Some(s) => CanLink::Socketcand { address: s.address.to_string(), channel: "can0".into() },
                 None => CanLink::InProcess(self.bus.clone()),
             }),
+            lidar_stream: None,
+            imu_stream: None,
         }
     }
 }

@@ -4,10 +4,10 @@
 
 use std::sync::Arc;
 
-use amr_drivers::lpms::serial::{Health as LinkHealth, ImuMessage, LpmsConfig, spawn_serial};
+use amr_drivers::lpms::serial::{Health as LinkHealth, ImuMessage, LpmsConfig, run, spawn_serial};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, ImuReading, RobotPorts};
+use super::ports::{AbortOnDrop, ImuReading, RobotPorts, StreamConnector};
 use super::status::{Counters, HealthCell};
 use crate::messages::{Device, Health};
 
@@ -29,6 +29,8 @@ pub struct ImuActor {
     pub ports: Arc<RobotPorts>,
     pub config: LpmsConfig,
     pub counters: Counters,
+    /// Reach the device through this instead of its serial port (virtual-time simulation).
+    pub stream: Option<StreamConnector>,
 }
 
 #[derive(Debug)]
@@ -46,7 +48,15 @@ impl Actor for ImuActor {
     async fn pre_start(&self, myself: ActorRef<ImuMsg>, (): ()) -> Result<ImuState, ActorProcessingErr> {
         // An invalid configuration is a start failure (the supervisor retries and escalates); it
         // cannot happen with a validated robot file.
-        let (mut rx, driver) = spawn_serial(self.config.clone(), 64)?;
+        let (mut rx, driver) = match &self.stream {
+            Some(c) => {
+                self.config.validate()?;
+                let (tx, rx) = tokio::sync::mpsc::channel(64);
+                let c = c.clone();
+                (rx, tokio::spawn(run(self.config.session_config(), move || c.connect(), tx)))
+            }
+            None => spawn_serial(self.config.clone(), 64)?,
+        };
         let pump = tokio::spawn(async move {
             while let Some(m) = rx.recv().await {
                 if myself.cast(ImuMsg::Driver(m)).is_err() {

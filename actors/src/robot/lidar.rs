@@ -3,10 +3,10 @@
 
 use std::sync::Arc;
 
-use amr_drivers::sopas::tcp::{Health as LinkHealth, LidarConfig, LidarMessage, spawn_tcp};
+use amr_drivers::sopas::tcp::{Health as LinkHealth, LidarConfig, LidarMessage, spawn_stream, spawn_tcp};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, LidarScan, RobotPorts};
+use super::ports::{AbortOnDrop, LidarScan, RobotPorts, StreamConnector};
 use super::status::{Counters, HealthCell};
 use crate::mapping;
 use crate::messages::{Device, Health};
@@ -30,6 +30,8 @@ pub struct LidarActor {
     pub ports: Arc<RobotPorts>,
     pub config: LidarConfig,
     pub counters: Counters,
+    /// Reach the device through this instead of TCP (virtual-time simulation).
+    pub stream: Option<StreamConnector>,
 }
 
 /// Its state.
@@ -47,7 +49,13 @@ impl Actor for LidarActor {
     type Arguments = ();
 
     async fn pre_start(&self, myself: ActorRef<LidarMsg>, (): ()) -> Result<LidarState, ActorProcessingErr> {
-        let (driver, mut rx) = spawn_tcp(self.config.clone(), 16);
+        let (driver, mut rx) = match &self.stream {
+            Some(c) => {
+                let c = c.clone();
+                spawn_stream(self.config.clone(), move |_addr| c.connect(), 16)
+            }
+            None => spawn_tcp(self.config.clone(), 16),
+        };
         let pump = tokio::spawn(async move {
             while let Some(m) = rx.recv().await {
                 if myself.cast(LidarMsg::Driver(m)).is_err() {

@@ -58,6 +58,9 @@ pub struct DeviceOverrides {
     pub lidar: Option<(String, u16)>,
     pub imu_path: Option<String>,
     pub can: Option<CanLink>,
+    /// In-memory pipes instead of TCP / the tty (virtual-time simulation).
+    pub lidar_stream: Option<ports::StreamConnector>,
+    pub imu_stream: Option<ports::StreamConnector>,
 }
 
 /// Supervision settings of the robot tree.
@@ -178,8 +181,18 @@ pub async fn start_robot(
     };
     let reconnect = &cfg.devices.can.reconnect;
 
-    let lidar = LidarActor { ports: Arc::clone(&ports), config: lidar_cfg, counters: counters.clone() };
-    let imu = ImuActor { ports: Arc::clone(&ports), config: imu_cfg, counters: counters.clone() };
+    let lidar = LidarActor {
+        ports: Arc::clone(&ports),
+        config: lidar_cfg,
+        counters: counters.clone(),
+        stream: overrides.lidar_stream,
+    };
+    let imu = ImuActor {
+        ports: Arc::clone(&ports),
+        config: imu_cfg,
+        counters: counters.clone(),
+        stream: overrides.imu_stream,
+    };
     let bus = CanBusActor {
         ports: Arc::clone(&ports),
         link: can,

@@ -108,6 +108,32 @@ impl RobotPorts {
     }
 }
 
+/// Opens a byte stream to a device without a socket or a tty: an in-memory pipe to a mock in a
+/// virtual-time simulation (on a robot the drivers open TCP and serial ports themselves).
+#[derive(Clone)]
+pub struct StreamConnector(
+    pub  std::sync::Arc<
+        dyn Fn() -> std::pin::Pin<Box<dyn Future<Output = std::io::Result<tokio::io::DuplexStream>> + Send>>
+            + Send
+            + Sync,
+    >,
+);
+
+impl std::fmt::Debug for StreamConnector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("StreamConnector")
+    }
+}
+
+impl StreamConnector {
+    /// Open a new connection.
+    pub fn connect(
+        &self,
+    ) -> impl Future<Output = std::io::Result<tokio::io::DuplexStream>> + Send + 'static + use<> {
+        (self.0)()
+    }
+}
+
 /// Aborts a task when dropped: an actor keeps its driver tasks in its state, so a panic, an error
 /// or a stop ends them with it.
 #[derive(Debug)]
