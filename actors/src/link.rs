@@ -135,8 +135,17 @@ impl LinkControl {
         let mut rx = flag.subscribe();
         // Bounded by whoever holds the link (a drill); a dropped control releases it.
         let _ = rx.wait_for(|held| !*held).await;
-        self.late.fetch_add(1, Ordering::Relaxed);
         true
+    }
+
+    /// Count a message delivered late: the one a router held, and then its backlog until the
+    /// queue is empty.
+    fn count_late(&self, was_held: bool, draining: &mut bool, queue_empty: bool) {
+        *draining |= was_held;
+        if *draining {
+            self.late.fetch_add(1, Ordering::Relaxed);
+            *draining = !queue_empty;
+        }
     }
 
     /// Messages that met a cut link.
@@ -145,7 +154,7 @@ impl LinkControl {
         self.lost.load(Ordering::Relaxed)
     }
 
-    /// Messages delivered late because the link was held.
+    /// Messages delivered late because the link was held (the backlog delivered on release).
     #[must_use]
     pub fn late(&self) -> u64 {
         self.late.load(Ordering::Relaxed)
@@ -220,8 +229,10 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
         let ctl = routers_ctl.clone();
         let robot = name.clone();
         tokio::spawn(async move {
+            let mut draining = false;
             while let Some(msg) = up_rx.recv().await {
-                ctl.pass(&robot).await;
+                let held = ctl.pass(&robot).await;
+                ctl.count_late(held, &mut draining, up_rx.is_empty());
                 if server_rx.has_changed().unwrap_or(false) {
                     to_server = server_rx.borrow_and_update().clone();
                 }
@@ -235,6 +246,7 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
         tokio::spawn(async move {
             let mut current: Option<mpsc::Receiver<Downlink>> = None;
             let mut more = true;
+            let mut draining = false;
             // Ends when no server is attached and none can come.
             loop {
                 let event = match current.as_mut() {
@@ -255,7 +267,9 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
                     DownEvent::Server(None) => more = false,
                     DownEvent::Msg(None) => current = None,
                     DownEvent::Msg(Some(msg)) => {
-                        ctl.pass(&name).await;
+                        let held = ctl.pass(&name).await;
+                        let empty = current.as_ref().is_none_or(mpsc::Receiver::is_empty);
+                        ctl.count_late(held, &mut draining, empty);
                         if ctl.is_cut(&name) || to_robot.try_send(msg).is_err() {
                             ctl.lost.fetch_add(1, Ordering::Relaxed);
                         }
@@ -329,7 +343,7 @@ mod tests {
         control.set_held("a", false);
         assert_eq!(ends[0].down.recv().await, Some(cmd(1)));
         assert_eq!(ends[0].down.recv().await, Some(cmd(2)));
-        assert_eq!(control.late(), 1, "the message the router was holding");
+        assert_eq!(control.late(), 2, "the message the router was holding and the queued one");
         assert_eq!(control.lost(), 0);
     }
 
