@@ -21,6 +21,13 @@ pub const INITIAL_STD_YAW_RAD: f64 = 0.05;
 pub enum AmclMsg {
     Scan(Box<ScanMsg>),
     Fused(Box<FusedFrame>),
+    /// A drill: for `during` from now, every update first blocks the actor's worker thread for
+    /// `each` (a stalled localisation). A deadline rather than an "end" message, which would queue
+    /// behind the backlog the stall builds.
+    InjectStall {
+        each: std::time::Duration,
+        during: std::time::Duration,
+    },
 }
 
 /// The AMCL actor.
@@ -41,6 +48,8 @@ pub struct AmclActor {
 pub struct AmclState {
     robots: Vec<Amcl>,
     virtual_filter: Amcl,
+    /// The drill's stall per update, and until when.
+    stall: Option<(std::time::Duration, std::time::Instant)>,
 }
 
 impl Actor for AmclActor {
@@ -61,7 +70,7 @@ impl Actor for AmclActor {
         };
         let robots = self.initial_robots.iter().enumerate().map(|(i, p)| filter(1 + i as u64, *p)).collect();
         self.ports.corrections.send_replace(vec![None; self.initial_robots.len()]);
-        Ok(AmclState { robots, virtual_filter: filter(0, self.initial_v) })
+        Ok(AmclState { robots, virtual_filter: filter(0, self.initial_v), stall: None })
     }
 
     async fn handle(
@@ -77,7 +86,11 @@ impl Actor for AmclActor {
                     return Ok(());
                 };
                 let points = scan_points(&s.scan, mount, &self.params);
-                super::compute(|| filter.update(s.odom, &points, false));
+                let stall = state.stall;
+                super::compute(|| {
+                    stalled(stall);
+                    filter.update(s.odom, &points, false)
+                });
                 if let Some(map) = filter.pose_at(&s.odom) {
                     self.ports.corrections.send_modify(|c| {
                         if let Some(slot) = c.get_mut(i) {
@@ -102,8 +115,11 @@ impl Actor for AmclActor {
                 let mut ran = false;
                 let v = match (&f.points, f.configuration) {
                     (Some(points), _) => {
-                        let filter = &mut state.virtual_filter;
-                        let outcome = super::compute(|| filter.update(f.v_odom, points, false));
+                        let (filter, stall) = (&mut state.virtual_filter, state.stall);
+                        let outcome = super::compute(|| {
+                            stalled(stall);
+                            filter.update(f.v_odom, points, false)
+                        });
                         ran = matches!(outcome, amr_core::amcl::UpdateOutcome::Updated { .. });
                         state.virtual_filter.pose_at(&f.v_odom)
                     }
@@ -133,7 +149,25 @@ impl Actor for AmclActor {
                     self.ports.latency.push(times);
                 }
             }
+            AmclMsg::InjectStall { each, during } => {
+                tracing::warn!(
+                    each_ms = each.as_millis(),
+                    during_ms = during.as_millis(),
+                    "amcl: drill stall"
+                );
+                state.stall = Some((each, std::time::Instant::now() + during));
+            }
         }
         Ok(())
+    }
+}
+
+/// Block the calling thread for a drill's stall (inside [`super::compute`], so on a multi-thread
+/// runtime the worker hands its other tasks on first).
+fn stalled(stall: Option<(std::time::Duration, std::time::Instant)>) {
+    if let Some((each, until)) = stall
+        && std::time::Instant::now() < until
+    {
+        std::thread::sleep(each);
     }
 }

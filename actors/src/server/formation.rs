@@ -27,6 +27,12 @@ use crate::messages::{Command, Device, Downlink, Health, OdomMsg, SafetyState, U
 pub const ESTIMATE_FRESH_S: f64 = 0.5;
 /// Robots that do not confirm an arm within this long are asked again, s.
 const ARM_TIMEOUT_S: f64 = 2.0;
+/// A formation that is first armed with V farther than this from the plan's start (a restarted
+/// server: the robots are where the last one left them) resumes the plan where V is, m and rad.
+const AWAY_FROM_START_M: f64 = 0.25;
+const AWAY_FROM_START_RAD: f64 = 0.25;
+/// Heading weight of the whole-plan search for where V is, m per rad.
+const HEADING_WEIGHT_M_PER_RAD: f64 = 0.5;
 
 /// Where the formation is.
 #[derive(Debug, Clone, PartialEq)]
@@ -182,6 +188,8 @@ impl FormationActor {
                 if ready && state.arm_allowed {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
+                    } else if self.away_from_start(state, now) {
+                        self.resume_where_v_is(state, now);
                     }
                     for i in 0..state.robots.len() {
                         self.send(i, state, |seq| Downlink::Arm { seq: seq + 1 });
@@ -268,6 +276,49 @@ impl FormationActor {
         }
     }
 
+    /// V in the map now, from every robot's pose.
+    fn v_now(state: &FormationState, now: f64) -> Option<Se2> {
+        let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
+        let poses = poses?;
+        let first = *poses.first()?;
+        let rel: Vec<(Se2, f64)> = poses.iter().map(|q| (first.inverse() * *q, 1.0)).collect();
+        Some(first * virtual_frame(&rel))
+    }
+
+    /// Whether V is away from the plan's start (in position or heading).
+    fn away_from_start(&self, state: &FormationState, now: f64) -> bool {
+        let (Some(v), Some(start)) = (Self::v_now(state, now), self.params.plan.first()) else {
+            return false;
+        };
+        let d = start.pose.inverse() * v;
+        d.translation_norm() > AWAY_FROM_START_M || d.theta.abs() > AWAY_FROM_START_RAD
+    }
+
+    /// A fresh formation whose robots are not at the plan's start (the server restarted mid-run):
+    /// start the plan at its point nearest V, in position and heading, over the whole plan.
+    fn resume_where_v_is(&self, state: &mut FormationState, now: f64) {
+        let Some(v) = Self::v_now(state, now) else { return };
+        let cost = |r: &Reference| {
+            let d = r.pose.inverse() * v;
+            d.translation_norm() + HEADING_WEIGHT_M_PER_RAD * d.theta.abs()
+        };
+        let best = self
+            .params
+            .plan
+            .iter()
+            .enumerate()
+            .min_by(|(_, a), (_, b)| cost(a).total_cmp(&cost(b)))
+            .map(|(k, _)| k);
+        if let Some(k) = best {
+            let dt = self.params.period_s;
+            tracing::info!(
+                to_s = k as f64 * dt,
+                "formation: started away from the plan's start, resuming where V is"
+            );
+            state.plan_s = k as f64 * dt;
+        }
+    }
+
     /// After a stop the robots coasted on (ramping down) while the plan was paused: resume the plan
     /// at its point closest to where V is now, searching forward only.
     fn resync_plan(&self, state: &mut FormationState, now: f64) {
@@ -333,9 +384,13 @@ impl Actor for FormationActor {
         self.ports.estimates.subscribe(myself.clone(), |e| Some(FormationMsg::Estimate(Box::new(e))));
         self.ports.status.subscribe(myself.clone(), |s| Some(FormationMsg::Fusion(s)));
         myself.send_interval(Duration::from_secs_f64(self.params.period_s.max(0.01)), || FormationMsg::Tick);
+        // Sequence numbers start at the fleet clock in milliseconds: a robot refuses any command not
+        // newer than the last it accepted, so a restarted formation (a new server) must number
+        // above its predecessor, which sent at most 21 messages a second since its own start.
+        let seq0 = (self.ports.clock.now_s().max(0.0) * 1000.0) as u64;
         Ok(FormationState {
             phase: Phase::Waiting,
-            robots: vec![RobotView::default(); self.ports.robots.len()],
+            robots: vec![RobotView { seq: seq0, ..RobotView::default() }; self.ports.robots.len()],
             plan_s: 0.0,
             lost: None,
             arm_allowed: self.params.auto_arm,

@@ -103,6 +103,25 @@ impl ServerTree {
         ractor::call!(f, FormationMsg::Status).ok()
     }
 
+    /// The running AMCL actor, if any.
+    pub async fn amcl_actor(&self) -> Option<ActorRef<amcl::AmclMsg>> {
+        let children = ractor::call!(self.supervisor, SupervisorMsg::Children).ok()?;
+        children.into_iter().find(|c| c.name == "amcl").and_then(|c| c.cell).map(ActorRef::from)
+    }
+
+    /// Crash (a drill): every actor of the tree is killed at once, as if the process died — no
+    /// orderly stop, nothing more is sent — and nothing more is taken from the link.
+    pub fn crash(&self) {
+        self.supervisor.kill();
+        self._pump.0.abort();
+    }
+
+    /// Whether the tree is still running.
+    #[must_use]
+    pub fn is_running(&self) -> bool {
+        !self.join.is_finished()
+    }
+
     /// Allow the formation to (re)start.
     pub async fn rearm(&self) -> bool {
         self.formation_actor().await.is_some_and(|f| f.cast(FormationMsg::Rearm).is_ok())
