@@ -115,6 +115,12 @@ struct Observed {
     pending: std::collections::VecDeque<(f64, Se2)>,
     health: BTreeMap<String, BTreeMap<String, (Health, Health)>>,
     formation: Option<FormationStatus>,
+    /// Every formation phase seen, in order (a repeated phase once).
+    phases: Vec<Phase>,
+    /// The latest fused estimate: V, and each robot's pose with its odometry pose at the stamp.
+    last_fused: Option<(Se2, Vec<Option<amr_actors::server::ports::Anchored>>)>,
+    /// Each robot's latest odometry pose.
+    odom: BTreeMap<String, Se2>,
 }
 
 /// A running simulation.
@@ -129,6 +135,8 @@ pub struct Sim {
     pub link: LinkControl,
     pub options: SimOptions,
     configuration: Configuration,
+    /// How the server was started (a restarted one starts the same way).
+    setup: ServerSetup,
     observed: Arc<std::sync::Mutex<Observed>>,
     observer: ActorRef<ObserverMsg>,
     started: Instant,
@@ -181,22 +189,18 @@ impl Sim {
             server_cfg.configuration = c;
         }
         let configuration = server_cfg.configuration;
-        let server = start_server(
-            ServerSetup {
-                server: server_cfg,
-                vamr: config.vamr.clone(),
-                amcl: config.amcl.clone(),
-                map,
-                robots: robots.clone(),
-                scenario: sc.clone(),
-                seed: options.seed,
-                auto_arm: true,
-                policy: RestartPolicy::default(),
-            },
-            server_end,
-            clock,
-        )
-        .await?;
+        let setup = ServerSetup {
+            server: server_cfg,
+            vamr: config.vamr.clone(),
+            amcl: config.amcl.clone(),
+            map,
+            robots: robots.clone(),
+            scenario: sc.clone(),
+            seed: options.seed,
+            auto_arm: true,
+            policy: RestartPolicy::default(),
+        };
+        let server = start_server(setup.clone(), server_end, clock).await?;
         let mut trees = Vec::new();
         for ((r, end), m) in robots.iter().zip(robot_ends).zip(&mocks) {
             trees.push(start_robot(r, m.overrides(), end, clock, RobotOptions::default()).await?);
@@ -211,8 +215,11 @@ impl Sim {
         )
         .await
         .map_err(|e| SimError::Mock("observer", e.to_string()))?;
-        server.ports.estimates.subscribe(observer.clone(), |e| Some(ObserverMsg::Estimate(Box::new(e))));
-        server.formation.subscribe(observer.clone(), |s| Some(ObserverMsg::Formation(s)));
+        observe_server(&server, &observer);
+        for t in &trees {
+            let id = t.id.clone();
+            t.ports.odom.subscribe(observer.clone(), move |m| Some(ObserverMsg::Odom(id.clone(), m.pose)));
+        }
         // Health: the boards hold every device's state; sampling them misses nothing that lasts.
         let boards: Vec<(String, Arc<amr_actors::robot::ports::RobotPorts>)> =
             trees.iter().map(|t| (t.id.clone(), Arc::clone(&t.ports))).collect();
@@ -241,6 +248,7 @@ impl Sim {
             mocks,
             link,
             configuration,
+            setup,
             options,
             observed,
             observer,
@@ -253,6 +261,84 @@ impl Sim {
     #[must_use]
     pub fn formation(&self) -> Option<FormationStatus> {
         self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner).formation.clone()
+    }
+
+    /// Every formation phase seen so far, in order (a phase repeated in a row once), across server
+    /// restarts.
+    #[must_use]
+    pub fn phases(&self) -> Vec<Phase> {
+        self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner).phases.clone()
+    }
+
+    /// The latest fused estimate of V.
+    #[must_use]
+    pub fn last_v(&self) -> Option<Se2> {
+        self.observed
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .last_fused
+            .as_ref()
+            .map(|f| f.0)
+    }
+
+    /// V now as the server last knew it: each robot's pose in the latest fused estimate carried
+    /// forward by its odometry since (what a server that saved its last estimate can know).
+    #[must_use]
+    pub fn last_v_carried(&self) -> Option<Se2> {
+        let o = self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        let (_, anchored) = o.last_fused.as_ref()?;
+        let poses: Option<Vec<Se2>> = self
+            .robots
+            .iter()
+            .zip(anchored)
+            .map(|(r, a)| {
+                let a = (*a)?;
+                let odom = o.odom.get(&r.id)?;
+                Some(a.map * (a.odom.inverse() * *odom))
+            })
+            .collect();
+        v_of(&poses?)
+    }
+
+    /// Crash the server (a drill): its whole tree is killed at once, nothing more is sent to the
+    /// robots, nothing more is read from them. [`Sim::restart_server`] brings up a new one.
+    pub fn crash_server(&self) {
+        self.server.crash();
+    }
+
+    /// Start a new server on the same link, replacing the current one (crashed first if it still
+    /// runs). It starts as the first did, except that it does not arm by itself (the operator
+    /// re-arms, [`ServerTree::rearm`]) and its AMCL starts from the last fused estimate of V carried
+    /// forward by the robots' odometry ([`Sim::last_v_carried`]), with the robots at their slots
+    /// around it (the scenario's start pose when there is none): the robots are where the old
+    /// server left them — and then coasted to a stop — not at the start. Its formation plan starts where
+    /// V is (see the formation actor).
+    pub async fn restart_server(&mut self) -> Result<(), SimError> {
+        if self.server.is_running() {
+            self.server.crash();
+        }
+        let end =
+            self.link.new_server_end().ok_or(SimError::Site("the link cannot take a new server".into()))?;
+        let mut setup = self.setup.clone();
+        setup.auto_arm = false;
+        if let Some(v) = self.last_v_carried().or_else(|| self.last_v()) {
+            let prior = setup.amcl.initial_pose;
+            let num = |x: f64| amr_core::config::value::Finite::new(x).map_err(SimError::Site);
+            let spread = |x: f64| amr_core::config::value::NonNegative::new(x).map_err(SimError::Site);
+            setup.amcl.initial_pose = Some(amr_core::config::InitialPose {
+                x: num(v.x)?,
+                y: num(v.y)?,
+                yaw: num(v.theta)?,
+                std_xy_m: prior.map_or(spread(0.1), |p| Ok(p.std_xy_m))?,
+                std_yaw_rad: prior.map_or(spread(0.05), |p| Ok(p.std_yaw_rad))?,
+            });
+        }
+        let server = start_server(setup, end, self.clock).await?;
+        observe_server(&server, &self.observer);
+        let old = std::mem::replace(&mut self.server, server);
+        // Dead already; this only waits (bounded) for its supervisor's task.
+        old.shutdown().await;
+        Ok(())
     }
 
     /// A one-line live status.
@@ -361,6 +447,12 @@ impl Sim {
             m.imu.shutdown();
         }
     }
+}
+
+/// The observer follows `server`'s estimates and formation.
+fn observe_server(server: &ServerTree, observer: &ActorRef<ObserverMsg>) {
+    server.ports.estimates.subscribe(observer.clone(), |e| Some(ObserverMsg::Estimate(Box::new(e))));
+    server.formation.subscribe(observer.clone(), |s| Some(ObserverMsg::Formation(s)));
 }
 
 /// The world with the formation's robots at their slots around the scenario's start.
@@ -616,6 +708,8 @@ enum ObserverMsg {
     Estimate(Box<Estimate>),
     Formation(FormationStatus),
     Health(String, HealthReport),
+    /// A robot's odometry pose.
+    Odom(String, Se2),
 }
 
 #[derive(Debug)]
@@ -664,14 +758,26 @@ impl Actor for Observer {
         let mut o = self.observed.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
         match msg {
             ObserverMsg::Estimate(e) => {
-                if let (EstimateSource::Fused(_), Some(v)) = (e.source, e.v)
-                    && self.weights_equal
-                {
-                    o.pending.push_back((e.stamp_s, v));
+                if let (EstimateSource::Fused(_), Some(v)) = (e.source, e.v) {
+                    o.last_fused = Some((v, e.robots.clone()));
+                    if self.weights_equal {
+                        o.pending.push_back((e.stamp_s, v));
+                    }
                 }
                 self.score(&mut o);
             }
-            ObserverMsg::Formation(s) => o.formation = Some(s),
+            ObserverMsg::Odom(robot, pose) => {
+                o.odom.insert(robot, pose);
+            }
+            ObserverMsg::Formation(s) => {
+                if o.phases
+                    .last()
+                    .is_none_or(|p| std::mem::discriminant(p) != std::mem::discriminant(&s.phase))
+                {
+                    o.phases.push(s.phase.clone());
+                }
+                o.formation = Some(s);
+            }
             ObserverMsg::Health(robot, h) => {
                 let entry = o
                     .health
