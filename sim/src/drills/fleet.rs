@@ -498,7 +498,6 @@ pub(crate) async fn slow_consumer(config: &Config, seed: u64, c: &mut Check) {
     const STALL: Duration = Duration::from_secs(5);
     let Some(scenario) = one_leg(config) else { return c.fail("no straight scenario") };
     let Some(sim) = moving_sim(config, seed, scenario, c).await else { return };
-    let n = sim.robots.len();
     let mut probes = Vec::new();
     for r in &sim.robots {
         let times = Arc::new(Mutex::new(Vec::new()));
@@ -583,6 +582,5 @@ pub(crate) async fn slow_consumer(config: &Config, seed: u64, c: &mut Check) {
     for (p, _) in probes {
         p.stop(None);
     }
-    let _ = n;
     sim.shutdown().await;
 }
