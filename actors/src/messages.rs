@@ -155,4 +155,7 @@ pub enum DisarmReason {
     Requested,
     /// The e-stop was reset.
     EStopReset,
+    /// The drives or their bus were lost: they stopped (the master zeroes every target, a deaf
+    /// drive quick-stops by itself), so the output is zero too.
+    DeviceLost,
 }

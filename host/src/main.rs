@@ -126,6 +126,10 @@ enum Command {
         /// No live status lines.
         #[arg(long)]
         quiet: bool,
+        /// Run on a paused clock with every device over in-memory pipes: faster than real time
+        /// and reproducible from the seed (times in the report are simulated).
+        #[arg(long)]
+        virtual_time: bool,
     },
     /// Fault-recovery drills against the mock devices in real time: each injects a fault and checks
     /// detection, the safe state, recovery, the event log and the counters. Prints a table; exits
@@ -283,7 +287,7 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
-        Command::Sim { scenario, seed, configuration, duration, can, json, config, quiet } => {
+        Command::Sim { scenario, seed, configuration, duration, can, json, config, quiet, virtual_time } => {
             match duration.map(std::time::Duration::try_from_secs_f64) {
                 Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
                 d => sim_cmd::sim(sim_cmd::SimArgs {
@@ -295,6 +299,7 @@ fn main() -> ExitCode {
                     json,
                     config,
                     quiet,
+                    virtual_time,
                 }),
             }
         }

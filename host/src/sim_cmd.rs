@@ -26,6 +26,7 @@ pub(crate) struct SimArgs {
     pub json: Option<PathBuf>,
     pub config: Option<PathBuf>,
     pub quiet: bool,
+    pub virtual_time: bool,
 }
 
 pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
@@ -57,11 +58,23 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
         scenario,
         seed: args.seed,
         noise: Noise::TYPICAL,
-        can: args.can,
+        can: if args.virtual_time { SimCan::VirtualTime } else { args.can },
         configuration: args.configuration,
         max_duration: args.duration,
     };
-    runtime()?.block_on(async move {
+    // Virtual time: one thread, tokio's clock paused and advanced only when every task waits,
+    // devices over in-memory pipes: as fast as the machine allows, and the same seed gives the
+    // same run.
+    let rt = if args.virtual_time {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+            .context("starting the virtual-time runtime")?
+    } else {
+        runtime()?
+    };
+    rt.block_on(async move {
         let sim = Sim::start(&config, options).await.context("starting the simulation")?;
         let quiet = args.quiet;
         tokio::select! {

@@ -21,7 +21,7 @@ use amr_actors::clock::FleetClock;
 use amr_actors::link::{LinkControl, in_process};
 use amr_actors::messages::{Device, Health, HealthReport};
 use amr_actors::robot::canbus::CanLink;
-use amr_actors::robot::ports::AbortOnDrop;
+use amr_actors::robot::ports::{AbortOnDrop, StreamConnector};
 use amr_actors::robot::{DeviceOverrides, RobotOptions, RobotTree, start_robot};
 use amr_actors::server::formation::{FormationStatus, Phase};
 use amr_actors::server::ports::{Estimate, EstimateSource};
@@ -52,6 +52,10 @@ pub enum SimCan {
     InProcess,
     /// A socketcand server on loopback in front of the in-process bus.
     Socketcand,
+    /// No socket and no tty at all: the LiDAR and the IMU over in-memory pipes, CAN on the
+    /// in-process bus. With tokio's clock paused (a current-thread runtime) nothing but that clock
+    /// orders events, so a run is reproducible from its seed (`amr sim --virtual-time`).
+    VirtualTime,
 }
 
 /// Run settings.
@@ -104,6 +108,9 @@ pub struct RobotMocks {
     /// Left, right.
     pub drives: Vec<DriveHandle>,
     pub socketcand: Option<SocketcandMock>,
+    /// Virtual time: the in-memory ways to the LiDAR and the IMU.
+    pub lidar_pipe: Option<hil_mocks::tim551::MemoryConnector>,
+    pub imu_pipe: Option<hil_mocks::lpms::ImuConnector>,
 }
 
 /// What the observer collected.
@@ -407,6 +414,7 @@ impl Sim {
             seed: self.options.seed,
             configuration: format!("{:?}", self.configuration),
             duration_s: self.started.elapsed().as_secs_f64(),
+            clock: if self.options.can == SimCan::VirtualTime { "virtual" } else { "wall" }.to_owned(),
             plan_s: o.formation.as_ref().map_or(0.0, |f| f.plan_s),
             plan_len_s: o.formation.as_ref().map_or(0.0, |f| f.plan_len_s),
             final_phase: o.formation.as_ref().map_or("none".to_owned(), |f| format!("{:?}", f.phase)),
@@ -484,25 +492,36 @@ pub async fn start_mocks(
     seed: u64,
     can: SimCan,
 ) -> Result<RobotMocks, SimError> {
-    let lidar = Tim551Mock::spawn(
-        "127.0.0.1:0",
-        MockConfig {
-            serial: 0x0100_0000 + i as u32,
-            initial_tick_us: 1_000_000 * i as u32,
-            ..MockConfig::default()
-        },
-        Arc::new(WorldLidar { world: Arc::clone(world), robot: i }),
-    )
-    .await
-    .map_err(|e| SimError::Mock("lidar", e.to_string()))?;
+    let lidar_config = MockConfig {
+        serial: 0x0100_0000 + i as u32,
+        initial_tick_us: 1_000_000 * i as u32,
+        ..MockConfig::default()
+    };
+    let lidar_source = Arc::new(WorldLidar { world: Arc::clone(world), robot: i });
+    let (lidar, lidar_pipe) = if can == SimCan::VirtualTime {
+        let (mock, connector) = Tim551Mock::spawn_in_memory(lidar_config, lidar_source);
+        (mock, Some(connector))
+    } else {
+        let mock = Tim551Mock::spawn("127.0.0.1:0", lidar_config, lidar_source)
+            .await
+            .map_err(|e| SimError::Mock("lidar", e.to_string()))?;
+        (mock, None)
+    };
     let mut imu_opts = MockImuOptions::default();
     imu_opts.device.stream_hz = r.devices.imu.stream_hz;
     imu_opts.device.imu_id = r.devices.imu.imu_id;
     let imu_bad = Arc::new(std::sync::atomic::AtomicU32::new(0));
     let source =
         BadValues { inner: WorldImu { world: Arc::clone(world), robot: i }, left: Arc::clone(&imu_bad) };
-    let imu =
-        start_mock_imu(imu_opts, Box::new(source)).await.map_err(|e| SimError::Mock("imu", e.to_string()))?;
+    let (imu, imu_pipe) = if can == SimCan::VirtualTime {
+        let (mock, connector) = hil_mocks::lpms::start_mock_imu_in_memory(imu_opts, Box::new(source));
+        (mock, Some(connector))
+    } else {
+        let mock = start_mock_imu(imu_opts, Box::new(source))
+            .await
+            .map_err(|e| SimError::Mock("imu", e.to_string()))?;
+        (mock, None)
+    };
     let bus = InProcessBus::default();
     let now = Instant::now().into_std();
     let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
@@ -510,7 +529,7 @@ pub async fn start_mocks(
         .map(|n| spawn_drive(TecoDrive::new(drive_config(r, *n, noise, seed), now), bus.port()))
         .collect();
     let socketcand = match can {
-        SimCan::InProcess => None,
+        SimCan::InProcess | SimCan::VirtualTime => None,
         SimCan::Socketcand => {
             let control = hil_mocks::teco_drive::socketcand::SocketcandControl::default();
             let (addr, task) =
@@ -520,7 +539,7 @@ pub async fn start_mocks(
             Some(SocketcandMock { address: addr, control, _task: AbortOnDrop(task) })
         }
     };
-    Ok(RobotMocks { lidar, imu, imu_bad, bus, drives, socketcand })
+    Ok(RobotMocks { lidar, imu, imu_bad, bus, drives, socketcand, lidar_pipe, imu_pipe })
 }
 
 impl RobotMocks {
@@ -534,8 +553,18 @@ impl RobotMocks {
                 Some(s) => CanLink::Socketcand { address: s.address.to_string(), channel: "can0".into() },
                 None => CanLink::InProcess(self.bus.clone()),
             }),
-            lidar_stream: None,
-            imu_stream: None,
+            lidar_stream: self.lidar_pipe.clone().map(|c| {
+                StreamConnector(Arc::new(move || {
+                    let c = c.clone();
+                    Box::pin(async move { c.connect().await })
+                }))
+            }),
+            imu_stream: self.imu_pipe.clone().map(|c| {
+                StreamConnector(Arc::new(move || {
+                    let c = c.clone();
+                    Box::pin(async move { c.connect().await })
+                }))
+            }),
         }
     }
 }

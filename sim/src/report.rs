@@ -62,8 +62,10 @@ pub struct SimReport {
     pub scenario: String,
     pub seed: u64,
     pub configuration: String,
-    /// Wall time the run took, s.
+    /// Time the run took, s, on its clock (`clock`).
     pub duration_s: f64,
+    /// `wall` (real time) or `virtual` (tokio's paused clock, devices over in-memory pipes).
+    pub clock: String,
     /// How far into the plan the formation got, s, and the plan's length.
     pub plan_s: f64,
     pub plan_len_s: f64,
@@ -112,14 +114,15 @@ impl SimReport {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "scenario {} ({}), seed {}: {:.1} s of {:.1} s planned, formation {}, {:.1} s wall time",
+            "scenario {} ({}), seed {}: {:.1} s of {:.1} s planned, formation {}, {:.1} s of {} time",
             self.scenario,
             self.configuration,
             self.seed,
             self.plan_s,
             self.plan_len_s,
             self.final_phase,
-            self.duration_s
+            self.duration_s,
+            self.clock
         );
         match self.error_2d {
             Some(e) => {

@@ -111,13 +111,11 @@ impl RobotPorts {
 /// Opens a byte stream to a device without a socket or a tty: an in-memory pipe to a mock in a
 /// virtual-time simulation (on a robot the drivers open TCP and serial ports themselves).
 #[derive(Clone)]
-pub struct StreamConnector(
-    pub  std::sync::Arc<
-        dyn Fn() -> std::pin::Pin<Box<dyn Future<Output = std::io::Result<tokio::io::DuplexStream>> + Send>>
-            + Send
-            + Sync,
-    >,
-);
+pub struct StreamConnector(pub std::sync::Arc<dyn Fn() -> ConnectFuture + Send + Sync>);
+
+/// A connection being opened.
+pub type ConnectFuture =
+    std::pin::Pin<Box<dyn Future<Output = std::io::Result<tokio::io::DuplexStream>> + Send>>;
 
 impl std::fmt::Debug for StreamConnector {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

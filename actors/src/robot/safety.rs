@@ -113,6 +113,16 @@ impl SafetyCore {
         }
     }
 
+    /// Disarm and drop the output to zero at once: the drives were lost, so they have stopped
+    /// already; ramping on from the old speed would make them move again, disarmed, when they return.
+    pub fn halt(&mut self) {
+        if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
+            self.state = SafetyState::Disarmed(DisarmReason::DeviceLost);
+            self.command = None;
+        }
+        self.output = (0.0, 0.0);
+    }
+
     /// Latch the e-stop (a fault stays a fault).
     pub fn estop(&mut self) {
         if self.state != SafetyState::Fault {
@@ -317,9 +327,8 @@ impl Actor for SafetyActor {
                 // fresh arm once they are back.
                 if matches!(h.device, Device::Drives | Device::CanBus)
                     && matches!(h.health, Health::Lost | Health::Fault)
-                    && s.core.state() == SafetyState::Armed
                 {
-                    s.core.disarm(DisarmReason::Requested);
+                    s.core.halt();
                 }
             }
             SafetyMsg::EStop => {
@@ -451,6 +460,24 @@ mod tests {
         assert_eq!(c.state(), SafetyState::Armed);
         c.tick(1.21);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Watchdog));
+    }
+
+    #[test]
+    fn a_lost_drive_halts_the_output_so_nothing_moves_when_it_returns() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.1)));
+        assert!(c.output().0 > 0.19);
+        c.halt();
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::DeviceLost));
+        // From the next cycle on, exactly zero (not a ramp from 0.2 m/s).
+        assert_eq!(c.tick(6.02), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
+        assert_eq!(c.offer(cmd(seq + 1, 6.02, 0.2, 0.0), 6.02), Err(Refusal::NotArmed));
+        // A latched e-stop stays one.
+        c.estop();
+        c.halt();
+        assert_eq!(c.state(), SafetyState::EStop);
     }
 
     #[test]
