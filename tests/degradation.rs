@@ -11,25 +11,8 @@ use amr_actors::config::{ConfigSource, load};
 use amr_actors::messages::{DisarmReason, SafetyState};
 use amr_actors::server::formation::Phase;
 use amr_actors::server::ports::ServerStats;
-use amr_core::config::ScenarioConfig;
-use amr_sim::{Sim, SimCan, SimOptions};
+use amr_sim::{Sim, SimCan};
 use hil_mocks::tim551::Fault;
-use hil_mocks::world::Noise;
-
-const RUN: &str = r#"
-map = "paper-site"
-spacing_m = 0.9
-laps = 1
-segments = [{ straight_m = 3.0 }]
-[start]
-x_m = -2.0
-y_m = 0.0
-yaw_deg = 0.0
-[limits]
-max_speed_mps = 0.22
-max_accel_mps2 = 0.05
-max_yaw_rate_radps = 0.2
-"#;
 
 async fn wait_until(what: &str, timeout: Duration, mut cond: impl FnMut() -> bool) {
     let start = tokio::time::Instant::now();
@@ -42,21 +25,8 @@ async fn wait_until(what: &str, timeout: Duration, mut cond: impl FnMut() -> boo
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_robot_whose_scans_stop_stops_the_formation_until_it_is_back_and_rearmed() {
     let config = load(&ConfigSource::Embedded).unwrap();
-    let scenario: ScenarioConfig = toml::from_str(RUN).unwrap();
-    let sim = Sim::start(
-        &config,
-        SimOptions {
-            scenario_name: "degradation".into(),
-            scenario,
-            seed: 11,
-            noise: Noise::TYPICAL,
-            can: SimCan::InProcess,
-            configuration: None,
-            max_duration: Some(Duration::from_secs(90)),
-        },
-    )
-    .await
-    .unwrap();
+    let scenario = hil_tests::short_scenario("[{ straight_m = 3.0 }]");
+    let sim = Sim::start(&config, hil_tests::sim_options(scenario, 11, SimCan::InProcess, 90)).await.unwrap();
     let stats = &sim.server.ports.stats;
     let phase = || sim.formation().map(|f| f.phase);
     wait_until("the formation 4 s into its plan", Duration::from_secs(30), || {

@@ -3,48 +3,16 @@
 //! About 22 s of motion: 2 m forward, then a 45° turn of the whole formation on the spot.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
-use std::time::Duration;
-
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::supervisor::EventKind;
-use amr_core::config::ScenarioConfig;
-use amr_sim::{Sim, SimCan, SimOptions, v_of};
-use hil_mocks::world::Noise;
-
-const SHORT: &str = r#"
-map = "paper-site"
-spacing_m = 0.9
-laps = 1
-segments = [{ straight_m = 2.0, turn_deg = 45.0 }]
-[start]
-x_m = -2.0
-y_m = 0.0
-yaw_deg = 0.0
-[limits]
-max_speed_mps = 0.22
-max_accel_mps2 = 0.05
-max_yaw_rate_radps = 0.2
-"#;
+use amr_sim::{Sim, SimCan, v_of};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn both_robots_follow_the_formation_and_v_is_localised() {
     let config = load(&ConfigSource::Embedded).unwrap();
-    let scenario: ScenarioConfig = toml::from_str(SHORT).unwrap();
+    let scenario = hil_tests::short_scenario("[{ straight_m = 2.0, turn_deg = 45.0 }]");
     let start_v = scenario.start_pose();
-    let sim = Sim::start(
-        &config,
-        SimOptions {
-            scenario_name: "short".into(),
-            scenario,
-            seed: 7,
-            noise: Noise::TYPICAL,
-            can: SimCan::Socketcand,
-            configuration: None,
-            max_duration: Some(Duration::from_secs(60)),
-        },
-    )
-    .await
-    .unwrap();
+    let sim = Sim::start(&config, hil_tests::sim_options(scenario, 7, SimCan::Socketcand, 60)).await.unwrap();
     sim.run(|_| {}).await;
     let report = sim.report();
     let events: Vec<_> = sim.robots.iter().flat_map(|r| r.events.snapshot()).collect();

@@ -157,3 +157,38 @@ pub fn without_line(e: &amr_core::config::ConfigError) -> String {
     }
     s + ": " + &e.rule
 }
+
+/// A short scenario on the paper's site: V starts at (−2 m, 0, 0°) with the pair 0.9 m apart and the
+/// experiments' limits; `segments` is the TOML array, e.g. `[{ straight_m = 2.0 }]`.
+///
+/// # Panics
+/// If `segments` is not a valid segment list (a test's own literal).
+#[must_use]
+#[allow(clippy::expect_used, reason = "the tests' own literal")]
+pub fn short_scenario(segments: &str) -> amr_core::config::ScenarioConfig {
+    let text = format!(
+        "map = \"paper-site\"\nspacing_m = 0.9\nlaps = 1\nsegments = {segments}\n\
+         [start]\nx_m = -2.0\ny_m = 0.0\nyaw_deg = 0.0\n\
+         [limits]\nmax_speed_mps = 0.22\nmax_accel_mps2 = 0.05\nmax_yaw_rate_radps = 0.2\n"
+    );
+    toml::from_str(&text).expect("a valid scenario")
+}
+
+/// Options of a simulation of `scenario` with typical noise, at most `max_s` seconds long.
+#[must_use]
+pub fn sim_options(
+    scenario: amr_core::config::ScenarioConfig,
+    seed: u64,
+    can: amr_sim::SimCan,
+    max_s: u64,
+) -> amr_sim::SimOptions {
+    amr_sim::SimOptions {
+        scenario_name: "short".into(),
+        scenario,
+        seed,
+        noise: hil_mocks::world::Noise::TYPICAL,
+        can,
+        configuration: None,
+        max_duration: Some(std::time::Duration::from_secs(max_s)),
+    }
+}

@@ -3,47 +3,18 @@
 //! and another seed gives different ones.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
-use std::time::Duration;
-
 use amr_actors::config::{ConfigSource, load};
-use amr_core::config::ScenarioConfig;
-use amr_sim::{Sim, SimCan, SimOptions, SimReport};
-use hil_mocks::world::Noise;
-
-const SHORT: &str = r#"
-map = "paper-site"
-spacing_m = 0.9
-laps = 1
-segments = [{ straight_m = 1.0, turn_deg = 20.0 }]
-[start]
-x_m = -2.0
-y_m = 0.0
-yaw_deg = 0.0
-[limits]
-max_speed_mps = 0.22
-max_accel_mps2 = 0.05
-max_yaw_rate_radps = 0.2
-"#;
+use amr_sim::{Sim, SimCan, SimReport};
 
 /// One run in its own paused single-thread runtime.
 fn run(seed: u64) -> SimReport {
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().start_paused(true).build().unwrap();
     rt.block_on(async {
         let config = load(&ConfigSource::Embedded).unwrap();
-        let sim = Sim::start(
-            &config,
-            SimOptions {
-                scenario_name: "short".into(),
-                scenario: toml::from_str::<ScenarioConfig>(SHORT).unwrap(),
-                seed,
-                noise: Noise::TYPICAL,
-                can: SimCan::VirtualTime,
-                configuration: None,
-                max_duration: Some(Duration::from_secs(40)),
-            },
-        )
-        .await
-        .unwrap();
+        let scenario = hil_tests::short_scenario("[{ straight_m = 1.0, turn_deg = 20.0 }]");
+        let sim = Sim::start(&config, hil_tests::sim_options(scenario, seed, SimCan::VirtualTime, 40))
+            .await
+            .unwrap();
         sim.run(|_| {}).await;
         let report = sim.report();
         sim.shutdown().await;

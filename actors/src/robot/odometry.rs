@@ -56,6 +56,19 @@ pub fn arc(ds: f64, dtheta: f64) -> Se2 {
 }
 
 impl OdometryState {
+    /// At the origin of the odometry frame, nothing known of the gyro.
+    fn new(health: HealthCell) -> Self {
+        OdometryState {
+            pose: Se2::IDENTITY,
+            seq: 0,
+            gyro_sum: 0.0,
+            gyro_n: 0,
+            last_gyro_s: None,
+            bias: None,
+            health,
+        }
+    }
+
     /// Fold one wheel travel (and the gyro readings since the previous one) into the pose;
     /// returns whether the gyro gave the heading.
     fn step(&mut self, w: &WheelTravel, track_width_m: f64) -> bool {
@@ -96,15 +109,7 @@ impl Actor for OdometryActor {
         self.ports.imu.subscribe(myself, |g| Some(OdomMsgIn::Gyro(g)));
         let mut health = HealthCell::new(Device::Odometry);
         health.set(&self.ports, Health::Starting, "waiting for wheel travel");
-        Ok(OdometryState {
-            pose: Se2::IDENTITY,
-            seq: 0,
-            gyro_sum: 0.0,
-            gyro_n: 0,
-            last_gyro_s: None,
-            bias: None,
-            health,
-        })
+        Ok(OdometryState::new(health))
     }
 
     async fn handle(
@@ -151,15 +156,7 @@ mod tests {
     use super::*;
 
     fn state() -> OdometryState {
-        OdometryState {
-            pose: Se2::IDENTITY,
-            seq: 0,
-            gyro_sum: 0.0,
-            gyro_n: 0,
-            last_gyro_s: None,
-            bias: None,
-            health: HealthCell::new(Device::Odometry),
-        }
+        OdometryState::new(HealthCell::new(Device::Odometry))
     }
 
     fn gyro(s: &mut OdometryState, t: f64, rate: f64) {

@@ -193,24 +193,34 @@ pub async fn start_mock_imu(
 ) -> Result<MockImuHandle, MockImuError> {
     let link_path = options.link_path.clone().unwrap_or_else(default_link_path);
     let (master, pty_path) = plug(&link_path)?;
-    let stats =
-        Arc::new(Mutex::new(MockImuStats { pty_path: Some(pty_path), plugs: 1, ..MockImuStats::default() }));
+    let stats = MockImuStats { pty_path: Some(pty_path), plugs: 1, ..MockImuStats::default() };
+    Ok(spawn_runner(options, motion, Some(Box::new(master)), None, link_path, stats))
+}
+
+/// Start the runner task on `master` (the pty) or `pipes` (in memory).
+fn spawn_runner(
+    options: MockImuOptions,
+    motion: Box<dyn MotionSource>,
+    master: Option<Box<dyn Port>>,
+    pipes: Option<mpsc::Receiver<DuplexStream>>,
+    link_path: PathBuf,
+    stats: MockImuStats,
+) -> MockImuHandle {
+    let stats = Arc::new(Mutex::new(stats));
     let (control, control_rx) = mpsc::channel(16);
-    let task = tokio::spawn(
-        Runner {
-            device: MockDevice::new(options.device),
-            motion,
-            master: Some(Box::new(master)),
-            pipes: None,
-            plugged: true,
-            link_path: link_path.clone(),
-            stats: stats.clone(),
-            silent: false,
-            started: Instant::now(),
-        }
-        .run(control_rx),
-    );
-    Ok(MockImuHandle { link_path, control, stats, task })
+    let runner = Runner {
+        device: MockDevice::new(options.device),
+        motion,
+        master,
+        pipes,
+        plugged: true,
+        link_path: link_path.clone(),
+        stats: stats.clone(),
+        silent: false,
+        started: Instant::now(),
+    };
+    let task = tokio::spawn(runner.run(control_rx));
+    MockImuHandle { link_path, control, stats, task }
 }
 
 /// Opens in-memory connections to a mock made by [`start_mock_imu_in_memory`] (what opening the
@@ -237,24 +247,9 @@ pub fn start_mock_imu_in_memory(
     motion: Box<dyn MotionSource>,
 ) -> (MockImuHandle, ImuConnector) {
     let link_path = PathBuf::from("in-memory-imu");
-    let stats = Arc::new(Mutex::new(MockImuStats { plugs: 1, ..MockImuStats::default() }));
-    let (control, control_rx) = mpsc::channel(16);
     let (tx, rx) = mpsc::channel(4);
-    let task = tokio::spawn(
-        Runner {
-            device: MockDevice::new(options.device),
-            motion,
-            master: None,
-            pipes: Some(rx),
-            plugged: true,
-            link_path: link_path.clone(),
-            stats: stats.clone(),
-            silent: false,
-            started: Instant::now(),
-        }
-        .run(control_rx),
-    );
-    (MockImuHandle { link_path, control, stats, task }, ImuConnector { tx })
+    let stats = MockImuStats { plugs: 1, ..MockImuStats::default() };
+    (spawn_runner(options, motion, None, Some(rx), link_path, stats), ImuConnector { tx })
 }
 
 /// Starts the mock the way `amr mock imu --rate <hz>` will: a slowly turning body

@@ -45,6 +45,15 @@ fn drives_safe(rig: &RobotRig) -> bool {
     })
 }
 
+/// The end of a drill in which nothing may restart: no supervision event after `n0`; keep the
+/// counters; shut the robot down.
+async fn end_without_restarts(rig: RobotRig, c: &mut Check, n0: usize) {
+    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    c.events = events_from(&rig, n0);
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+}
+
 /// Drill 1: the LiDAR actor panics; it alone is restarted.
 pub(crate) async fn lidar_panic(config: &Config, seed: u64, c: &mut Check) {
     let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
@@ -242,10 +251,7 @@ pub(crate) async fn lidar_stall(config: &Config, seed: u64, c: &mut Check) {
     c.recovery = c
         .within("LiDAR Ok again", Duration::from_secs(8), || health(&rig, Device::Lidar) == Some(Health::Ok))
         .await;
-    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    end_without_restarts(rig, c, n0).await;
 }
 
 /// Drill 4c: the IMU's tty disappears and comes back.
@@ -274,10 +280,7 @@ pub(crate) async fn imu_unplug(config: &Config, seed: u64, c: &mut Check) {
                 && health(&rig, Device::Odometry) == Some(Health::Ok)
         })
         .await;
-    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    end_without_restarts(rig, c, n0).await;
 }
 
 /// Drill 4e: the CAN link (socketcand over TCP) breaks and refuses connections for a while.
@@ -324,10 +327,7 @@ pub(crate) async fn can_link_reset(config: &Config, seed: u64, c: &mut Check) {
         rig.mocks.drives.iter().map(|d| d.now().enables_unconfigured).sum::<u32>(),
         0,
     );
-    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    end_without_restarts(rig, c, n0).await;
 }
 
 /// Drives heartbeat loss (drill 5) and bus-off (drill 4d) share this: the drive falls silent while
@@ -420,10 +420,7 @@ pub(crate) async fn drive_reboot(config: &Config, seed: u64, c: &mut Check) {
     c.eq("boot-ups", after.boots, before.boots + 1);
     c.eq("enables without configuration", after.enables_unconfigured, 0);
     c.eq("0x1016 written again", after.master_consumer != 0, true);
-    c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    end_without_restarts(rig, c, n0).await;
 }
 
 /// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.
