@@ -139,6 +139,9 @@ enum Command {
         name: String,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Length of the chaos soak, seconds (default 600: ten minutes).
+        #[arg(long, default_value_t = 600)]
+        soak_seconds: u64,
         /// Also write the outcomes as JSON to this file (`-`: standard output, after the table).
         #[arg(long)]
         json: Option<PathBuf>,
@@ -311,7 +314,9 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
-        Command::Drill { name, seed, json, config } => sim_cmd::drill(&name, seed, json.as_deref(), config),
+        Command::Drill { name, seed, soak_seconds, json, config } => {
+            sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
+        }
         Command::Server { config, scenario, seed } => sim_cmd::server(&config, &scenario, seed),
         Command::Eval { scenario, trials, seed, out, config, robots, sweep } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;

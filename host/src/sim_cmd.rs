@@ -179,6 +179,7 @@ pub(crate) fn server(file: &Path, scenario: &str, seed: u64) -> anyhow::Result<(
 pub(crate) fn drill(
     name: &str,
     seed: u64,
+    soak_seconds: u64,
     json: Option<&Path>,
     config: Option<PathBuf>,
 ) -> anyhow::Result<()> {
@@ -195,7 +196,9 @@ pub(crate) fn drill(
         let mut out = Vec::new();
         for n in names {
             tracing::info!(drill = n, "running");
-            if let Some(o) = amr_sim::drills::run(n, &config, seed).await {
+            if n == "soak" {
+                out.push(amr_sim::drills::soak(&config, seed, Duration::from_secs(soak_seconds)).await);
+            } else if let Some(o) = amr_sim::drills::run(n, &config, seed).await {
                 out.push(o);
             }
         }

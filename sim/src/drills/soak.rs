@@ -359,8 +359,13 @@ pub(crate) async fn soak(config: &Config, seed: u64, length: Duration, c: &mut C
             (Some(Phase::Running), Some((_, false))) | (_, None) => {}
             (_, Some((_, left))) => *left = true,
         }
+        if ph == Some(Phase::Running) && all_turning(&sim) {
+            s.count("moving_ms".into(), 10);
+        }
+        // A stopped formation, or a restarted server's waiting one, is re-armed (as an operator
+        // would once the fault is gone), so the robots drive most of the soak.
         if active.is_none()
-            && matches!(ph, Some(Phase::Stopped { .. }))
+            && matches!(ph, Some(Phase::Stopped { .. } | Phase::Waiting))
             && last_rearm.elapsed() > Duration::from_secs(3)
         {
             last_rearm = Instant::now();
@@ -470,6 +475,16 @@ pub(crate) async fn soak(config: &Config, seed: u64, length: Duration, c: &mut C
     c.that(
         injected >= want && kinds >= 3,
         format!("{injected} faults of {kinds} kinds injected (≥ {want}, ≥ 3 kinds)"),
+    );
+    // The faults met moving robots: the formation drove for a good part of the soak.
+    let moving = s.counters.get("moving_ms").copied().unwrap_or(0);
+    c.that(
+        moving as f64 >= 0.25 * length.as_millis() as f64,
+        format!(
+            "the robots drove {:.0} s of the {:.0} s soak (≥ 25 %)",
+            moving as f64 / 1000.0,
+            length.as_secs_f64()
+        ),
     );
     for v in std::mem::take(&mut s.violations) {
         c.fail(format!("invariant: {v}"));
