@@ -49,6 +49,12 @@ fn drives_safe(rig: &RobotRig) -> bool {
 /// counters; shut the robot down.
 async fn end_without_restarts(rig: RobotRig, c: &mut Check, n0: usize) {
     c.eq("supervision events (no restart)", events_from(&rig, n0), vec![]);
+    wrap_up(rig, c, n0).await;
+}
+
+/// The end of a drill: keep the supervision events after `n0` and the counters; shut the robot
+/// down.
+async fn wrap_up(rig: RobotRig, c: &mut Check, n0: usize) {
     c.events = events_from(&rig, n0);
     keep_counters(&rig, c);
     rig.tree.shutdown().await;
@@ -93,9 +99,7 @@ pub(crate) async fn lidar_panic(config: &Config, seed: u64, c: &mut Check) {
     let now = (child(&sup, "imu").await.map(|c| c.get_id()), child(&sup, "drives").await.map(|c| c.get_id()));
     c.eq("IMU and drives actors (same ids)", now, others);
     c.eq("drive enables", rig.mocks.drives[0].now().enables, enables);
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    wrap_up(rig, c, n0).await;
 }
 
 /// Drill 2: a device actor that fails every time it starts: escalation, the robot stopped and
@@ -205,9 +209,7 @@ pub(crate) async fn can_bus_restart(config: &Config, seed: u64, c: &mut Check) {
         rig.mocks.drives.iter().map(|d| d.now().enables_unconfigured).sum::<u32>(),
         0,
     );
-    c.events = events_from(&rig, n0);
-    keep_counters(&rig, c);
-    rig.tree.shutdown().await;
+    wrap_up(rig, c, n0).await;
 }
 
 /// Drill 4a: the LiDAR's TCP connection is reset and refused for a while.

@@ -266,6 +266,19 @@ async fn watchdog_stop(sim: &Sim, c: &mut Check, robots: &[usize]) {
     }
 }
 
+/// The operator re-arms: recovery is the time from the re-arm to the formation running with every
+/// wheel turning.
+async fn rearm_and_run(sim: &Sim, c: &mut Check) {
+    let rearm = c.since_injection();
+    c.that(sim.server.rearm().await, "re-arm accepted");
+    c.recovery = c
+        .within("the formation running again, the wheels turning", Duration::from_secs(15), || {
+            phase(sim) == Some(Phase::Running) && all_turning(sim)
+        })
+        .await
+        .map(|t| t.saturating_sub(rearm));
+}
+
 /// Drill 8: the link between the robots and the server is lost — held, as a stalled transport
 /// would: nothing passes, and the backlog (the commands the server sent meanwhile) is delivered
 /// late when it returns, the worst case for stale commands.
@@ -316,14 +329,7 @@ pub(crate) async fn link_lost(config: &Config, seed: u64, c: &mut Check) {
         c.that(late >= 1, format!("{}: the late commands refused ({late})", ids[i]));
     }
     // The operator re-arms.
-    let rearm = c.since_injection();
-    c.that(sim.server.rearm().await, "re-arm accepted");
-    c.recovery = c
-        .within("the formation running again, the wheels turning", Duration::from_secs(15), || {
-            phase(&sim) == Some(Phase::Running) && all_turning(&sim)
-        })
-        .await
-        .map(|t| t.saturating_sub(rearm));
+    rearm_and_run(&sim, c).await;
     c.counters.insert("link_returned_ms".into(), ms(returned));
     c.eq(
         "formation phases after the fault",
@@ -388,14 +394,7 @@ pub(crate) async fn server_restart(config: &Config, seed: u64, c: &mut Check) {
         matches!(phase(&sim), Some(Phase::Waiting)),
         format!("the new formation waits: {:?}", phase(&sim)),
     );
-    let rearm = c.since_injection();
-    c.that(sim.server.rearm().await, "re-arm accepted");
-    c.recovery = c
-        .within("the formation running again, the wheels turning", Duration::from_secs(15), || {
-            phase(&sim) == Some(Phase::Running) && all_turning(&sim)
-        })
-        .await
-        .map(|t| t.saturating_sub(rearm));
+    rearm_and_run(&sim, c).await;
     let plan_after = sim.formation().map_or(0.0, |f| f.plan_s);
     c.that(
         plan_after > 0.5 * plan_before,
