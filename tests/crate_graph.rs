@@ -1,13 +1,23 @@
 //! The crate graph points one way (`../shared/ARCHITECTURE.md`): core and drivers depend on nothing
-//! of ours, actors and hil-mocks only on core and drivers, the simulation on those four, the tests
+//! of ours, actors and hil-mocks only on core and drivers, the simulation on those four, the network
+//! link and the recorder on core and actors, the tests
 //! on everything but host, and nothing at all depends on host.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 7] =
-    ["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "host", "hil-tests"];
+const OURS: [&str; 9] = [
+    "amr-core",
+    "amr-drivers",
+    "amr-actors",
+    "hil-mocks",
+    "amr-sim",
+    "amr-net",
+    "amr-record",
+    "host",
+    "hil-tests",
+];
 
 fn our_deps(member_dir: &str) -> (String, BTreeSet<String>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(member_dir).join("Cargo.toml");
@@ -38,9 +48,22 @@ fn dependencies_point_one_way() {
             "amr-actors" | "hil-mocks" => &["amr-core", "amr-drivers"],
             // The simulation wires the actors to the mocks; `amr sim` and the HIL tests share it.
             "amr-sim" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks"],
-            "hil-tests" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim"],
+            // The network link and the recorder carry the actors' messages and ports.
+            "amr-net" | "amr-record" => &["amr-core", "amr-actors"],
+            "hil-tests" => {
+                &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "amr-net", "amr-record"]
+            }
             // host is the wiring: it may use every library, and its tests use the fixtures crate.
-            "host" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "hil-tests"],
+            "host" => &[
+                "amr-core",
+                "amr-drivers",
+                "amr-actors",
+                "hil-mocks",
+                "amr-sim",
+                "amr-net",
+                "amr-record",
+                "hil-tests",
+            ],
             other => panic!("unknown member {other}"),
         }
     };
