@@ -9,7 +9,7 @@ use amr_core::config::{AmclParams, Configuration};
 use amr_core::se2::Se2;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{Anchored, Estimate, EstimateSource, FusedFrame, ServerPorts, ServerStats};
+use super::ports::{Anchored, Estimate, EstimateSource, FusedFrame, ParticleCloud, ServerPorts, ServerStats};
 use crate::messages::{ScanMsg, Uplink};
 
 /// Spread of the initial particle clouds (a pose given by the operator or the scenario).
@@ -87,10 +87,13 @@ impl Actor for AmclActor {
                 };
                 let points = scan_points(&s.scan, mount, &self.params);
                 let stall = state.stall;
-                super::compute(|| {
+                let outcome = super::compute(|| {
                     stalled(stall);
                     filter.update(s.odom, &points, false)
                 });
+                if matches!(outcome, amr_core::amcl::UpdateOutcome::Updated { .. }) {
+                    self.publish_particles(EstimateSource::Robot(i), s.stamp_s, filter);
+                }
                 if let Some(map) = filter.pose_at(&s.odom) {
                     self.ports.corrections.send_modify(|c| {
                         if let Some(slot) = c.get_mut(i) {
@@ -121,6 +124,9 @@ impl Actor for AmclActor {
                             filter.update(f.v_odom, points, false)
                         });
                         ran = matches!(outcome, amr_core::amcl::UpdateOutcome::Updated { .. });
+                        if ran {
+                            self.publish_particles(EstimateSource::Fused(f.configuration), f.stamp_s, filter);
+                        }
                         state.virtual_filter.pose_at(&f.v_odom)
                     }
                     // T1: V from the reference robot's own AMCL (the relative poses came from AMCL).
@@ -159,6 +165,13 @@ impl Actor for AmclActor {
             }
         }
         Ok(())
+    }
+}
+
+impl AmclActor {
+    fn publish_particles(&self, source: EstimateSource, stamp_s: f64, filter: &Amcl) {
+        let poses = Arc::new(filter.particles().iter().map(|p| p.pose).collect());
+        self.ports.particles.send(ParticleCloud { source, stamp_s, poses });
     }
 }
 

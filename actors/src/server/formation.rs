@@ -146,6 +146,7 @@ impl FormationActor {
         let r = &mut state.robots[robot];
         r.seq += 1;
         let m = msg(r.seq);
+        self.ports.commands.send((robot, m));
         if !self.link.send(&self.ports.robots[robot], m) {
             tracing::debug!(robot = %self.ports.robots[robot], "formation: downlink full or closed");
         }

@@ -9,7 +9,7 @@ use ractor::OutputPort;
 use tokio::sync::watch;
 
 use crate::clock::FleetClock;
-use crate::messages::Uplink;
+use crate::messages::{Downlink, Uplink};
 
 /// Times of one fused update's stages, seconds (the paper's Table 4 rows).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -81,6 +81,14 @@ pub enum FusionStatus {
     RobotLost(usize),
 }
 
+/// A filter's particles after an update that ran (for recording and the live view).
+#[derive(Debug, Clone)]
+pub struct ParticleCloud {
+    pub source: EstimateSource,
+    pub stamp_s: f64,
+    pub poses: Arc<Vec<Se2>>,
+}
+
 /// Per-stage latencies of every fused update that produced an estimate.
 #[derive(Debug, Clone, Default)]
 pub struct LatencyLog(Arc<Mutex<Vec<StageTimes>>>);
@@ -135,6 +143,10 @@ pub struct ServerPorts {
     pub fused: OutputPort<FusedFrame>,
     pub estimates: OutputPort<Estimate>,
     pub status: OutputPort<FusionStatus>,
+    /// Every filter update's particles (for recording and the live view).
+    pub particles: OutputPort<ParticleCloud>,
+    /// Every message the formation sent down the link, with the robot's formation index.
+    pub commands: OutputPort<(usize, Downlink)>,
     /// Per robot: `T_odom^map` of its own AMCL (map pose = this · odometry pose).
     pub corrections: watch::Sender<Vec<Option<Se2>>>,
     pub latency: LatencyLog,
@@ -152,6 +164,8 @@ impl ServerPorts {
             fused: OutputPort::default(),
             estimates: OutputPort::default(),
             status: OutputPort::default(),
+            particles: OutputPort::default(),
+            commands: OutputPort::default(),
             corrections: watch::Sender::new(vec![None; n]),
             latency: LatencyLog::default(),
             stats: ServerStats {

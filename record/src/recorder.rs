@@ -1,0 +1,294 @@
+//! The recorder: an actor subscribed to the server's and/or the robots' ports that writes every
+//! message to an MCAP file and/or the live view. Messages are written in the order the actor
+//! receives them, stamped with the fleet clock at that moment (MCAP `log_time`, non-decreasing);
+//! the message's own stamp is its `publish_time`.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, PoisonError, RwLock};
+use std::time::Duration;
+
+use amr_actors::clock::FleetClock;
+use amr_actors::robot::ports::RobotPorts;
+use amr_actors::server::ports::ServerPorts;
+use amr_core::map::OccupancyGrid;
+use amr_core::se2::Se2;
+use ractor::{Actor, ActorProcessingErr, ActorRef, RpcReplyPort};
+
+use crate::encode::{Encoder, Event, Out};
+use crate::live::Hub;
+use crate::sink::{FlushPolicy, McapFile, SinkError, WriteStats};
+use crate::wire::FusedRecord;
+
+/// What to record.
+#[derive(Debug, Clone)]
+pub struct RecordSources {
+    pub clock: FleetClock,
+    /// The fusion server (`amr server`, `amr sim`, `amr eval`).
+    pub server: Option<Arc<ServerPorts>>,
+    /// Robots whose own ports to record (`amr robot`; in `amr sim` the server's uplink already
+    /// carries their scans, odometry, health and safety: add robots here only for IMU and wheels).
+    pub robots: Vec<Arc<RobotPorts>>,
+    /// Written once as `/map`.
+    pub map: Option<OccupancyGrid>,
+    /// Each robot's LiDAR in its base, written once on `/tf`.
+    pub mounts: Vec<(String, Se2)>,
+    /// Written as the MCAP metadata record `amr` (e.g. command, configuration, seed).
+    pub metadata: BTreeMap<String, String>,
+    /// Log lines from a [`crate::log_layer::LogLayer`] built on this tap go to `/log`.
+    pub logs: Option<LogTap>,
+}
+
+impl RecordSources {
+    /// Nothing yet, on `clock`.
+    #[must_use]
+    pub fn new(clock: FleetClock) -> Self {
+        RecordSources {
+            clock,
+            server: None,
+            robots: Vec::new(),
+            map: None,
+            mounts: Vec::new(),
+            metadata: BTreeMap::new(),
+            logs: None,
+        }
+    }
+}
+
+/// Where to record.
+#[derive(Debug, Clone, Default)]
+pub struct RecordOptions {
+    pub file: Option<PathBuf>,
+    pub live: Option<Hub>,
+    pub flush: FlushPolicy,
+}
+
+/// Why recording could not start or finish.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error(transparent)]
+    Sink(#[from] SinkError),
+    #[error("the recorder actor: {0}")]
+    Actor(String),
+}
+
+/// Where log lines go: set while a recorder runs.
+#[derive(Debug, Clone, Default)]
+pub struct LogTap(pub(crate) Arc<RwLock<Option<ActorRef<RecMsg>>>>);
+
+impl LogTap {
+    pub(crate) fn send(&self, ev: Event) {
+        if let Some(a) = self.0.read().unwrap_or_else(PoisonError::into_inner).as_ref() {
+            let _ = a.cast(RecMsg::Event(Box::new(ev)));
+        }
+    }
+
+    fn set(&self, to: Option<ActorRef<RecMsg>>) {
+        *self.0.write().unwrap_or_else(PoisonError::into_inner) = to;
+    }
+}
+
+/// Messages of the recorder actor.
+#[derive(Debug)]
+pub enum RecMsg {
+    Event(Box<Event>),
+    /// Close the open chunk if it has waited long enough.
+    Tick,
+    /// Finish the file and stop.
+    Stop(RpcReplyPort<Result<WriteStats, String>>),
+}
+
+struct RecorderActor;
+
+struct Args {
+    options: RecordOptions,
+    sources: RecordSources,
+}
+
+struct State {
+    clock: FleetClock,
+    encoder: Encoder,
+    file: Option<McapFile>,
+    live: Option<Hub>,
+    logs: Option<LogTap>,
+    /// The first write error (the file is then closed; the live view goes on).
+    failed: Option<String>,
+}
+
+impl State {
+    fn put(&mut self, now_s: f64, ev: &Event) {
+        let outs: Vec<Out> = match self.encoder.encode(now_s, ev) {
+            Ok(o) => o,
+            Err(e) => {
+                tracing::debug!(error = %e, "record: event not encodable");
+                return;
+            }
+        };
+        for out in &outs {
+            if let Some(f) = &mut self.file
+                && let Err(e) = f.write(out)
+            {
+                tracing::error!(error = %e, "record: writing the file failed; recording stops");
+                self.failed = Some(e.to_string());
+                self.file = None;
+            }
+            if let Some(h) = &self.live {
+                h.publish(out);
+            }
+        }
+    }
+}
+
+fn subscribe_server(me: &ActorRef<RecMsg>, p: &ServerPorts) {
+    let ev = |e: Event| Some(RecMsg::Event(Box::new(e)));
+    p.uplink.subscribe(me.clone(), move |u| ev(Event::Uplink(u)));
+    p.fused.subscribe(me.clone(), move |f| ev(Event::Fused(FusedRecord::of(&f))));
+    p.estimates.subscribe(me.clone(), move |e| ev(Event::Estimate(e)));
+    p.status.subscribe(me.clone(), move |s| ev(Event::Status(s)));
+    p.particles.subscribe(me.clone(), move |c| ev(Event::Particles(c)));
+    p.commands.subscribe(me.clone(), move |(i, d)| ev(Event::Command(i, d)));
+}
+
+fn subscribe_robot(me: &ActorRef<RecMsg>, p: &RobotPorts) {
+    let ev = |e: Event| Some(RecMsg::Event(Box::new(e)));
+    let id = p.robot.clone();
+    let r = id.clone();
+    p.scans.subscribe(me.clone(), move |s| ev(Event::Scan(r.clone(), s)));
+    let r = id.clone();
+    p.imu.subscribe(me.clone(), move |s| ev(Event::Imu(r.clone(), s)));
+    let r = id.clone();
+    p.wheels.subscribe(me.clone(), move |s| ev(Event::Wheels(r.clone(), s)));
+    let r = id.clone();
+    p.odom.subscribe(me.clone(), move |s| ev(Event::Odom(r.clone(), s)));
+    let r = id.clone();
+    p.health.subscribe(me.clone(), move |s| ev(Event::Health(r.clone(), s)));
+    let r = id.clone();
+    p.safety.subscribe(me.clone(), move |s| ev(Event::Safety(r.clone(), s)));
+    p.downlink.subscribe(me.clone(), move |s| ev(Event::Downlink(id.clone(), s)));
+}
+
+impl Actor for RecorderActor {
+    type Msg = RecMsg;
+    type State = State;
+    type Arguments = Args;
+
+    async fn pre_start(&self, me: ActorRef<RecMsg>, args: Args) -> Result<State, ActorProcessingErr> {
+        let Args { options, sources } = args;
+        let mut file = match &options.file {
+            Some(path) => Some(McapFile::create(path, options.flush)?),
+            None => None,
+        };
+        if let Some(f) = &mut file
+            && !sources.metadata.is_empty()
+        {
+            f.metadata("amr", sources.metadata.clone())?;
+        }
+        let robots = sources.server.as_ref().map(|s| s.robots.clone()).unwrap_or_default();
+        let mut state = State {
+            clock: sources.clock,
+            encoder: Encoder::new(robots),
+            file,
+            live: options.live,
+            logs: sources.logs.clone(),
+            failed: None,
+        };
+        let now = state.clock.now_s();
+        if let Some(m) = sources.map {
+            state.put(now, &Event::Map(m));
+        }
+        if !sources.mounts.is_empty() {
+            state.put(now, &Event::Mounts(sources.mounts));
+        }
+        if let Some(s) = &sources.server {
+            subscribe_server(&me, s);
+        }
+        for r in &sources.robots {
+            subscribe_robot(&me, r);
+        }
+        if let Some(t) = &sources.logs {
+            t.set(Some(me.clone()));
+        }
+        me.send_interval(Duration::from_millis(250), || RecMsg::Tick);
+        Ok(state)
+    }
+
+    async fn handle(
+        &self,
+        me: ActorRef<RecMsg>,
+        msg: RecMsg,
+        state: &mut State,
+    ) -> Result<(), ActorProcessingErr> {
+        match msg {
+            RecMsg::Event(ev) => {
+                let now = state.clock.now_s();
+                state.put(now, &ev);
+            }
+            RecMsg::Tick => {
+                // A quiet stream still reaches the disk within the policy's interval.
+                let now = crate::foxglove::nanos(state.clock.now_s());
+                if let Some(f) = &mut state.file
+                    && let Err(e) = f.flush_if_due(now)
+                {
+                    state.failed = Some(e.to_string());
+                    state.file = None;
+                }
+            }
+            RecMsg::Stop(reply) => {
+                if let Some(t) = &state.logs {
+                    t.set(None);
+                }
+                let result = match (state.file.take(), state.failed.take()) {
+                    (_, Some(e)) => Err(e),
+                    (Some(f), None) => f.finish().map_err(|e| e.to_string()),
+                    (None, None) => Ok(WriteStats::default()),
+                };
+                let _ = reply.send(result);
+                me.stop(None);
+            }
+        }
+        Ok(())
+    }
+
+    async fn post_stop(&self, _me: ActorRef<RecMsg>, state: &mut State) -> Result<(), ActorProcessingErr> {
+        if let Some(t) = &state.logs {
+            t.set(None);
+        }
+        // Stopped without `Stop` (e.g. killed with its parent): still finish the file.
+        if let Some(f) = state.file.take() {
+            f.finish()?;
+        }
+        Ok(())
+    }
+}
+
+/// A running recorder.
+#[derive(Debug)]
+pub struct Recorder {
+    actor: ActorRef<RecMsg>,
+    join: tokio::task::JoinHandle<()>,
+}
+
+impl Recorder {
+    /// Open the file (if any), write the map, the mounts and the metadata, and subscribe to every
+    /// port of `sources`. Start it before the robots send anything: a replay begins with the
+    /// first recorded message.
+    pub async fn start(options: RecordOptions, sources: RecordSources) -> Result<Recorder, RecordError> {
+        let (actor, join) = Actor::spawn(None, RecorderActor, Args { options, sources })
+            .await
+            .map_err(|e| RecordError::Actor(e.to_string()))?;
+        Ok(Recorder { actor, join })
+    }
+
+    /// Write what is queued, finish the file (summary and index) and stop.
+    pub async fn stop(self) -> Result<WriteStats, RecordError> {
+        let r = ractor::call!(self.actor, RecMsg::Stop).map_err(|e| RecordError::Actor(e.to_string()))?;
+        let _ = self.join.await;
+        r.map_err(RecordError::Actor)
+    }
+
+    /// The actor, to send it events by hand (tests, or sources that are not ports).
+    #[must_use]
+    pub fn actor(&self) -> &ActorRef<RecMsg> {
+        &self.actor
+    }
+}
