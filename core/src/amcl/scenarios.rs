@@ -134,22 +134,29 @@ fn run(amcl: &mut Amcl, b: &Building, truth: &[Se2], odom: &[Se2], seed: u64, pa
 
 /// nav2's defaults assume poor odometry (α = 0.2: σ ≈ 13 cm per 0.3 m step) and a coarse sensor
 /// (σ_hit = 0.2 m); for the odometry and the TiM-like scanner here they are set as a user would.
+/// The odometry below errs by 1 % ± 0.5 % in distance and 0.3°/m in heading; α = 0.005 gives
+/// σ_trans ≈ 7 % of the distance and σ_rot ≈ 1.2° per 0.3 m, still about five times that error.
 fn tuned_params() -> AmclParams {
     let mut p = shipped_params();
-    let a = crate::config::value::NonNegative::new(0.02).unwrap();
+    let a = crate::config::value::NonNegative::new(0.005).unwrap();
     (p.alpha1, p.alpha2, p.alpha3, p.alpha4) = (a, a, a, a);
     // A TiM551 is far better than nav2's generic σ_hit = 0.2 m, and the product model uses it.
     p.sigma_hit = crate::config::value::Positive::new(0.1).unwrap();
     p.laser_model_type = crate::config::LaserModel::LikelihoodFieldProb;
     p.max_beams = crate::config::value::Count::new(120).unwrap();
-    p.max_beams = crate::config::value::Count::new(120).unwrap();
     p
 }
 
-/// Tracking from a known pose through the corridor and into a room, with 1 % odometry scale error.
-/// Measured (seeded, so exact): 42 updates, worst 5.3 cm, RMS 3.1 cm, worst heading 0.94°. The goal is "within 5 cm";
-/// the worst updates are in the corridor, where only the door jambs fix the position along it. The
-/// bounds below are what holds now, so a regression shows; the 5 cm goal is not yet met.
+/// Tracking from a known pose (10 cm / 3° off, spread 10 cm / 3°) through the corridor and into a
+/// room, with 1 % odometry scale error: every estimate from the first filter update on is within
+/// 5 cm. Measured (seeded, so exact): 44 updates, worst 4.3 cm, RMS 1.9 cm, worst heading 0.28°;
+/// over 20 seeds (`tracking_holds_over_seeds`) this seed is the worst.
+///
+/// History: with nav2's likelihood field (distance to occupied cell centres, 0 inside walls) and
+/// α = 0.02 the worst was 5.3 cm; with that field and α = 0.005, 4.3–5.2 cm over the same 20 seeds.
+/// The corridor's position along its length is fixed only by faces seen from one side, where nav2's
+/// field is flat over the wall's thickness (see `likelihood.rs`); with the distance to the surface it
+/// is 2.7–4.3 cm.
 #[test]
 fn tracking_from_a_known_pose_stays_close() {
     let b = building();
@@ -161,19 +168,39 @@ fn tracking_from_a_known_pose_stays_close() {
     amcl.init_pose(Se2::new(1.05, 3.95, 0.03), 0.1, 0.05);
     let r = run(&mut amcl, &b, &truth, &odom, 21, &params);
     assert!(r.errors_m.len() > 30, "{} updates", r.errors_m.len());
-    // After two updates to converge from the initial spread:
-    let settled = &r.errors_m[2..];
-    let worst = settled.iter().copied().fold(0.0, f64::max);
-    let rms = (settled.iter().map(|e| e * e).sum::<f64>() / settled.len() as f64).sqrt();
-    let worst_heading = r.heading_errors_rad[2..].iter().copied().fold(0.0, f64::max);
+    // From the first update (it already has the first scan) to the end:
+    let worst = r.errors_m.iter().copied().fold(0.0, f64::max);
+    let rms = (r.errors_m.iter().map(|e| e * e).sum::<f64>() / r.errors_m.len() as f64).sqrt();
+    let worst_heading = r.heading_errors_rad.iter().copied().fold(0.0, f64::max);
     eprintln!(
         "tracking: {} updates, worst {worst:.4} m, RMS {rms:.4} m, worst heading {:.2}°",
-        settled.len(),
+        r.errors_m.len(),
         worst_heading.to_degrees()
     );
-    assert!(worst <= 0.06, "worst position error {worst:.3} m over {:?}", r.errors_m);
-    assert!(rms <= 0.04, "RMS position error {rms:.3} m");
-    assert!(worst_heading <= 2f64.to_radians(), "worst heading error {:.2}°", worst_heading.to_degrees());
+    assert!(worst <= 0.05, "worst position error {worst:.3} m over {:?}", r.errors_m);
+    assert!(rms <= 0.025, "RMS position error {rms:.3} m");
+    assert!(worst_heading <= 1f64.to_radians(), "worst heading error {:.2}°", worst_heading.to_degrees());
+}
+
+/// The same run with other seeds for the filter, the odometry noise and the range noise: the 5 cm
+/// bound is not one lucky draw.
+#[test]
+fn tracking_holds_over_seeds() {
+    let b = building();
+    let params = tuned_params();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let truth = path();
+    let mut worsts = Vec::new();
+    for s in 0..20u64 {
+        let odom = odometry(&truth, &mut Rng::seed(11 + 100 * s));
+        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 5 + s);
+        amcl.init_pose(Se2::new(1.05, 3.95, 0.03), 0.1, 0.05);
+        let r = run(&mut amcl, &b, &truth, &odom, 21 + s, &params);
+        worsts.push(r.errors_m.iter().copied().fold(0.0, f64::max));
+    }
+    let worst = worsts.iter().copied().fold(0.0, f64::max);
+    eprintln!("tracking over 20 seeds: worst {worst:.4} m");
+    assert!(worst <= 0.05, "worst position error per seed {worsts:?}");
 }
 
 #[test]
