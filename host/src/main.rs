@@ -3,6 +3,7 @@
 mod bench;
 mod config_cmd;
 mod eval_cmd;
+mod fleet_cmd;
 mod localize;
 mod mock_cmd;
 mod plots;
@@ -130,6 +131,15 @@ enum Command {
         /// and reproducible from the seed (times in the report are simulated).
         #[arg(long)]
         virtual_time: bool,
+        /// Only the world and every robot's mock devices, served on loopback (SOPAS/TCP,
+        /// socketcand/TCP, LPBUS/pty) for robot processes (`amr robot --mock`) and a server
+        /// process (`amr server`) on this machine. Writes the manifest of the devices' addresses.
+        #[arg(long)]
+        world_only: bool,
+        /// Where `--world-only` writes its manifest (default: amr-world.json in the temp directory,
+        /// where `amr robot --mock` looks).
+        #[arg(long)]
+        manifest: Option<PathBuf>,
     },
     /// Fault-recovery drills against the mock devices in real time: each injects a fault and checks
     /// detection, the safe state, recovery, the event log and the counters. Prints a table; exits
@@ -149,13 +159,24 @@ enum Command {
         #[arg(long)]
         config: Option<PathBuf>,
     },
-    /// One robot's actor tree on its real devices (from its configuration file), until Ctrl-C.
+    /// One robot's actor tree on its devices, linked to the fusion server over the network
+    /// (network.toml: Zenoh, user/password), until Ctrl-C or SIGTERM.
     Robot {
+        /// The robot's file (robot-<id>.toml); the rest of the configuration is read from its
+        /// directory.
         #[arg(long)]
         config: PathBuf,
+        /// Drive the robot's mock devices in a world served by `amr sim --world-only`, at the
+        /// addresses of its manifest (default: amr-world.json in the temp directory).
+        #[arg(long, num_args = 0..=1, value_name = "MANIFEST")]
+        mock: Option<Option<PathBuf>>,
+        #[command(flatten)]
+        net: fleet_cmd::NetArgs,
     },
-    /// The fusion server's actor tree, until Ctrl-C.
+    /// The fusion server's actor tree on the network link (network.toml), until Ctrl-C or SIGTERM.
+    /// Operator commands on standard input: `rearm`, `stop`.
     Server {
+        /// server.toml; the rest of the configuration is read from its directory.
         #[arg(long)]
         config: PathBuf,
         /// The scenario whose plan the formation follows once armed.
@@ -163,6 +184,12 @@ enum Command {
         scenario: String,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Arm the formation as soon as every robot is healthy and localised (otherwise: on
+        /// `rearm`).
+        #[arg(long)]
+        auto_arm: bool,
+        #[command(flatten)]
+        net: fleet_cmd::NetArgs,
     },
     #[command(subcommand)]
     Mock(MockCommand),
@@ -290,23 +317,41 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
-        Command::Sim { scenario, seed, configuration, duration, can, json, config, quiet, virtual_time } => {
-            match duration.map(std::time::Duration::try_from_secs_f64) {
-                Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
-                d => sim_cmd::sim(sim_cmd::SimArgs {
-                    scenario,
-                    seed,
-                    configuration,
-                    duration: d.and_then(Result::ok),
-                    can,
-                    json,
-                    config,
-                    quiet,
-                    virtual_time,
-                }),
-            }
+        Command::Sim { scenario, seed, config, world_only: true, manifest, .. } => fleet_cmd::world_only(
+            config,
+            &scenario,
+            seed,
+            &manifest.unwrap_or_else(fleet_cmd::default_manifest),
+        ),
+        Command::Sim {
+            scenario,
+            seed,
+            configuration,
+            duration,
+            can,
+            json,
+            config,
+            quiet,
+            virtual_time,
+            ..
+        } => match duration.map(std::time::Duration::try_from_secs_f64) {
+            Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
+            d => sim_cmd::sim(sim_cmd::SimArgs {
+                scenario,
+                seed,
+                configuration,
+                duration: d.and_then(Result::ok),
+                can,
+                json,
+                config,
+                quiet,
+                virtual_time,
+            }),
+        },
+        Command::Robot { config, mock, net } => {
+            let manifest = mock.map(|m| m.unwrap_or_else(fleet_cmd::default_manifest));
+            fleet_cmd::robot(&config, manifest.as_deref(), &net)
         }
-        Command::Robot { config } => sim_cmd::robot(&config),
         Command::Drill { name, .. } if name == "list" => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
             for d in amr_sim::drills::DRILLS {
@@ -317,7 +362,9 @@ fn main() -> ExitCode {
         Command::Drill { name, seed, soak_seconds, json, config } => {
             sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
         }
-        Command::Server { config, scenario, seed } => sim_cmd::server(&config, &scenario, seed),
+        Command::Server { config, scenario, seed, auto_arm, net } => {
+            fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net })
+        }
         Command::Eval { scenario, trials, seed, out, config, robots, sweep } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
             let report = match sweep {

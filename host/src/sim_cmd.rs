@@ -1,4 +1,4 @@
-//! `amr sim`, `amr robot` and `amr server`: wiring around amr-sim and the actor trees.
+//! `amr sim` and `amr drill`: wiring around amr-sim.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -101,76 +101,6 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
             std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
                 .with_context(|| format!("writing {}", path.display()))?;
         }
-        Ok(())
-    })
-}
-
-/// The configuration set around `file` (its directory), and the id written in it.
-fn config_around(file: &Path) -> anyhow::Result<(Config, String)> {
-    let dir = file.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let config = load(&ConfigSource::Dir(dir.to_path_buf()))?;
-    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
-    let table: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", file.display()))?;
-    let id = table.get("id").and_then(toml::Value::as_str).unwrap_or_default().to_owned();
-    Ok((config, id))
-}
-
-/// `amr robot --config FILE`: one robot's tree on its real devices, until Ctrl-C.
-pub(crate) fn robot(file: &Path) -> anyhow::Result<()> {
-    let (config, id) = config_around(file)?;
-    let robot = config
-        .robots
-        .iter()
-        .find(|r| r.id.as_str() == id)
-        .with_context(|| format!("{}: no robot with id `{id}`", file.display()))?
-        .clone();
-    runtime()?.block_on(async move {
-        // The network link to the server arrives with the fleet-networking issue; until then the
-        // robot runs its devices and its safety layer alone (disarmed: it never moves).
-        let (_server, mut ends, _control) = amr_actors::link::in_process(std::slice::from_ref(&id));
-        let end = ends.pop().context("no link end")?;
-        let tree = start_robot(
-            &robot,
-            DeviceOverrides::default(),
-            end,
-            FleetClock::start(),
-            RobotOptions::default(),
-        )
-        .await
-        .context("starting the robot")?;
-        tracing::info!(robot = %id, "robot running; Ctrl-C stops it (the drives quick-stop)");
-        tokio::signal::ctrl_c().await.context("waiting for Ctrl-C")?;
-        tree.shutdown().await;
-        Ok(())
-    })
-}
-
-/// `amr server --config FILE`: the fusion server tree, until Ctrl-C.
-pub(crate) fn server(file: &Path, scenario: &str, seed: u64) -> anyhow::Result<()> {
-    let (config, _) = config_around(file)?;
-    let robots = formation_robots(&config.server, &config.robots)?;
-    let sc = config.scenarios.get(scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
-    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
-    let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
-    runtime()?.block_on(async move {
-        // As for `amr robot`: the robots reach the server over the network link of the fleet
-        // issue; until then the server waits for them on its in-process link.
-        let (end, _robots, _control) = amr_actors::link::in_process(&ids);
-        let setup = ServerSetup {
-            server: config.server.clone(),
-            vamr: config.vamr.clone(),
-            amcl: config.amcl.clone(),
-            map,
-            robots,
-            scenario: sc,
-            seed,
-            auto_arm: false,
-            policy: RestartPolicy::default(),
-        };
-        let tree = start_server(setup, end, FleetClock::start()).await.context("starting the server")?;
-        tracing::info!("server running; Ctrl-C stops it");
-        tokio::signal::ctrl_c().await.context("waiting for Ctrl-C")?;
-        tree.shutdown().await;
         Ok(())
     })
 }

@@ -1,1 +1,28 @@
-//! The fleet over the network: Zenoh bridges that hand out the same robot and server link ends as the in-process link (issue 11).
+//! `amr-net`: the fleet over the network (issue 11). Robots and the fusion server run as separate
+//! processes and reach each other over Eclipse Zenoh; inside each process the actors stay on
+//! ractor. One bridge actor per process turns the link's channel ends ([`amr_actors::link`]) into
+//! Zenoh samples and back:
+//!
+//! | key | from → to | what |
+//! |---|---|---|
+//! | `fleet/<robot>/scan` | robot → server | scans with the odometry pose at their stamp |
+//! | `fleet/<robot>/odom` | robot → server | odometry |
+//! | `fleet/<robot>/health` | robot → server | health and safety-state changes |
+//! | `fleet/<robot>/cmd` | server → robot | velocity commands, arm, disarm |
+//! | `fleet/<robot>/alive` | robot (liveliness token) | the server sees a robot join and leave |
+//! | `fleet/server/status` | server → observers | the formation's phase and the robots alive |
+//!
+//! Security: peers authenticate with Zenoh's user/password (the server admits only the users of
+//! its credentials file); the server's access control lets no one but the server publish commands
+//! and no robot publish under another robot's keys; a robot also checks that a command names the
+//! configured server, is for it, and is newer than the last ([`wire::Freshness`]), and its safety
+//! layer refuses stale commands and stops by itself when commands stop. User/password
+//! authenticates but does not encrypt: on an untrusted network add Zenoh's TLS transport (not
+//! built in, to keep the build small) or a VPN.
+
+pub mod bridge;
+pub mod settings;
+pub mod wire;
+
+pub use bridge::{Bridge, BridgeStats, ServerBridge, decode_status, start_robot_bridge, start_server_bridge};
+pub use settings::{Credential, Credentials, NetError, NetSettings};

@@ -11,6 +11,7 @@
 
 pub mod drills;
 pub mod report;
+pub mod served;
 pub mod truth;
 
 use std::collections::BTreeMap;

@@ -18,6 +18,7 @@
 //! This module does no IO: callers read the files and hand over their text.
 
 mod amcl;
+mod network;
 mod robot;
 mod scenario;
 mod server;
@@ -32,6 +33,7 @@ use serde::de::DeserializeOwned;
 use crate::map::{MapYaml, OccupancyGrid, load_map};
 
 pub use amcl::{AmclParams, InitialPose, LaserModel};
+pub use network::{MAX_LEASE_MS, NetworkConfig, NetworkServer};
 pub use robot::{
     CanConfig, CanTransport, ChassisConfig, CommLossReaction, DeviceSource, DriveConfig, DrivesConfig,
     IMU_BAUD_RATES, IMU_STREAM_RATES_HZ, ImuConfig, ImuDataMode, KinematicsConfig, LidarConfig, LidarDialect,
@@ -173,6 +175,8 @@ pub enum FileKind {
     Server,
     Vamr,
     Amcl,
+    /// `network.toml`: the fleet's network link (optional).
+    Network,
     /// `maps/<name>.yaml`: a map's metadata.
     Map,
     /// `maps/<name>.pgm` or `.png`: a map's image, read through its YAML.
@@ -193,6 +197,7 @@ impl FileKind {
             "server.toml" => Ok(FileKind::Server),
             "vamr.toml" => Ok(FileKind::Vamr),
             "amcl.toml" => Ok(FileKind::Amcl),
+            "network.toml" => Ok(FileKind::Network),
             p if p.starts_with("robot-") && p.ends_with(".toml") && !p.contains('/') => Ok(FileKind::Robot),
             p if p.strip_prefix("scenarios/").is_some_and(|n| !n.contains('/') && n.ends_with(".toml")) => {
                 Ok(FileKind::Scenario)
@@ -207,7 +212,7 @@ impl FileKind {
                 }
             }
             _ => Err(
-                "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml, \
+                "unknown configuration file: expected robot-<id>.toml, server.toml, vamr.toml, amcl.toml, network.toml, \
                       maps/<name>.yaml, scenarios/<name>.toml or *.md documentation"
                     .to_owned(),
             ),
@@ -247,6 +252,8 @@ pub struct Config {
     pub maps: BTreeMap<String, OccupancyGrid>,
     /// Scenarios by name (`scenarios/<name>.toml`).
     pub scenarios: BTreeMap<String, ScenarioConfig>,
+    /// The network link (`network.toml`), if the set has one.
+    pub network: Option<NetworkConfig>,
 }
 
 impl Config {
@@ -255,7 +262,7 @@ impl Config {
     pub fn from_files(mut files: Vec<ConfigFile>) -> Result<Config, ConfigError> {
         files.sort_by(|a, b| a.path.cmp(&b.path));
         let mut robots: Vec<(String, RobotConfig)> = Vec::new();
-        let (mut server, mut vamr, mut amcl) = (None, None, None);
+        let (mut server, mut vamr, mut amcl, mut network) = (None, None, None, None);
         let mut maps = BTreeMap::new();
         let mut scenarios = BTreeMap::new();
         for f in &files {
@@ -270,6 +277,7 @@ impl Config {
                 FileKind::Server => server = Some(parse_file::<ServerConfig>(&f.path, f.text()?)?),
                 FileKind::Vamr => vamr = Some(parse_file::<VamrParams>(&f.path, f.text()?)?),
                 FileKind::Amcl => amcl = Some(parse_file::<AmclParams>(&f.path, f.text()?)?),
+                FileKind::Network => network = Some(parse_file::<NetworkConfig>(&f.path, f.text()?)?),
                 FileKind::Map => {
                     let (name, grid) = load_map_file(f, &files)?;
                     maps.insert(name, grid);
@@ -336,7 +344,7 @@ impl Config {
             }
             checked.insert(name, scenario);
         }
-        Ok(Config { robots, server, vamr, amcl, maps, scenarios: checked })
+        Ok(Config { robots, server, vamr, amcl, maps, scenarios: checked, network })
     }
 
     /// The robot with this id.

@@ -1,0 +1,114 @@
+//! `network.toml`: how the robots and the fusion server reach each other when they run as separate
+//! processes (Eclipse Zenoh, issue 11). The server listens; every robot connects to it. Discovery is
+//! by these endpoints only: multicast scouting and gossip stay off.
+//!
+//! Credentials are not part of the configuration (it is embedded in the binary and kept in version
+//! control): `credentials_file` names a file of `user:password` lines, Zenoh's dictionary format,
+//! that each machine keeps to itself.
+
+use serde::Deserialize;
+
+use super::value::Millis;
+use super::{ConfigFileType, RobotId, Violation, rule};
+
+/// The link's settings.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkConfig {
+    pub server: NetworkServer,
+    /// A peer whose session is silent this long is gone: Zenoh's transport lease, which is also
+    /// when the server sees a robot's liveliness token vanish. At most 2 s (issue 11).
+    pub lease_ms: Millis,
+    /// Keep-alive messages per lease (Zenoh's `keep_alive`, default 4).
+    pub keep_alive: u32,
+    /// `user:password` per line. The server reads every line (who may join); a robot reads its own
+    /// (user = its id). `amr robot|server --credentials FILE` overrides it.
+    pub credentials_file: String,
+}
+
+/// The fusion server's identity and endpoints.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkServer {
+    /// Its Zenoh user name; the only peer allowed to command a robot.
+    pub user: RobotId,
+    /// Zenoh endpoints the server listens on (`tcp/<address>:<port>`).
+    pub listen: Vec<String>,
+    /// Zenoh endpoints the robots connect to.
+    pub connect: Vec<String>,
+}
+
+/// Longest lease the issue allows, ms.
+pub const MAX_LEASE_MS: u32 = 2000;
+
+impl ConfigFileType for NetworkConfig {
+    fn validate(&self) -> Result<(), Violation> {
+        rule(
+            (100..=MAX_LEASE_MS).contains(&self.lease_ms.ms()),
+            "lease_ms",
+            format!("must be in 100..={MAX_LEASE_MS} ms (got {})", self.lease_ms.ms()),
+        )?;
+        rule(
+            (1..=10).contains(&self.keep_alive),
+            "keep_alive",
+            format!("must be in 1..=10 (got {})", self.keep_alive),
+        )?;
+        rule(!self.server.listen.is_empty(), "server.listen", "needs at least one endpoint".to_owned())?;
+        rule(!self.server.connect.is_empty(), "server.connect", "needs at least one endpoint".to_owned())?;
+        for (key, list) in [("server.listen", &self.server.listen), ("server.connect", &self.server.connect)]
+        {
+            for (i, e) in list.iter().enumerate() {
+                rule(
+                    tcp_endpoint(e),
+                    &format!("{key}[{i}]"),
+                    format!("`{e}`: expected tcp/<host>:<port> (only TCP is built in)"),
+                )?;
+            }
+        }
+        rule(!self.credentials_file.is_empty(), "credentials_file", "must name a file".to_owned())
+    }
+}
+
+/// `tcp/<host>:<port>` with a port number.
+fn tcp_endpoint(e: &str) -> bool {
+    e.strip_prefix("tcp/")
+        .and_then(|rest| rest.rsplit_once(':'))
+        .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::parse_file;
+
+    const GOOD: &str = r#"
+lease_ms = 2000
+keep_alive = 4
+credentials_file = "/etc/amr/fleet-credentials"
+[server]
+user = "server"
+listen = ["tcp/0.0.0.0:7447"]
+connect = ["tcp/192.168.0.10:7447"]
+"#;
+
+    #[test]
+    fn a_good_file_parses() {
+        let n: NetworkConfig = parse_file("network.toml", GOOD).unwrap();
+        assert_eq!(n.lease_ms.ms(), 2000);
+        assert_eq!(n.server.user.as_str(), "server");
+    }
+
+    #[test]
+    fn a_long_lease_and_a_non_tcp_endpoint_are_refused() {
+        let e = parse_file::<NetworkConfig>("network.toml", &GOOD.replace("2000", "5000")).unwrap_err();
+        assert_eq!(e.key, "lease_ms");
+        let e = parse_file::<NetworkConfig>("network.toml", &GOOD.replace("tcp/0.0.0.0", "udp/0.0.0.0"))
+            .unwrap_err();
+        assert_eq!(e.key, "server.listen[0]");
+        assert_eq!(e.line, Some(7));
+        let e =
+            parse_file::<NetworkConfig>("network.toml", &GOOD.replace(":7447\"]\nconnect", "\"]\nconnect"))
+                .unwrap_err();
+        assert!(e.rule.contains("expected tcp/<host>:<port>"), "{e}");
+    }
+}

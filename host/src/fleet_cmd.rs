@@ -1,0 +1,221 @@
+//! The fleet as separate processes over the network link (issue 11): `amr robot`, `amr server` and
+//! `amr sim --world-only`, the world whose mock devices `amr robot --mock` drives.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use amr_actors::clock::FleetClock;
+use amr_actors::config::{ConfigSource, load};
+use amr_actors::robot::{DeviceOverrides, RobotOptions, start_robot};
+use amr_actors::server::formation::{FormationMsg, Phase};
+use amr_actors::server::{ServerSetup, formation_robots, start_server};
+use amr_actors::supervisor::RestartPolicy;
+use amr_core::config::Config;
+use amr_net::NetSettings;
+use amr_net::wire::ServerStatus;
+use amr_sim::served::{WorldManifest, serve_world};
+use anyhow::Context;
+use tokio::io::AsyncBufReadExt as _;
+
+use crate::mock_cmd::runtime;
+
+/// Where `amr sim --world-only` writes its manifest and `amr robot --mock` reads it by default.
+pub(crate) fn default_manifest() -> PathBuf {
+    std::env::temp_dir().join("amr-world.json")
+}
+
+/// Network options shared by `amr robot` and `amr server`.
+#[derive(Debug, Clone, clap::Args)]
+pub(crate) struct NetArgs {
+    /// The `user:password` file (default: network.toml's `credentials_file`).
+    #[arg(long)]
+    pub credentials: Option<PathBuf>,
+    /// Zenoh endpoints instead of network.toml's (`amr server`: to listen on; `amr robot`: to
+    /// connect to), e.g. tcp/127.0.0.1:7447.
+    #[arg(long, value_delimiter = ',')]
+    pub endpoint: Vec<String>,
+}
+
+impl NetArgs {
+    fn settings(&self, config: &Config) -> anyhow::Result<NetSettings> {
+        let mut s = NetSettings::new(config.network.as_ref(), self.credentials.as_deref())
+            .context("setting up the network link")?;
+        if !self.endpoint.is_empty() {
+            s.listen = Some(self.endpoint.clone());
+            s.connect = Some(self.endpoint.clone());
+        }
+        Ok(s)
+    }
+}
+
+/// The configuration set around `file` (its directory), and the id written in it.
+fn config_around(file: &Path) -> anyhow::Result<(Config, String)> {
+    let dir = file.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let config = load(&ConfigSource::Dir(dir.to_path_buf()))?;
+    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let table: toml::Table = toml::from_str(&text).with_context(|| format!("parsing {}", file.display()))?;
+    let id = table.get("id").and_then(toml::Value::as_str).unwrap_or_default().to_owned();
+    Ok((config, id))
+}
+
+/// Ctrl-C or SIGTERM.
+async fn stop_signal() -> anyhow::Result<()> {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("listening for SIGTERM")?;
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => r.context("waiting for Ctrl-C")?,
+        _ = term.recv() => {}
+    }
+    Ok(())
+}
+
+/// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
+/// network, until Ctrl-C or SIGTERM (the drives quick-stop).
+pub(crate) fn robot(file: &Path, mock: Option<&Path>, net: &NetArgs) -> anyhow::Result<()> {
+    let (config, id) = config_around(file)?;
+    let robot =
+        config.robot(&id).with_context(|| format!("{}: no robot with id `{id}`", file.display()))?.clone();
+    let settings = net.settings(&config)?;
+    let overrides = match mock {
+        None => DeviceOverrides::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| {
+                format!("reading the world manifest {} (start `amr sim --world-only` first)", path.display())
+            })?;
+            let manifest: WorldManifest = serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a world manifest", path.display()))?;
+            manifest
+                .robots
+                .get(&id)
+                .with_context(|| format!("{}: the world has no robot `{id}`", path.display()))?
+                .overrides()
+        }
+    };
+    runtime()?.block_on(async move {
+        let clock = FleetClock::wall();
+        let (end, bridge) = amr_net::start_robot_bridge(&settings, &id, clock).await?;
+        let tree = start_robot(&robot, overrides, end, clock, RobotOptions::default())
+            .await
+            .context("starting the robot")?;
+        tracing::info!(robot = %id, mock = mock.is_some(), "robot running; Ctrl-C stops it (the drives quick-stop)");
+        stop_signal().await?;
+        tree.shutdown().await;
+        bridge.shutdown().await;
+        Ok(())
+    })
+}
+
+/// `amr server` options.
+#[derive(Debug, Clone)]
+pub(crate) struct ServerArgs {
+    pub config: PathBuf,
+    pub scenario: String,
+    pub seed: u64,
+    pub auto_arm: bool,
+    pub net: NetArgs,
+}
+
+fn phase_text(p: &Phase) -> String {
+    match p {
+        Phase::Waiting => "Waiting".into(),
+        Phase::Arming { .. } => "Arming".into(),
+        Phase::Running => "Running".into(),
+        Phase::Holding { reason } => format!("Holding: {reason}"),
+        Phase::Stopped { reason } => format!("Stopped: {reason}"),
+        Phase::Finished => "Finished".into(),
+    }
+}
+
+/// `amr server --config FILE`: the fusion server's tree on the network link, until Ctrl-C or
+/// SIGTERM. Reads operator commands on standard input: `rearm`, `stop`.
+pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
+    let (config, _) = config_around(&args.config)?;
+    let robots = formation_robots(&config.server, &config.robots)?;
+    let sc = config
+        .scenarios
+        .get(&args.scenario)
+        .cloned()
+        .with_context(|| format!("no scenario `{}`", args.scenario))?;
+    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
+    let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
+    let settings = args.net.settings(&config)?;
+    runtime()?.block_on(async move {
+        let clock = FleetClock::wall();
+        let (end, bridge) = amr_net::start_server_bridge(&settings, &ids, clock).await?;
+        let setup = ServerSetup {
+            server: config.server.clone(),
+            vamr: config.vamr.clone(),
+            amcl: config.amcl.clone(),
+            map,
+            robots,
+            scenario: sc,
+            seed: args.seed,
+            auto_arm: args.auto_arm,
+            policy: RestartPolicy::default(),
+        };
+        let tree = start_server(setup, end, clock).await.context("starting the server")?;
+        tracing::info!(auto_arm = args.auto_arm, "server running; commands on stdin: rearm, stop; Ctrl-C stops it");
+        let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
+        let mut stdin_open = true;
+        let mut tick = tokio::time::interval(Duration::from_millis(250));
+        let mut last: Option<(String, BTreeSet<String>)> = None;
+        let stop = stop_signal();
+        tokio::pin!(stop);
+        loop {
+            tokio::select! {
+                r = &mut stop => { r?; break; }
+                line = lines.next_line(), if stdin_open => match line {
+                    Ok(Some(l)) => match l.trim() {
+                        "rearm" => { tree.rearm().await; }
+                        "stop" => {
+                            if let Some(f) = tree.formation_actor().await { let _ = f.cast(FormationMsg::Stop); }
+                        }
+                        "" => {}
+                        other => tracing::warn!(command = other, "unknown command (have: rearm, stop)"),
+                    },
+                    _ => stdin_open = false,
+                },
+                _ = tick.tick() => {
+                    let Some(st) = tree.formation_status().await else { continue };
+                    let alive = bridge.alive.borrow().clone();
+                    let phase = phase_text(&st.phase);
+                    if last.as_ref() != Some(&(phase.clone(), alive.clone())) {
+                        tracing::info!(%phase, plan_s = st.plan_s, alive = ?alive, "formation");
+                        last = Some((phase.clone(), alive.clone()));
+                    }
+                    bridge.publish_status(ServerStatus {
+                        phase, plan_s: st.plan_s, plan_len_s: st.plan_len_s, alive: alive.into_iter().collect(),
+                    }).await;
+                }
+            }
+        }
+        tree.shutdown().await;
+        bridge.bridge.shutdown().await;
+        Ok(())
+    })
+}
+
+/// `amr sim --world-only`: the world and every robot's mock devices, served on loopback, until
+/// Ctrl-C or SIGTERM. Writes the manifest `amr robot --mock` reads.
+pub(crate) fn world_only(
+    config: Option<PathBuf>,
+    scenario: &str,
+    seed: u64,
+    manifest: &Path,
+) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(config))?;
+    let sc = config.scenarios.get(scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
+    runtime()?.block_on(async move {
+        let world = serve_world(&config, &sc, seed).await.context("starting the world")?;
+        let text = serde_json::to_string_pretty(&world.manifest)?;
+        // Written whole, then renamed: a robot never reads half a manifest.
+        let tmp = manifest.with_extension("tmp");
+        std::fs::write(&tmp, text + "\n").with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, manifest).with_context(|| format!("writing {}", manifest.display()))?;
+        tracing::info!(manifest = %manifest.display(), robots = world.manifest.robots.len(), "world ready; Ctrl-C stops it");
+        stop_signal().await?;
+        drop(world);
+        Ok(())
+    })
+}

@@ -1,0 +1,237 @@
+//! The fleet as separate processes on one machine (issue 11): `amr sim --world-only` serves the
+//! world and the mock devices, `amr server` runs the fusion server, two `amr robot --mock`
+//! processes run the robots, all linked over Zenoh on loopback with user/password authentication.
+//! The test watches through its own Zenoh session (an observer user) and checks: the formation
+//! runs; killing a robot process is seen within the liveliness lease and stops the formation (the
+//! other robot is disarmed); the restarted robot rejoins; after the operator's re-arm the short
+//! scenario completes. Every wait is bounded; the processes are killed when the test ends.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use amr_actors::config::{ConfigSource, read_files};
+use amr_core::config::ConfigFile;
+use amr_net::NetSettings;
+use amr_net::wire::{Body, Envelope, ServerStatus, WireSafety};
+
+/// Children killed when dropped (a failed assertion leaves no process behind).
+struct Procs(Vec<(String, Child)>);
+
+impl Procs {
+    fn kill(&mut self, name: &str) {
+        if let Some(i) = self.0.iter().position(|(n, _)| n == name) {
+            let (_, mut c) = self.0.remove(i);
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+
+    fn child(&mut self, name: &str) -> &mut Child {
+        &mut self.0.iter_mut().find(|(n, _)| n == name).unwrap().1
+    }
+}
+
+impl Drop for Procs {
+    fn drop(&mut self) {
+        for (_, c) in &mut self.0 {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+fn spawn(args: &[String], log: &Path, stdin: bool) -> Child {
+    let file = std::fs::File::create(log).unwrap();
+    Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(args)
+        .env("RUST_LOG", "warn,amr_net=info,amr=info")
+        .stdin(if stdin { Stdio::piped() } else { Stdio::null() })
+        .stdout(Stdio::null())
+        .stderr(file)
+        .spawn()
+        .unwrap()
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// The shipped configuration with a short scenario and a 1 s lease, and a credentials file.
+fn write_config(dir: &Path) -> PathBuf {
+    let mut files = read_files(&ConfigSource::Dir(hil_tests::config_dir())).unwrap();
+    files.retain(|f| !f.path.starts_with("scenarios/"));
+    let scenario = "map = \"paper-site\"\nspacing_m = 0.9\nlaps = 1\nsegments = [{ straight_m = 1.2 }]\n\
+                    [start]\nx_m = -2.0\ny_m = 0.0\nyaw_deg = 0.0\n\
+                    [limits]\nmax_speed_mps = 0.22\nmax_accel_mps2 = 0.05\nmax_yaw_rate_radps = 0.2\n";
+    files.push(ConfigFile { path: "scenarios/short.toml".into(), bytes: scenario.as_bytes().to_vec() });
+    let creds = dir.join("credentials");
+    std::fs::write(&creds, "server:srv-pw\nrobot-a:a-pw\nrobot-b:b-pw\nobserver:obs-pw\n").unwrap();
+    for f in &mut files {
+        if f.path == "network.toml" {
+            let text =
+                String::from_utf8(f.bytes.clone()).unwrap().replace("lease_ms = 2000", "lease_ms = 1000");
+            f.bytes = text.into_bytes();
+        }
+    }
+    let config = dir.join("config");
+    hil_tests::write_dir(&files, &config).unwrap();
+    creds
+}
+
+#[derive(Debug, Default)]
+struct Seen {
+    status: Option<ServerStatus>,
+    safety_a: Vec<(Instant, WireSafety)>,
+}
+
+fn wait_for(seen: &Mutex<Seen>, what: &str, limit: Duration, f: impl Fn(&Seen) -> bool) -> Duration {
+    let t0 = Instant::now();
+    while t0.elapsed() < limit {
+        if f(&seen.lock().unwrap()) {
+            return t0.elapsed();
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    panic!("{what}: not within {limit:?}; last status {:?}", seen.lock().unwrap().status);
+}
+
+#[test]
+fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_finish() {
+    let tmp = tempfile::tempdir().unwrap();
+    let creds = write_config(tmp.path());
+    let config = tmp.path().join("config");
+    let manifest = tmp.path().join("world.json");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let log = |n: &str| tmp.path().join(format!("{n}.log"));
+    let (creds_s, manifest_s) = (creds.to_str().unwrap(), manifest.to_str().unwrap());
+    let robot_args = |id: &str| {
+        vec![
+            "robot".to_owned(),
+            "--config".into(),
+            config.join(format!("{id}.toml")).display().to_string(),
+            "--mock".into(),
+            manifest_s.into(),
+            "--credentials".into(),
+            creds_s.into(),
+            "--endpoint".into(),
+            endpoint.clone(),
+        ]
+    };
+    let run = |v: Vec<String>, name: &str, stdin: bool| spawn(&v, &log(name), stdin);
+
+    let mut procs = Procs(Vec::new());
+    let world = vec![
+        "sim".to_owned(),
+        "--world-only".into(),
+        "--config".into(),
+        config.display().to_string(),
+        "--scenario".into(),
+        "short".into(),
+        "--manifest".into(),
+        manifest_s.into(),
+    ];
+    procs.0.push(("world".into(), run(world, "world", false)));
+    let t0 = Instant::now();
+    while !manifest.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "no world manifest: {}",
+            std::fs::read_to_string(log("world")).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let server = vec![
+        "server".to_owned(),
+        "--config".into(),
+        config.join("server.toml").display().to_string(),
+        "--scenario".into(),
+        "short".into(),
+        "--auto-arm".into(),
+        "--credentials".into(),
+        creds_s.into(),
+        "--endpoint".into(),
+        endpoint.clone(),
+    ];
+    procs.0.push(("server".into(), run(server, "server", true)));
+    procs.0.push(("robot-a".into(), run(robot_args("robot-a"), "robot-a", false)));
+    procs.0.push(("robot-b".into(), run(robot_args("robot-b"), "robot-b", false)));
+
+    // The test's own view: an observer session (read-only by the server's access control).
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    let seen = Arc::new(Mutex::new(Seen::default()));
+    let _observer = rt.block_on(async {
+        let loaded = amr_actors::config::load(&ConfigSource::Dir(config.clone())).unwrap();
+        let mut s = NetSettings::new(loaded.network.as_ref(), Some(&creds)).unwrap();
+        s.connect = Some(vec![endpoint.clone()]);
+        let session = zenoh::open(s.observer_config("observer").unwrap()).await.unwrap();
+        let sink = Arc::clone(&seen);
+        let status = session
+            .declare_subscriber("fleet/server/status")
+            .callback(move |sample| {
+                if let Ok(st) = amr_net::decode_status(&sample.payload().to_bytes()) {
+                    sink.lock().unwrap().status = Some(st);
+                }
+            })
+            .await
+            .unwrap();
+        let sink = Arc::clone(&seen);
+        let health = session
+            .declare_subscriber("fleet/robot-a/health")
+            .callback(move |sample| {
+                if let Ok(Envelope { body: Body::Safety { state, .. }, .. }) =
+                    Envelope::decode(&sample.payload().to_bytes())
+                {
+                    sink.lock().unwrap().safety_a.push((Instant::now(), state));
+                }
+            })
+            .await
+            .unwrap();
+        (session, status, health)
+    });
+    let phase = |s: &Seen, p: &str| s.status.as_ref().is_some_and(|st| st.phase.starts_with(p));
+    let diag = |procs: &mut Procs| {
+        for n in ["world", "server", "robot-a", "robot-b"] {
+            if let Some(Ok(Some(st))) = procs.0.iter_mut().find(|(m, _)| m == n).map(|(_, c)| c.try_wait()) {
+                eprintln!("{n} exited: {st}");
+            }
+        }
+    };
+
+    wait_for(&seen, "formation running", Duration::from_secs(90), |s| phase(s, "Running"));
+    wait_for(&seen, "the plan advancing", Duration::from_secs(30), |s| {
+        s.status.as_ref().is_some_and(|st| st.plan_s > 2.0)
+    });
+    diag(&mut procs);
+
+    // Kill robot-b's process.
+    procs.kill("robot-b");
+    let killed = Instant::now();
+    let seen_gone = wait_for(&seen, "robot-b seen gone", Duration::from_secs(10), |s| {
+        s.status.as_ref().is_some_and(|st| !st.alive.iter().any(|r| r == "robot-b"))
+    });
+    assert!(seen_gone < Duration::from_secs(2), "the server saw robot-b gone after {seen_gone:?}");
+    wait_for(&seen, "formation stopped", Duration::from_secs(10), |s| {
+        phase(s, "Stopped") || phase(s, "Holding")
+    });
+    wait_for(&seen, "robot-a disarmed", Duration::from_secs(10), |s| {
+        s.safety_a.iter().any(|(t, st)| *t > killed && *st != WireSafety::Armed)
+    });
+
+    // Restart it: it rejoins, and after the operator's re-arm the scenario completes.
+    procs.0.push(("robot-b".into(), run(robot_args("robot-b"), "robot-b-2", false)));
+    wait_for(&seen, "robot-b rejoined", Duration::from_secs(30), |s| {
+        s.status.as_ref().is_some_and(|st| st.alive.iter().any(|r| r == "robot-b"))
+    });
+    let stdin = procs.child("server").stdin.as_mut().unwrap();
+    stdin.write_all(b"rearm\n").unwrap();
+    stdin.flush().unwrap();
+    wait_for(&seen, "formation running again", Duration::from_secs(60), |s| phase(s, "Running"));
+    wait_for(&seen, "scenario finished", Duration::from_secs(90), |s| phase(s, "Finished"));
+    let armed_again =
+        seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == WireSafety::Armed).count();
+    assert!(armed_again >= 1, "robot-a was re-armed");
+}

@@ -1,0 +1,577 @@
+//! The bridge actors: one per process, owning its Zenoh session. A robot's bridge hands the robot
+//! tree a [`RobotEnd`]; the server's bridge hands the server tree a [`ServerEnd`]: the same ends as
+//! the in-process link, so the trees do not know which link they are on.
+//!
+//! QoS (Zenoh priorities, congestion control and express; research/architecture-anchors.md §3):
+//! - scans (`DataLow`) and odometry (`Data`) may be dropped under congestion, and locally only the
+//!   latest waits to be sent (latest wins): a stale scan is worth less than none;
+//! - health and safety changes (`InteractiveLow`) queue and block their own pump only;
+//! - commands (`InteractiveHigh`, express, dropped under congestion: the next one replaces it) and
+//!   arm/disarm (`RealTime`, express, blocking) skip the batching queue.
+//!
+//! Every received sample is decoded and checked ([`crate::wire`]); what fails is counted by reason
+//! and logged (the first ten of each reason, then every thousandth), never passed on.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use amr_actors::clock::FleetClock;
+use amr_actors::link::{DownlinkSender, RobotEnd, ServerEnd, UplinkSender};
+use amr_actors::messages::{Device, Downlink, Health, HealthReport, Uplink};
+use amr_actors::robot::ports::AbortOnDrop;
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+use tokio::sync::{mpsc, watch};
+use zenoh::qos::{CongestionControl, Priority};
+use zenoh::sample::SampleKind;
+
+use crate::settings::{NetError, NetSettings, PREFIX};
+use crate::wire::{
+    Body, Envelope, Freshness, Reject, SCHEMA_VERSION, ServerStatus, from_downlink, from_uplink, to_downlink,
+    to_uplink, uplink_channel,
+};
+
+/// Queue depth between the trees and the bridge (as the in-process link's).
+const DEPTH: usize = 128;
+/// How often a robot's bridge checks that it reaches the server.
+const CHECK_PERIOD: Duration = Duration::from_millis(500);
+
+fn zerr(e: impl std::fmt::Display) -> NetError {
+    NetError::Zenoh(e.to_string())
+}
+
+/// A new session number: differs between two starts of a process (nanoseconds of the wall clock
+/// mixed with the process id).
+fn new_session() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0);
+    nanos ^ (u64::from(std::process::id()) << 40)
+}
+
+/// What a bridge counted.
+#[derive(Debug, Default)]
+pub struct BridgeStats {
+    /// Samples published.
+    pub sent: AtomicU64,
+    /// Samples that Zenoh refused to take (session closed).
+    pub send_failed: AtomicU64,
+    /// Valid messages passed to the tree.
+    pub delivered: AtomicU64,
+    /// Valid messages dropped because the tree's queue was full.
+    pub queue_full: AtomicU64,
+    /// Refused samples by reason ([`Reject::kind`], or `unknown-robot`, `bad-key`).
+    rejected: Mutex<BTreeMap<&'static str, u64>>,
+    /// A robot's bridge: it reaches the server.
+    pub connected: AtomicBool,
+}
+
+impl BridgeStats {
+    /// Refused samples of `kind` so far.
+    #[must_use]
+    pub fn rejected(&self, kind: &str) -> u64 {
+        self.rejected.lock().unwrap_or_else(PoisonError::into_inner).get(kind).copied().unwrap_or(0)
+    }
+
+    /// All refusals by reason.
+    #[must_use]
+    pub fn rejections(&self) -> BTreeMap<&'static str, u64> {
+        self.rejected.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
+    fn reject(&self, key: &str, kind: &'static str, why: &dyn std::fmt::Display) {
+        let n = {
+            let mut map = self.rejected.lock().unwrap_or_else(PoisonError::into_inner);
+            let n = map.entry(kind).or_default();
+            *n += 1;
+            *n
+        };
+        if n <= 10 || n % 1000 == 0 {
+            tracing::warn!(key, reason = %why, count = n, "link: sample refused");
+        }
+    }
+}
+
+/// The bridge actor: it owns the session and the pumps; stopping it closes the session (a robot's
+/// liveliness token goes with it).
+struct BridgeActor;
+
+enum BridgeMsg {
+    /// A robot's bridge checks whether it reaches the server.
+    Check,
+}
+
+struct BridgeState {
+    session: zenoh::Session,
+    role: Role,
+    stats: Arc<BridgeStats>,
+    _pumps: Vec<AbortOnDrop<()>>,
+    /// Subscribers and the liveliness token: declared as long as the bridge lives.
+    _declared: Vec<Box<dyn std::any::Any + Send>>,
+}
+
+#[derive(Debug, Clone)]
+enum Role {
+    Robot(String),
+    Server,
+}
+
+impl Actor for BridgeActor {
+    type Msg = BridgeMsg;
+    type State = BridgeState;
+    type Arguments = BridgeState;
+
+    async fn pre_start(
+        &self,
+        myself: ActorRef<BridgeMsg>,
+        state: BridgeState,
+    ) -> Result<BridgeState, ActorProcessingErr> {
+        if matches!(state.role, Role::Robot(_)) {
+            let _ = myself.cast(BridgeMsg::Check);
+            myself.send_interval(CHECK_PERIOD, || BridgeMsg::Check);
+        }
+        Ok(state)
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<BridgeMsg>,
+        msg: BridgeMsg,
+        state: &mut BridgeState,
+    ) -> Result<(), ActorProcessingErr> {
+        match msg {
+            BridgeMsg::Check => {
+                let Role::Robot(robot) = &state.role else { return Ok(()) };
+                let now = state.session.info().routers_zid().await.next().is_some();
+                let was = state.stats.connected.swap(now, Ordering::Relaxed);
+                if now && !was {
+                    tracing::info!(robot = %robot, "link: connected to the server");
+                } else if was && !now {
+                    tracing::warn!(robot = %robot, "link: lost the server; retrying (the command watchdog stops the robot)");
+                }
+            }
+        }
+        Ok(())
+    }
+
+    async fn post_stop(
+        &self,
+        _myself: ActorRef<BridgeMsg>,
+        state: &mut BridgeState,
+    ) -> Result<(), ActorProcessingErr> {
+        state._pumps.clear();
+        state._declared.clear();
+        if let Err(e) = state.session.close().await {
+            tracing::debug!(error = %e, "link: closing the session");
+        }
+        Ok(())
+    }
+}
+
+/// A running bridge.
+#[derive(Debug)]
+pub struct Bridge {
+    pub stats: Arc<BridgeStats>,
+    actor: ActorRef<BridgeMsg>,
+    handle: tokio::task::JoinHandle<()>,
+    session: zenoh::Session,
+}
+
+impl std::fmt::Debug for BridgeMsg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Check")
+    }
+}
+
+impl Bridge {
+    async fn spawn(state: BridgeState) -> Result<Bridge, NetError> {
+        let stats = Arc::clone(&state.stats);
+        let session = state.session.clone();
+        let (actor, handle) =
+            Actor::spawn(None, BridgeActor, state).await.map_err(|e| NetError::Actor(e.to_string()))?;
+        Ok(Bridge { stats, actor, handle, session })
+    }
+
+    /// The Zenoh session (tests publish raw samples through it).
+    #[must_use]
+    pub fn session(&self) -> &zenoh::Session {
+        &self.session
+    }
+
+    /// Stop the bridge and close its session.
+    pub async fn shutdown(self) {
+        self.actor.stop(None);
+        let _ = self.handle.await;
+    }
+}
+
+/// An envelope stamper for one key: session and sequence numbers.
+struct Stamper {
+    session: u64,
+    seq: u64,
+    origin: String,
+    robot: String,
+}
+
+impl Stamper {
+    fn new(session: u64, origin: &str, robot: &str) -> Self {
+        Stamper { session, seq: 0, origin: origin.to_owned(), robot: robot.to_owned() }
+    }
+
+    fn encode(&mut self, stamp_s: f64, sent_s: f64, body: Body) -> Option<Vec<u8>> {
+        self.seq += 1;
+        let env = Envelope {
+            version: SCHEMA_VERSION,
+            session: self.session,
+            seq: self.seq,
+            origin: self.origin.clone(),
+            robot: self.robot.clone(),
+            stamp_s,
+            sent_s,
+            body,
+        };
+        match env.encode() {
+            Ok(b) => Some(b),
+            Err(e) => {
+                tracing::error!(error = %e, "link: cannot encode");
+                None
+            }
+        }
+    }
+}
+
+fn count_put(stats: &BridgeStats, r: zenoh::Result<()>) {
+    match r {
+        Ok(()) => stats.sent.fetch_add(1, Ordering::Relaxed),
+        Err(_) => stats.send_failed.fetch_add(1, Ordering::Relaxed),
+    };
+}
+
+/// Start a robot's bridge: connect to the server (in the background: the robot runs whether or not
+/// it is reachable), declare the robot's liveliness token, and return the end for its tree.
+pub async fn start_robot_bridge(
+    settings: &NetSettings,
+    robot: &str,
+    clock: FleetClock,
+) -> Result<(RobotEnd, Bridge), NetError> {
+    let session = zenoh::open(settings.robot_config(robot)?).await.map_err(zerr)?;
+    let stats = Arc::new(BridgeStats::default());
+    let key = |ch: &str| format!("{PREFIX}/{robot}/{ch}");
+    let sid = new_session();
+
+    let scan_pub = session
+        .declare_publisher(key("scan"))
+        .priority(Priority::DataLow)
+        .congestion_control(CongestionControl::Drop)
+        .await
+        .map_err(zerr)?;
+    let odom_pub = session
+        .declare_publisher(key("odom"))
+        .priority(Priority::Data)
+        .congestion_control(CongestionControl::Drop)
+        .await
+        .map_err(zerr)?;
+    let health_pub = session
+        .declare_publisher(key("health"))
+        .priority(Priority::InteractiveLow)
+        .congestion_control(CongestionControl::Block)
+        .await
+        .map_err(zerr)?;
+    let token = session.liveliness().declare_token(key("alive")).await.map_err(zerr)?;
+
+    // The tree's uplink: one queue in, split by channel. Scans and odometry keep only the latest.
+    let (up_tx, mut up_rx) = mpsc::channel::<Uplink>(DEPTH);
+    let (scan_tx, scan_rx) = watch::channel::<Option<Uplink>>(None);
+    let (odom_tx, odom_rx) = watch::channel::<Option<Uplink>>(None);
+    let (health_tx, mut health_rx) = mpsc::channel::<Uplink>(DEPTH);
+    let split = tokio::spawn(async move {
+        while let Some(u) = up_rx.recv().await {
+            match uplink_channel(&u) {
+                "scan" => {
+                    scan_tx.send_replace(Some(u));
+                }
+                "odom" => {
+                    odom_tx.send_replace(Some(u));
+                }
+                _ => {
+                    let _ = health_tx.try_send(u);
+                }
+            }
+        }
+    });
+    let latest_pump = |mut rx: watch::Receiver<Option<Uplink>>,
+                       publisher: zenoh::pubsub::Publisher<'static>| {
+        let stats = Arc::clone(&stats);
+        let mut stamper = Stamper::new(sid, robot, robot);
+        tokio::spawn(async move {
+            while rx.changed().await.is_ok() {
+                let Some(u) = rx.borrow_and_update().clone() else { continue };
+                let (stamp, body) = from_uplink(&u);
+                if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
+                    count_put(&stats, publisher.put(bytes).await);
+                }
+            }
+        })
+    };
+    let scans = latest_pump(scan_rx, scan_pub);
+    let odom = latest_pump(odom_rx, odom_pub);
+    let health = {
+        let stats = Arc::clone(&stats);
+        let mut stamper = Stamper::new(sid, robot, robot);
+        tokio::spawn(async move {
+            while let Some(u) = health_rx.recv().await {
+                let (stamp, body) = from_uplink(&u);
+                if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
+                    count_put(&stats, health_pub.put(bytes).await);
+                }
+            }
+        })
+    };
+
+    // Commands: decoded, checked (for me, from the server, newer than the last) and passed on. The
+    // safety layer then applies its own rules (armed, sequence floor, stamp age).
+    let (down_tx, down_rx) = mpsc::channel::<Downlink>(DEPTH);
+    let fresh = Mutex::new(Freshness::default());
+    let (me, server) = (robot.to_owned(), settings.server_user().to_owned());
+    let cmd_stats = Arc::clone(&stats);
+    let cmd_key = key("cmd");
+    let subscriber = session
+        .declare_subscriber(cmd_key.clone())
+        .callback(move |sample| {
+            let bytes = sample.payload().to_bytes();
+            let checked = Envelope::decode(&bytes).and_then(|env| {
+                fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env)?;
+                to_downlink(env, &me, &server)
+            });
+            match checked {
+                Ok(d) => {
+                    if down_tx.try_send(d).is_ok() {
+                        cmd_stats.delivered.fetch_add(1, Ordering::Relaxed);
+                    } else {
+                        cmd_stats.queue_full.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+                Err(r) => cmd_stats.reject(&cmd_key, r.kind(), &r),
+            }
+        })
+        .await
+        .map_err(zerr)?;
+
+    let bridge = Bridge::spawn(BridgeState {
+        session,
+        role: Role::Robot(robot.to_owned()),
+        stats,
+        _pumps: vec![AbortOnDrop(split), AbortOnDrop(scans), AbortOnDrop(odom), AbortOnDrop(health)],
+        _declared: vec![Box::new(subscriber), Box::new(token)],
+    })
+    .await?;
+    tracing::info!(robot, endpoints = ?settings.connect.as_ref().unwrap_or(&settings.network.server.connect), "link: robot bridge started");
+    Ok((RobotEnd { robot: robot.to_owned(), up: UplinkSender::new(up_tx), down: down_rx }, bridge))
+}
+
+/// The server's bridge: its end for the server tree, the robots it sees, and its status channel.
+#[derive(Debug)]
+pub struct ServerBridge {
+    pub bridge: Bridge,
+    /// Robots whose liveliness token is present.
+    pub alive: watch::Receiver<BTreeSet<String>>,
+    status: zenoh::pubsub::Publisher<'static>,
+    stamper: Mutex<Stamper>,
+    clock: FleetClock,
+}
+
+impl std::fmt::Debug for Stamper {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Stamper {{ session: {:#x}, seq: {} }}", self.session, self.seq)
+    }
+}
+
+impl ServerBridge {
+    /// Publish the formation's status on `fleet/server/status`.
+    pub async fn publish_status(&self, status: ServerStatus) {
+        let now = self.clock.now_s();
+        let bytes = self.stamper.lock().unwrap_or_else(PoisonError::into_inner).encode(
+            now,
+            now,
+            Body::Status(status),
+        );
+        if let Some(bytes) = bytes {
+            count_put(&self.bridge.stats, self.status.put(bytes).await);
+        }
+    }
+}
+
+/// Parse `fleet/<robot>/<channel>`.
+fn split_key(key: &str) -> Option<(&str, &str)> {
+    let rest = key.strip_prefix(PREFIX)?.strip_prefix('/')?;
+    let (robot, channel) = rest.split_once('/')?;
+    (!channel.contains('/')).then_some((robot, channel))
+}
+
+/// Start the server's bridge: listen, admit only the credentials file's users under the access
+/// control of [`crate::settings::access_control`], watch the robots' liveliness tokens.
+pub async fn start_server_bridge(
+    settings: &NetSettings,
+    robots: &[String],
+    clock: FleetClock,
+) -> Result<(ServerEnd, ServerBridge), NetError> {
+    let session = zenoh::open(settings.server_config(robots)?).await.map_err(zerr)?;
+    let stats = Arc::new(BridgeStats::default());
+    let (up_tx, up_rx) = mpsc::channel::<Uplink>(DEPTH * robots.len().max(1));
+    let known: Arc<BTreeSet<String>> = Arc::new(robots.iter().cloned().collect());
+    let mut declared: Vec<Box<dyn std::any::Any + Send>> = Vec::new();
+
+    for channel in ["scan", "odom", "health"] {
+        let (up_tx, stats, known) = (up_tx.clone(), Arc::clone(&stats), Arc::clone(&known));
+        let fresh: Mutex<BTreeMap<String, Freshness>> = Mutex::default();
+        let sub = session
+            .declare_subscriber(format!("{PREFIX}/*/{channel}"))
+            .callback(move |sample| {
+                let key = sample.key_expr().as_str();
+                let Some((robot, ch)) = split_key(key) else {
+                    stats.reject(key, "bad-key", &"not fleet/<robot>/<channel>");
+                    return;
+                };
+                if !known.contains(robot) {
+                    stats.reject(key, "unknown-robot", &format!("`{robot}` is not in the formation"));
+                    return;
+                }
+                let bytes = sample.payload().to_bytes();
+                let checked = Envelope::decode(&bytes).and_then(|env| {
+                    fresh
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner)
+                        .entry(robot.to_owned())
+                        .or_default()
+                        .check(&env)?;
+                    to_uplink(env, robot, ch)
+                });
+                match checked {
+                    Ok(u) => {
+                        if up_tx.try_send(u).is_ok() {
+                            stats.delivered.fetch_add(1, Ordering::Relaxed);
+                        } else {
+                            stats.queue_full.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                    Err(r) => stats.reject(key, r.kind(), &r),
+                }
+            })
+            .await
+            .map_err(zerr)?;
+        declared.push(Box::new(sub));
+    }
+
+    // Liveliness: a robot's token appears when its bridge connects and vanishes when its session
+    // closes or its lease runs out. The server tree hears it as the robot's link health.
+    let (alive_tx, alive_rx) = watch::channel(BTreeSet::<String>::new());
+    let live_seq = AtomicU64::new(0);
+    let (live_up, live_known) = (up_tx.clone(), Arc::clone(&known));
+    let live = session
+        .liveliness()
+        .declare_subscriber(format!("{PREFIX}/*/alive"))
+        .history(true)
+        .callback(move |sample| {
+            let Some((robot, "alive")) = split_key(sample.key_expr().as_str()) else { return };
+            if !live_known.contains(robot) {
+                return;
+            }
+            let (health, detail) = match sample.kind() {
+                SampleKind::Put => {
+                    tracing::info!(robot, "link: robot joined");
+                    alive_tx.send_modify(|a| {
+                        a.insert(robot.to_owned());
+                    });
+                    (Health::Ok, "liveliness token present")
+                }
+                SampleKind::Delete => {
+                    tracing::warn!(robot, "link: robot left (liveliness token gone)");
+                    alive_tx.send_modify(|a| {
+                        a.remove(robot);
+                    });
+                    (Health::Lost, "liveliness token gone: process stopped or lease expired")
+                }
+            };
+            let _ = live_up.try_send(Uplink::Health {
+                robot: robot.to_owned(),
+                seq: live_seq.fetch_add(1, Ordering::Relaxed) + 1,
+                stamp_s: clock.now_s(),
+                report: HealthReport { device: Device::Link, health, detail: detail.to_owned() },
+            });
+        })
+        .await
+        .map_err(zerr)?;
+    declared.push(Box::new(live));
+
+    // Downlink: one pump per robot.
+    let sid = new_session();
+    let server = settings.server_user().to_owned();
+    let mut downs = BTreeMap::new();
+    let mut pumps = Vec::new();
+    for robot in robots {
+        let (tx, mut rx) = mpsc::channel::<Downlink>(DEPTH);
+        downs.insert(robot.clone(), tx);
+        let key = format!("{PREFIX}/{robot}/cmd");
+        let cmd_pub = session
+            .declare_publisher(key.clone())
+            .priority(Priority::InteractiveHigh)
+            .congestion_control(CongestionControl::Drop)
+            .express(true)
+            .await
+            .map_err(zerr)?;
+        let (session, stats) = (session.clone(), Arc::clone(&stats));
+        let mut stamper = Stamper::new(sid, &server, robot);
+        pumps.push(AbortOnDrop(tokio::spawn(async move {
+            while let Some(d) = rx.recv().await {
+                let now = clock.now_s();
+                let (stamp, body) = from_downlink(&d, now);
+                let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
+                let r = match d {
+                    Downlink::Command(_) => cmd_pub.put(bytes).await,
+                    Downlink::Arm { .. } | Downlink::Disarm => {
+                        session
+                            .put(key.as_str(), bytes)
+                            .priority(Priority::RealTime)
+                            .congestion_control(CongestionControl::Block)
+                            .express(true)
+                            .await
+                    }
+                };
+                count_put(&stats, r);
+            }
+        })));
+    }
+    let status = session
+        .declare_publisher(format!("{PREFIX}/server/status"))
+        .priority(Priority::InteractiveLow)
+        .congestion_control(CongestionControl::Drop)
+        .await
+        .map_err(zerr)?;
+    let bridge =
+        Bridge::spawn(BridgeState { session, role: Role::Server, stats, _pumps: pumps, _declared: declared })
+            .await?;
+    tracing::info!(
+        endpoints = ?settings.listen.as_ref().unwrap_or(&settings.network.server.listen),
+        robots = ?robots,
+        "link: server bridge listening"
+    );
+    let end = ServerEnd { up: up_rx, down: DownlinkSender::new(downs) };
+    let sb = ServerBridge {
+        bridge,
+        alive: alive_rx,
+        status,
+        stamper: Mutex::new(Stamper::new(sid, &server, "server")),
+        clock,
+    };
+    Ok((end, sb))
+}
+
+/// Decode a status sample (observers and tests).
+pub fn decode_status(bytes: &[u8]) -> Result<ServerStatus, Reject> {
+    match Envelope::decode(bytes)?.body {
+        Body::Status(s) => Ok(s),
+        _ => Err(Reject::WrongChannel { kind: "not-status", channel: "status" }),
+    }
+}
