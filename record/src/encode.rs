@@ -6,7 +6,7 @@
 //! | topic | schema | from |
 //! |---|---|---|
 //! | `/amr/uplink` | `amr.Uplink` (exact) | every message the server received, with its receive time |
-//! | `/amr/fused` | `amr.FusedFrame` (exact) | every fused frame |
+//! | `/amr/fused` | `amr.FusedFrame` (exact; points by digest) | every fused frame |
 //! | `/amr/estimates` | `amr.Estimate` (exact) | every estimate |
 //! | `/amr/status` | `amr.FusionStatus` (exact) | fusion status changes |
 //! | `/<robot>/scan` | `foxglove.LaserScan` | the robot's scans (frame `<robot>/laser`) |
@@ -15,7 +15,7 @@
 //! | `/<robot>/imu`, `/<robot>/wheels` | `amr.Imu`, `amr.Wheels` | robot side only |
 //! | `/amcl/V`, `/amcl/<robot>` | `foxglove.PoseInFrame` | fused estimates: V and each robot (frame `map`) |
 //! | `/amcl/<robot>/own` | `foxglove.PoseInFrame` | each robot's own AMCL |
-//! | `/amcl/particles`, `/amcl/<robot>/particles` | `foxglove.PosesInFrame` | particle clouds, ≤ 2 Hz, ≤ 500 poses |
+//! | `/amcl/particles`, `/amcl/<robot>/particles` | `foxglove.PosesInFrame` | particle clouds, ≤ 1 Hz, ≤ 200 poses |
 //! | `/tf` | `foxglove.FrameTransforms` | map→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>`, `<robot>`→`<robot>/laser` |
 //! | `/map` | `foxglove.Grid` | the map, once |
 //! | `/formation/commands` | `amr.Command` | every command, arm and disarm sent (server) or received (robot) |
@@ -107,10 +107,10 @@ pub enum Event {
     Mounts(Vec<(String, Se2)>),
 }
 
-/// Particle clouds per source at most this often, ns of log time.
-const PARTICLES_EVERY_NS: u64 = 500_000_000;
+/// Particle clouds per source at most this often, ns of log time (a cloud is ~20 kB of JSON).
+const PARTICLES_EVERY_NS: u64 = 1_000_000_000;
 /// And at most this many poses (evenly picked).
-const PARTICLES_MAX: usize = 500;
+const PARTICLES_MAX: usize = 200;
 
 /// Turns events into messages.
 #[derive(Debug, Clone)]

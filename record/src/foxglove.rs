@@ -161,17 +161,33 @@ pub fn nanos(t_s: f64) -> u64 {
     if t_s.is_nan() || t_s <= 0.0 { 0 } else { (t_s * 1e9).round().min(u64::MAX as f64) as u64 }
 }
 
+/// A display value to 0.1 mm (or 0.1 mrad): a third of the text of a full `f64`. The exact
+/// values are on the `/amr/...` channels.
+fn short(x: f64) -> f64 {
+    (x * 1e4).round() / 1e4
+}
+
+/// A pose for display: position to 0.1 mm, orientation to 1e-4.
+fn short_pose(p: &Se2) -> Value {
+    let (s, c) = (p.theta / 2.0).sin_cos();
+    json!({
+        "position": { "x": short(p.x), "y": short(p.y), "z": 0.0 },
+        "orientation": { "x": 0.0, "y": 0.0, "z": short(s), "w": short(c) }
+    })
+}
+
 fn pose(p: &Se2) -> Value {
     let (s, c) = (p.theta / 2.0).sin_cos();
     json!({ "position": { "x": p.x, "y": p.y, "z": 0.0 }, "orientation": { "x": 0.0, "y": 0.0, "z": s, "w": c } })
 }
 
-/// A `foxglove.LaserScan` of a device scan. Invalid beams are 0 (Foxglove draws them at the
+/// A `foxglove.LaserScan` of a device scan, ranges to 0.1 mm. Invalid beams are 0 (Foxglove draws them at the
 /// sensor); the exact beams are on `/amr/uplink`.
 #[must_use]
 pub fn laser_scan(stamp_s: f64, frame: &str, scan: &Scan) -> Value {
     let n = scan.len();
-    let ranges: Vec<f64> = scan.ranges_m().iter().map(|r| if r.is_finite() { *r } else { 0.0 }).collect();
+    let ranges: Vec<f64> =
+        scan.ranges_m().iter().map(|r| if r.is_finite() { short(*r) } else { 0.0 }).collect();
     json!({
         "timestamp": time(stamp_s),
         "frame_id": frame,
@@ -205,6 +221,9 @@ pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> Value {
             ranges[k] = r;
         }
     }
+    for r in &mut ranges {
+        *r = short(*r);
+    }
     json!({
         "timestamp": time(stamp_s),
         "frame_id": frame,
@@ -222,10 +241,10 @@ pub fn pose_in_frame(stamp_s: f64, frame: &str, p: &Se2) -> Value {
     json!({ "timestamp": time(stamp_s), "frame_id": frame, "pose": pose(p) })
 }
 
-/// A `foxglove.PosesInFrame`.
+/// A `foxglove.PosesInFrame` (for display: to 0.1 mm).
 #[must_use]
 pub fn poses_in_frame(stamp_s: f64, frame: &str, poses: &[Se2]) -> Value {
-    json!({ "timestamp": time(stamp_s), "frame_id": frame, "poses": poses.iter().map(pose).collect::<Vec<_>>() })
+    json!({ "timestamp": time(stamp_s), "frame_id": frame, "poses": poses.iter().map(short_pose).collect::<Vec<_>>() })
 }
 
 /// A `foxglove.FrameTransform`: `child`'s pose in `parent`.

@@ -35,19 +35,57 @@ pub enum ReadError {
 /// The MCAP magic, at both ends of a complete file (<https://mcap.dev/spec#magic>).
 const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 
-/// The longest prefix of `bytes` made of the magic and whole top-level records (opcode u8, length
-/// u64 LE, body; <https://mcap.dev/spec#records>). mcap 0.26's reader overflows (a panic in a
-/// debug build) on a record length near `u64::MAX`; cut before it sees one.
-fn whole_records(bytes: &[u8]) -> &[u8] {
-    let mut at = MAGIC.len().min(bytes.len());
-    while let Some(header) = bytes.get(at..at + 9) {
-        let mut len = [0u8; 8];
-        len.copy_from_slice(&header[1..]);
-        let end = u64::try_from(at + 9).ok().and_then(|a| a.checked_add(u64::from_le_bytes(len)));
-        match end.and_then(|e| usize::try_from(e).ok()) {
-            Some(e) if e <= bytes.len() => at = e,
-            _ => break,
+fn u64_at(b: &[u8], at: usize) -> Option<u64> {
+    let mut v = [0u8; 8];
+    v.copy_from_slice(b.get(at..at.checked_add(8)?)?);
+    Some(u64::from_le_bytes(v))
+}
+
+fn u32_at(b: &[u8], at: usize) -> Option<u32> {
+    let mut v = [0u8; 4];
+    v.copy_from_slice(b.get(at..at.checked_add(4)?)?);
+    Some(u32::from_le_bytes(v))
+}
+
+/// The end of the record at `at` in `b` (opcode u8, length u64 LE, body;
+/// <https://mcap.dev/spec#records>) if it is whole.
+fn record_end(b: &[u8], at: usize) -> Option<usize> {
+    let len = usize::try_from(u64_at(b, at.checked_add(1)?)?).ok()?;
+    let end = at.checked_add(9)?.checked_add(len)?;
+    (end <= b.len()).then_some(end)
+}
+
+/// An uncompressed chunk whose records are all whole (<https://mcap.dev/spec#chunk-op0x06>:
+/// start u64, end u64, uncompressed size u64, crc u32, compression string, records u64-prefixed).
+fn chunk_ok(body: &[u8]) -> bool {
+    let check = || -> Option<bool> {
+        let compression_len = usize::try_from(u32_at(body, 28)?).ok()?;
+        if compression_len != 0 {
+            // Not ours (this build writes and reads uncompressed chunks only).
+            return Some(false);
         }
+        let len = usize::try_from(u64_at(body, 32)?).ok()?;
+        let records = body.get(40..40usize.checked_add(len)?)?;
+        let mut at = 0;
+        while at < records.len() {
+            at = record_end(records, at)?;
+        }
+        Some(true)
+    };
+    check().unwrap_or(false)
+}
+
+/// The longest prefix of `bytes` made of the magic and whole top-level records, every chunk's
+/// records whole too. mcap 0.26's reader overflows (a panic in a debug build) on a record length
+/// near `u64::MAX`, at the top level and inside a chunk: cut before it sees one.
+fn whole_records(bytes: &[u8]) -> &[u8] {
+    const CHUNK: u8 = 0x06;
+    let mut at = MAGIC.len().min(bytes.len());
+    while let Some(end) = record_end(bytes, at) {
+        if bytes[at] == CHUNK && !chunk_ok(&bytes[at + 9..end]) {
+            break;
+        }
+        at = end;
     }
     &bytes[..at]
 }
@@ -59,21 +97,38 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
         out.stopped = Some(format!("no end magic: the file was cut short at byte {}", bytes.len()));
     }
     // IgnoreEndMagic: a crashed recorder wrote no footer; read what is there.
-    let stream = mcap::MessageStream::new_with_options(whole_records(bytes), Options::IgnoreEndMagic.into())?;
-    for m in stream {
-        match m {
-            Ok(m) => out.messages.push(Recorded {
-                topic: m.channel.topic.clone(),
-                schema: m.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
-                log_time_ns: m.log_time,
-                publish_time_ns: m.publish_time,
-                data: m.data.into_owned(),
-            }),
-            Err(e) => {
-                out.stopped.get_or_insert_with(|| e.to_string());
-                break;
+    let whole = whole_records(bytes);
+    // mcap's reader is not ours: should it still panic on some bytes, that is a damaged file.
+    let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Recording, ReadError> {
+        let mut out = Recording::default();
+        let stream = mcap::MessageStream::new_with_options(whole, Options::IgnoreEndMagic.into())?;
+        for m in stream {
+            match m {
+                Ok(m) => out.messages.push(Recorded {
+                    topic: m.channel.topic.clone(),
+                    schema: m.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
+                    log_time_ns: m.log_time,
+                    publish_time_ns: m.publish_time,
+                    data: m.data.into_owned(),
+                }),
+                Err(e) => {
+                    out.stopped = Some(e.to_string());
+                    break;
+                }
             }
         }
+        Ok(out)
+    }));
+    match read {
+        Ok(Ok(r)) => {
+            out.messages = r.messages;
+            out.stopped = out.stopped.or(r.stopped);
+        }
+        Ok(Err(e)) => return Err(e),
+        Err(_) => out.stopped = Some("the MCAP reader failed on damaged data".into()),
+    }
+    if whole.len() + MAGIC.len() < bytes.len() && out.stopped.is_none() {
+        out.stopped = Some(format!("damaged record at byte {}", whole.len()));
     }
     Ok(out)
 }

@@ -362,7 +362,7 @@ pub fn run(
     };
     let mut encoder = Encoder::new(engine.robots().to_vec());
     let mut recorded: BTreeMap<(String, u64), VecDeque<Vec<u8>>> = BTreeMap::new();
-    let mut recorded_fused: BTreeMap<u64, FusedRecord> = BTreeMap::new();
+    let mut recorded_fused: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
     let mut produced: Vec<Estimate> = Vec::new();
     let mut produced_fused: Vec<FusedRecord> = Vec::new();
     let mut last_seq: BTreeMap<(String, u8), u64> = BTreeMap::new();
@@ -419,7 +419,7 @@ pub fn run(
             "/amr/fused" => {
                 let f = wire::decode_fused(&m.data)?;
                 report.recorded_fused += 1;
-                recorded_fused.insert(f.seq, f);
+                recorded_fused.insert(f.seq, m.data.clone());
             }
             _ => {}
         }
@@ -430,11 +430,7 @@ pub fn run(
     report.fused = produced_fused.len();
     report.fused_identical = produced_fused
         .iter()
-        .filter(|f| {
-            recorded_fused
-                .get(&f.seq)
-                .is_some_and(|r| wire::encode_fused(r).ok() == wire::encode_fused(f).ok())
-        })
+        .filter(|f| recorded_fused.get(&f.seq).is_some_and(|r| wire::encode_fused(f).is_ok_and(|b| b == *r)))
         .count();
     report.estimates = produced.len();
     for e in &produced {

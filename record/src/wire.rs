@@ -344,9 +344,19 @@ struct FusedRec {
     stamp_s: f64,
     oldest_stamp_s: f64,
     v_odom: [f64; 3],
-    points: Option<Vec<[f64; 2]>>,
+    /// The virtual scan's points by count and digest: they are what the uplink gives again by
+    /// replay, and at ~20 kB a frame they were the largest channel (the view is `/virtual/scan`).
+    points: Option<PointsDigest>,
     /// Per robot: its base in V, its odometry pose at its scan.
     robots: Vec<([f64; 3], [f64; 3])>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointsDigest {
+    pub n: usize,
+    /// FNV-1a 64 over every coordinate's bits, little-endian, as 16 hex digits.
+    pub fnv1a64: String,
 }
 
 /// What a fused frame holds that the estimates depend on (the stage times are left out: they are
@@ -377,7 +387,18 @@ impl FusedRecord {
     }
 }
 
-/// Encode a fused frame.
+/// FNV-1a, 64 bits (<http://www.isthe.com/chongo/tech/comp/fnv/>): offset basis 0xcbf29ce484222325,
+/// prime 0x100000001b3.
+fn digest(points: &[[f64; 2]]) -> PointsDigest {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in points.iter().flatten().flat_map(|c| c.to_bits().to_le_bytes()) {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    PointsDigest { n: points.len(), fnv1a64: format!("{h:016x}") }
+}
+
+/// Encode a fused frame (its points as a [`PointsDigest`]).
 pub fn encode_fused(f: &FusedRecord) -> Result<Vec<u8>, WireError> {
     Ok(serde_json::to_vec(&FusedRec {
         v: VERSION,
@@ -386,16 +407,28 @@ pub fn encode_fused(f: &FusedRecord) -> Result<Vec<u8>, WireError> {
         stamp_s: f.stamp_s,
         oldest_stamp_s: f.oldest_stamp_s,
         v_odom: pose(&f.v_odom),
-        points: f.points.clone(),
+        points: f.points.as_deref().map(digest),
         robots: f.robots.iter().map(|(b, o)| (pose(b), pose(o))).collect(),
     })?)
 }
 
+/// A recorded fused frame: its points only by digest.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FusedDigest {
+    pub seq: u64,
+    pub configuration: Configuration,
+    pub stamp_s: f64,
+    pub oldest_stamp_s: f64,
+    pub v_odom: Se2,
+    pub points: Option<PointsDigest>,
+    pub robots: Vec<(Se2, Se2)>,
+}
+
 /// Decode a fused frame.
-pub fn decode_fused(bytes: &[u8]) -> Result<FusedRecord, WireError> {
+pub fn decode_fused(bytes: &[u8]) -> Result<FusedDigest, WireError> {
     let f: FusedRec = serde_json::from_slice(bytes)?;
     check(f.v)?;
-    Ok(FusedRecord {
+    Ok(FusedDigest {
         seq: f.seq,
         configuration: configuration_of(&f.configuration)?,
         stamp_s: f.stamp_s,
@@ -551,6 +584,30 @@ mod tests {
         for s in [FusionStatus::Fusing, FusionStatus::RobotLost(1)] {
             assert_eq!(decode_status(&encode_status(s).unwrap()).unwrap(), s);
         }
+    }
+
+    #[test]
+    fn a_fused_frame_keeps_its_poses_and_a_digest_of_its_points() {
+        let f = FusedRecord {
+            seq: 3,
+            configuration: Configuration::T2,
+            stamp_s: 1.5,
+            oldest_stamp_s: 1.49,
+            v_odom: Se2::new(0.1, 0.2, 0.3),
+            points: Some(vec![[1.0, 2.0], [3.0, -0.0]]),
+            robots: vec![(Se2::new(0.0, 0.45, 0.0), Se2::new(1.0, 1.0, 1.0))],
+        };
+        let d = decode_fused(&encode_fused(&f).unwrap()).unwrap();
+        assert_eq!(
+            (d.seq, d.configuration, d.v_odom, d.robots.clone()),
+            (3, Configuration::T2, f.v_odom, f.robots.clone())
+        );
+        let p = d.points.unwrap();
+        assert_eq!(p.n, 2);
+        // -0.0 and 0.0 differ in bits: the digest tells them apart.
+        let g = FusedRecord { points: Some(vec![[1.0, 2.0], [3.0, 0.0]]), ..f };
+        assert_ne!(decode_fused(&encode_fused(&g).unwrap()).unwrap().points.unwrap(), p);
+        assert_eq!(digest(&[]).fnv1a64, "cbf29ce484222325");
     }
 
     #[test]
