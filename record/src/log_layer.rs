@@ -1,6 +1,6 @@
 //! A `tracing` layer that records log lines as `foxglove.Log` on `/log`.
 //!
-//! ```ignore
+//! ```text
 //! let tap = amr_record::LogTap::default();
 //! tracing_subscriber::registry().with(fmt_layer).with(amr_record::LogLayer::new(tap.clone())).init();
 //! // later: RecordSources { logs: Some(tap), .. }

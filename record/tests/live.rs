@@ -100,3 +100,108 @@ async fn a_client_without_the_subprotocol_is_refused() {
     };
     tokio::time::timeout(Duration::from_secs(20), body).await.expect("bounded");
 }
+
+/// `amr robot --record F --foxglove A`: a recorder on a robot's ports writes the file and feeds the
+/// live view at once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_robot_recorder_writes_the_file_and_serves_the_live_view() {
+    use amr_actors::clock::FleetClock;
+    use amr_actors::messages::{
+        Command, Device, DisarmReason, Downlink, Health, HealthReport, OdomMsg, SafetyState,
+    };
+    use amr_actors::robot::ports::{ImuReading, LidarScan, RobotPorts, WheelTravel};
+    use amr_core::scan::Scan;
+    use amr_core::se2::Se2;
+    use amr_record::{RecordOptions, RecordSources, Recorder};
+    use std::sync::Arc;
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("robot.mcap");
+    let clock = FleetClock::start();
+    let ports = RobotPorts::new("robot-a", clock);
+    let hub = Hub::default();
+    let server = serve("127.0.0.1:0".parse().unwrap(), hub.clone(), "amr robot").await.unwrap();
+    let mut sources = RecordSources::new(clock);
+    sources.robots = vec![Arc::clone(&ports)];
+    sources.mounts = vec![("robot-a".into(), Se2::new(0.175, 0.0, 0.0))];
+    let options = RecordOptions { file: Some(path.clone()), live: Some(hub), ..RecordOptions::default() };
+    let recorder = Recorder::start(options, sources).await.unwrap();
+
+    let feeder = {
+        let ports = Arc::clone(&ports);
+        tokio::spawn(async move {
+            for k in 0u64.. {
+                let t = clock.now_s();
+                let scan = Arc::new(Scan::new(-2.35, 0.0174, 0.05, 10.0, vec![1.0, f64::NAN, 2.5]));
+                ports.scans.send(LidarScan { seq: k, stamp_s: t, received_s: t, scan });
+                ports.imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.01 });
+                ports.wheels.send(WheelTravel { stamp_s: t, dt_s: 0.02, left_m: 0.004, right_m: 0.004 });
+                let pose = Se2::new(0.01 * k as f64, 0.0, 0.0);
+                ports.odom.send(OdomMsg { seq: k, stamp_s: t, pose, twist: (0.2, 0.0), gyro: true });
+                ports.downlink.send(Downlink::Command(Command {
+                    seq: k,
+                    stamp_s: t,
+                    v_mps: 0.2,
+                    w_radps: 0.0,
+                }));
+                if k == 3 {
+                    let report =
+                        HealthReport { device: Device::Lidar, health: Health::Lost, detail: "gone".into() };
+                    ports.health.send(report);
+                    ports.safety.send(SafetyState::Disarmed(DisarmReason::DeviceLost));
+                }
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        })
+    };
+
+    let client = async {
+        let stream = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+        let mut req = format!("ws://{}/", server.addr).into_client_request().unwrap();
+        req.headers_mut().insert("Sec-WebSocket-Protocol", HeaderValue::from_static(SUBPROTOCOL));
+        let (mut ws, _) = tokio_tungstenite::client_async(req, stream).await.unwrap();
+        loop {
+            match ws.next().await.unwrap().unwrap() {
+                Message::Text(t) => {
+                    let v: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                    let imu =
+                        v["channels"].as_array().into_iter().flatten().find(|c| c["topic"] == "/robot-a/imu");
+                    if let Some(c) = imu {
+                        let sub = serde_json::json!({ "op": "subscribe", "subscriptions": [{ "id": 1, "channelId": c["id"] }] });
+                        ws.send(Message::text(sub.to_string())).await.unwrap();
+                    }
+                }
+                Message::Binary(b) => {
+                    let body: serde_json::Value = serde_json::from_slice(&b[13..]).unwrap();
+                    assert_eq!(body["yaw_rate_radps"], 0.01);
+                    break;
+                }
+                _ => {}
+            }
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(20), client).await.expect("bounded");
+    // Let the feeder pass the health change, then finish.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    feeder.abort();
+    let stats = recorder.stop().await.unwrap();
+    for topic in
+        ["/robot-a/scan", "/robot-a/imu", "/robot-a/wheels", "/robot-a/odom", "/tf", "/formation/commands"]
+    {
+        assert!(stats.per_topic.get(topic).is_some_and(|n| *n >= 3), "{topic}: {stats:?}");
+    }
+    assert_eq!(stats.per_topic.get("/health"), Some(&2), "{stats:?}");
+    let rec = amr_record::read::read_file(&path).unwrap();
+    assert!(rec.stopped.is_none());
+    assert_eq!(rec.messages.len() as u64, stats.messages);
+    let health: Vec<serde_json::Value> = rec
+        .messages
+        .iter()
+        .filter(|m| m.topic == "/health")
+        .map(|m| serde_json::from_slice(&m.data).unwrap())
+        .collect();
+    // Two ports: their relative order is the scheduler's.
+    let find = |text: &str| health.iter().find(|h| h["message"] == text).cloned();
+    assert_eq!(find("robot-a lidar: lost gone").unwrap()["level"], 4, "ERROR: {health:?}");
+    assert_eq!(find("robot-a safety: disarmed:device_lost").unwrap()["level"], 2, "INFO: {health:?}");
+}
