@@ -1,6 +1,7 @@
 //! Reading a recording back, complete or cut short: messages are read in file order up to the
 //! first record that is not whole (a crash leaves the chunks flushed before it), never panicking.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use mcap::read::Options;
@@ -131,6 +132,27 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
         out.stopped = Some(format!("damaged record at byte {}", whole.len()));
     }
     Ok(out)
+}
+
+/// The metadata records of `bytes` by name (e.g. `amr`: the command, configuration and seed the
+/// recorder was given), from the top level of the data section: a file cut short has them too.
+#[must_use]
+pub fn metadata(bytes: &[u8]) -> BTreeMap<String, BTreeMap<String, String>> {
+    const METADATA: u8 = 0x0C;
+    let whole = whole_records(bytes);
+    let mut out = BTreeMap::new();
+    let mut at = MAGIC.len().min(whole.len());
+    while let Some(end) = record_end(whole, at) {
+        if whole[at] == METADATA
+            && let Ok(Ok(mcap::records::Record::Metadata(m))) = std::panic::catch_unwind(|| {
+                mcap::parse_record(METADATA, &whole[at + 9..end]).map(mcap::records::Record::into_owned)
+            })
+        {
+            out.insert(m.name, m.metadata);
+        }
+        at = end;
+    }
+    out
 }
 
 /// Read every message of the file at `path`.

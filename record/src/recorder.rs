@@ -55,6 +55,27 @@ impl RecordSources {
     }
 }
 
+impl RecordSources {
+    /// A server's ports with what a replay needs to know: the map, the LiDAR mounts, and as
+    /// metadata `amr` the configuration, the seed and the robots (add the command line and the
+    /// scenario's name to `metadata`).
+    #[must_use]
+    pub fn server(ports: &Arc<ServerPorts>, setup: &amr_actors::server::ServerSetup) -> Self {
+        let mut s = RecordSources::new(ports.clock);
+        s.server = Some(Arc::clone(ports));
+        s.map = Some(setup.map.clone());
+        s.mounts = setup.robots.iter().map(|r| (r.id.as_str().to_owned(), r.lidar_mount.to_se2())).collect();
+        s.metadata.insert(
+            "configuration".into(),
+            crate::wire::configuration_name(setup.server.configuration).to_owned(),
+        );
+        s.metadata.insert("seed".into(), setup.seed.to_string());
+        s.metadata.insert("robots".into(), ports.robots.join(","));
+        s.metadata.insert("record_version".into(), crate::wire::VERSION.to_string());
+        s
+    }
+}
+
 /// Where to record.
 #[derive(Debug, Clone, Default)]
 pub struct RecordOptions {

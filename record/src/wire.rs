@@ -177,7 +177,7 @@ fn safety_of(s: &str) -> Result<SafetyState, WireError> {
     })
 }
 
-pub(crate) fn configuration_name(c: Configuration) -> &'static str {
+pub fn configuration_name(c: Configuration) -> &'static str {
     match c {
         Configuration::T1 => "T1",
         Configuration::T2 => "T2",
@@ -186,7 +186,8 @@ pub(crate) fn configuration_name(c: Configuration) -> &'static str {
     }
 }
 
-fn configuration_of(s: &str) -> Result<Configuration, WireError> {
+/// `T1`…`T4`.
+pub fn configuration_of(s: &str) -> Result<Configuration, WireError> {
     Ok(match s {
         "T1" => Configuration::T1,
         "T2" => Configuration::T2,

@@ -82,11 +82,7 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
         let ids: Vec<String> = setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect();
         let (server_end, robot_ends, _link) = in_process(&ids);
         let server = start_server(setup.clone(), server_end, clock).await.unwrap();
-        let mut sources = RecordSources::new(clock);
-        sources.server = Some(Arc::clone(&server.ports));
-        sources.map = Some(setup.map.clone());
-        sources.mounts =
-            setup.robots.iter().map(|r| (r.id.as_str().to_owned(), r.lidar_mount.to_se2())).collect();
+        let mut sources = RecordSources::server(&server.ports, &setup);
         sources.metadata.insert("command".into(), "test".into());
         sources.logs = Some(tap.clone());
         let options = RecordOptions { file: Some(path.clone()), live: None, flush: FlushPolicy::default() };
@@ -216,6 +212,13 @@ fn a_recording_reads_back_with_foxglove_schemas_counts_and_time_order() {
     assert_eq!(scan["frame_id"], "robot-a/laser");
     assert_eq!(scan["ranges"].as_array().unwrap().len(), 271);
     assert!(scan["timestamp"]["sec"].is_u64() && scan["timestamp"]["nsec"].is_u64());
+    // The metadata names what a replay needs.
+    let meta = &amr_record::read::metadata(&bytes)["amr"];
+    assert_eq!(meta["configuration"], "T4");
+    assert_eq!(meta["seed"], "5");
+    assert_eq!(meta["robots"], "robot-a,robot-b");
+    assert_eq!(meta["command"], "test");
+    assert_eq!(amr_record::read::metadata(&bytes[..bytes.len() / 2])["amr"], *meta, "a cut file too");
     // And the exact channel decodes.
     let first = rec.messages.iter().find(|m| m.topic == "/amr/uplink").unwrap();
     assert!(wire::decode_uplink(&first.data).is_ok());
