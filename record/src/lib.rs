@@ -46,6 +46,6 @@ pub mod wire;
 
 pub use live::{Hub, LiveServer, serve};
 pub use log_layer::LogLayer;
-pub use recorder::{LogTap, RecordError, RecordOptions, RecordSources, Recorder};
+pub use recorder::{FileRecorder, LogTap, RecordError, RecordOptions, RecordSources, Recorder};
 pub use replay::{ReplayReport, run as replay};
 pub use sink::FlushPolicy;

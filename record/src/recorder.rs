@@ -89,6 +89,8 @@ pub struct RecordOptions {
 pub enum RecordError {
     #[error(transparent)]
     Sink(#[from] SinkError),
+    #[error("an event: {0}")]
+    Encode(#[from] crate::wire::WireError),
     #[error("the recorder actor: {0}")]
     Actor(String),
 }
@@ -311,5 +313,42 @@ impl Recorder {
     #[must_use]
     pub fn actor(&self) -> &ActorRef<RecMsg> {
         &self.actor
+    }
+}
+
+/// A recorder without actors or ports, for code that runs the algorithms itself (a replay, an
+/// evaluation in simulated time): each event is written with the time the caller gives.
+#[derive(Debug)]
+pub struct FileRecorder {
+    file: McapFile,
+    encoder: Encoder,
+}
+
+impl FileRecorder {
+    /// Create `path`; `robots` are the formation's ids in order (names estimates' robots).
+    pub fn create(
+        path: &std::path::Path,
+        robots: Vec<String>,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<Self, RecordError> {
+        let mut file = McapFile::create(path, FlushPolicy::default())?;
+        if !metadata.is_empty() {
+            file.metadata("amr", metadata)?;
+        }
+        Ok(FileRecorder { file, encoder: Encoder::new(robots) })
+    }
+
+    /// Write `event` as seen at `t_s` (fleet-clock seconds; keep it non-decreasing).
+    pub fn put(&mut self, t_s: f64, event: &Event) -> Result<(), RecordError> {
+        let outs = self.encoder.encode(t_s, event)?;
+        for o in &outs {
+            self.file.write(o)?;
+        }
+        Ok(())
+    }
+
+    /// Finish the file (summary and index).
+    pub fn finish(self) -> Result<WriteStats, RecordError> {
+        Ok(self.file.finish()?)
     }
 }

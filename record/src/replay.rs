@@ -40,9 +40,9 @@ use amr_core::se2::Se2;
 use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
 
-use crate::encode::{Encoder, Event};
-use crate::read::{ReadError, read_file};
-use crate::sink::{FlushPolicy, McapFile, SinkError};
+use crate::encode::Event;
+use crate::read::{ReadError, metadata, read_bytes};
+use crate::recorder::{FileRecorder, RecordError};
 use crate::wire::{self, FusedRecord, WireError};
 
 /// Scans kept per robot for pairing (as the fusion actor).
@@ -56,7 +56,7 @@ pub enum ReplayError {
     #[error("a recorded message: {0}")]
     Wire(#[from] WireError),
     #[error(transparent)]
-    Sink(#[from] SinkError),
+    Record(#[from] RecordError),
     #[error("the recording has no `/amr/uplink` channel: nothing to replay")]
     NoUplink,
 }
@@ -349,7 +349,10 @@ pub fn run(
     setup: &ServerSetup,
     configuration: Option<Configuration>,
 ) -> Result<ReplayReport, ReplayError> {
-    let recording = read_file(input)?;
+    let bytes =
+        std::fs::read(input).map_err(|source| ReadError::Io { path: input.display().to_string(), source })?;
+    let recording = read_bytes(&bytes)?;
+    let recorded_meta = metadata(&bytes).remove("amr").unwrap_or_default();
     let mut engine = Engine::new(setup, configuration);
     let mut report = ReplayReport {
         configuration: Some(engine.configuration),
@@ -357,20 +360,22 @@ pub fn run(
         ..Default::default()
     };
     let mut out = match output {
-        Some(p) => Some(McapFile::create(p, FlushPolicy::default())?),
+        Some(p) => {
+            let mut meta = recorded_meta.clone();
+            meta.insert("replay_of".into(), input.display().to_string());
+            meta.insert("configuration".into(), wire::configuration_name(engine.configuration).to_owned());
+            Some(FileRecorder::create(p, engine.robots().to_vec(), meta)?)
+        }
         None => None,
     };
-    let mut encoder = Encoder::new(engine.robots().to_vec());
     let mut recorded: BTreeMap<(String, u64), VecDeque<Vec<u8>>> = BTreeMap::new();
     let mut recorded_fused: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
     let mut produced: Vec<Estimate> = Vec::new();
     let mut produced_fused: Vec<FusedRecord> = Vec::new();
     let mut last_seq: BTreeMap<(String, u8), u64> = BTreeMap::new();
-    let mut write = |now_s: f64, ev: Event, out: &mut Option<McapFile>| -> Result<(), ReplayError> {
+    let write = |now_s: f64, ev: Event, out: &mut Option<FileRecorder>| -> Result<(), ReplayError> {
         if let Some(f) = out {
-            for o in encoder.encode(now_s, &ev)? {
-                f.write(&o)?;
-            }
+            f.put(now_s, &ev)?;
         }
         Ok(())
     };

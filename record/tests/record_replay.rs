@@ -236,7 +236,19 @@ fn replay_reproduces_every_estimate_exactly() {
     assert_eq!(report.uplink, r.sent);
     assert_eq!(report.sequence_gaps, 0);
     assert!(!report.truncated);
-    // The new recording holds the same estimates, and replays to itself.
+    // The new recording says what it is, has the Foxglove views too, holds the same estimates and
+    // replays to itself.
+    let bytes = std::fs::read(&out).unwrap();
+    let meta = &amr_record::read::metadata(&bytes)["amr"];
+    assert_eq!(meta["seed"], "5");
+    assert_eq!(meta["replay_of"], r.path.display().to_string());
+    let topics: BTreeSet<String> =
+        read_bytes(&bytes).unwrap().messages.into_iter().map(|m| m.topic).collect();
+    for t in
+        ["/amr/uplink", "/amr/fused", "/amr/estimates", "/robot-a/scan", "/virtual/scan", "/amcl/V", "/tf"]
+    {
+        assert!(topics.contains(t), "{t}: {topics:?}");
+    }
     let again = replay(&out, None, &setup(Configuration::T4), None).unwrap();
     assert!(again.exact(), "{again:#?}");
     assert_eq!(again.recorded_estimates, report.recorded_estimates);
