@@ -11,14 +11,25 @@
 //!   100 ms tick is not replayed), and its next scan re-acquires it as the live fusion does;
 //! - the filters are seeded as the live AMCL actor seeds them (`seed + k`: V 0, robot i 1 + i).
 //!
-//! Exactness: every AMCL filter owns its generator and sees only its own inputs (robot i's
+//! Exactness. Every AMCL filter owns its generator and sees only its own inputs (robot i's
 //! scans; the fused frames), in uplink order, so its estimates do not depend on how the live
-//! actors interleaved. The fusion reads the robots' AMCL corrections only where the configuration
-//! takes a relative pose from AMCL (T1–T3, and V itself in T1); there the live result depends on
-//! whether the fusion actor read the correction before or after the AMCL actor updated it, which
-//! no port shows. So: in T4 (the shipped configuration) a replay with the original parameters
-//! reproduces every estimate bit for bit (the tests check it); in T1–T3 it assumes the AMCL actor
-//! went first (what a virtual-time run does) and the report counts any estimate that differs.
+//! actors interleaved. Two inputs of the live fusion are not on any port:
+//! - the robots' AMCL corrections it reads where the configuration takes a relative pose from
+//!   AMCL (T1–T3; and V itself in T1 from robot 0's correction): the live value depends on
+//!   whether the fusion actor read it before or after the AMCL actor took the same scan. The
+//!   replay takes "after" (what a virtual-time run does: the AMCL actor subscribes first);
+//! - the sync gate's `t_rx`: the fusion actor's clock reading when it took the scan. The replay
+//!   has the recorder's reading of the same moment. Equal in virtual time; in real time they
+//!   differ by the scheduling delay, which matters only if the fusion actor fell so far behind
+//!   that its age test (`max_age_ms`, 100 ms) decided otherwise.
+//!
+//! The tests check: in virtual time, every estimate and fused frame bit for bit in T1, T2, T3
+//! and T4; in real time on two worker threads, T4 bit for bit (with the age test out of the way).
+//! The report counts whatever differs. Both gaps close if the server stamps each uplink message
+//! once (e.g. the uplink pump in `start_server` publishing `(t_rx, Uplink)`, which the fusion uses)
+//! and the fusion publishes the corrections it used with each fused frame; the recorder would then
+//! record those. A server tree restarted mid-run (a drill) starts its filters and tracks again:
+//! the replay does not model restarts.
 //! The live actors consume every message (unbounded mailboxes); a recorder whose port
 //! subscription lagged would miss messages, which the report counts as gaps in the robots'
 //! sequence numbers.
