@@ -248,52 +248,115 @@ fn global_localisation_converges() {
     );
 }
 
-/// Track in the corridor, then carry the robot into the bottom-right room without telling the
-/// odometry. With α_slow/α_fast the fast average of the weights drops below the slow one and random
-/// poses are injected from the free space; without them nothing is injected.
-///
-/// What this does not show: that the filter then finds the robot again. In this 96 m² building, with
-/// nav2's reset of the averages after each injection, it did not within 200 updates (nor without the
-/// reset, where the injection runs up to replacing every particle). Recovery is an open point.
-#[test]
-fn kidnapping_triggers_random_injection_only_with_recovery_alphas() {
+/// The kidnapping scenario: track along the corridor, then the robot is carried into the top-right
+/// room (the one with the triangle) without the odometry seeing it, and drives on there. Returns,
+/// for each update after the kidnapping, the position and heading error, and the number of
+/// injecting resampling steps before and after the kidnapping.
+struct Kidnapping {
+    errors_after: Vec<(f64, f64)>,
+    injections_before: u64,
+    injections_after: u64,
+}
+
+fn kidnapping(params: &AmclParams, seed: u64, destination: Se2) -> Kidnapping {
     let b = building();
-    let mut params = shipped_params();
-    let a = crate::config::value::NonNegative::new(0.02).unwrap();
-    (params.alpha1, params.alpha2, params.alpha3, params.alpha4) = (a, a, a, a);
-    params.recovery_alpha_slow = Fraction::new(0.001).unwrap();
-    params.recovery_alpha_fast = Fraction::new(0.1).unwrap();
-    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let field = Arc::new(LikelihoodField::new(&b.grid, params, 10.0));
     let before: Vec<Se2> = (0..30).map(|k| Se2::new(1.0 + 0.1 * f64::from(k), 4.0, 0.0)).collect();
-    let after: Vec<Se2> = (0..40).map(|k| Se2::new(9.0 + 0.02 * f64::from(k), 1.5, 0.0)).collect();
+    let after: Vec<Se2> = (0..60).map(|k| destination * Se2::new(0.03 * f64::from(k), 0.0, 0.0)).collect();
     let truth: Vec<Se2> = before.iter().chain(&after).copied().collect();
     // The odometry sees only the motion within each phase, not the jump.
-    let mut odom = odometry(&before, &mut Rng::seed(13));
-    let tail = odometry(&after, &mut Rng::seed(14));
+    let mut odom = odometry(&before, &mut Rng::seed(13 + seed));
+    let tail = odometry(&after, &mut Rng::seed(14 + seed));
     let joint = *odom.last().unwrap() * tail[0].inverse();
     odom.extend(tail.iter().map(|o| joint * *o));
 
-    let go = |params: &AmclParams| {
-        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 17);
-        amcl.init_pose(truth[0], 0.05, 0.02);
-        let mut rng = Rng::seed(23);
-        let mut injections_before = 0;
-        for (k, (t, o)) in truth.iter().zip(&odom).enumerate() {
-            let scan = b.scan(t, &mut rng);
-            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, params), true);
+    let mut amcl = Amcl::new(params.clone(), field, 17 + seed);
+    amcl.init_pose(truth[0], 0.05, 0.02);
+    let mut rng = Rng::seed(23 + seed);
+    let mut out = Kidnapping { errors_after: Vec::new(), injections_before: 0, injections_after: 0 };
+    for (k, (t, o)) in truth.iter().zip(&odom).enumerate() {
+        let scan = b.scan(t, &mut rng);
+        amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, params), true);
+        let e = amcl.estimate().unwrap().pose;
+        if k < before.len() {
             if k == before.len() - 1 {
-                let e = amcl.estimate().unwrap().pose;
                 assert!((e.x - t.x).hypot(e.y - t.y) < 0.2, "tracked before the kidnapping: {e:?} vs {t:?}");
-                injections_before = amcl.injections();
+                out.injections_before = amcl.injections();
             }
+        } else {
+            out.errors_after.push(((e.x - t.x).hypot(e.y - t.y), angle_diff(e.theta, t.theta).abs()));
         }
-        (injections_before, amcl.injections())
-    };
-    let (before_n, after_n) = go(&params);
-    assert!(after_n > before_n, "the kidnapping must trigger injection ({before_n} → {after_n})");
+    }
+    out.injections_after = amcl.injections();
+    out
+}
+
+/// The first update after the kidnapping from which on every estimate is within 0.3 m and 10°.
+fn recovered_from(errors: &[(f64, f64)]) -> Option<usize> {
+    let ok = |e: &(f64, f64)| e.0 <= 0.3 && e.1 <= 10f64.to_radians();
+    let last_bad = errors.iter().rposition(|e| !ok(e));
+    match last_bad {
+        None => Some(0),
+        Some(i) if i + 1 < errors.len() => Some(i + 1),
+        Some(_) => None,
+    }
+}
+
+/// The tracking test's sensor settings with nav2's suggested recovery alphas 0.001 / 0.1 (docs.nav2.org)
+/// and nav2's default 500–2000 particles.
+fn recovery_params() -> AmclParams {
+    let mut p = tuned_params();
+    p.recovery_alpha_slow = Fraction::new(0.001).unwrap();
+    p.recovery_alpha_fast = Fraction::new(0.1).unwrap();
+    p
+}
+
+/// Kidnapped-robot recovery with α_slow/α_fast: after being carried from the corridor into the room
+/// with the triangle, the estimate is back within 0.3 m / 10° within 30 updates and stays there to
+/// the end (60 updates); without the recovery alphas nothing is injected and the estimate stays
+/// lost. Measured (seeded): back from update 19; seeds 1–9 (`kidnapping_recovery_over_seeds`): from
+/// update 2–8. The injection probability peaks near 0.18 and decays to 0 within about 40 updates
+/// of recovering; before the kidnapping nothing is injected.
+///
+/// Before the changes in `Amcl::resample`/`Amcl::weigh` (nav2's reset of the averages, uniform
+/// injection, the averages of the product model's raw likelihood) the filter did not recover in
+/// any seed tried. Not asserted here: a kidnapping into the bottom-right room, whose twin (bottom
+/// middle) differs by 10 cm of width and by what the doors show. There (robot at (9.0, 1.5)
+/// driving 1.8 m east) 8 of 10 seeds recovered within 2–25 updates and stayed; in 2 the estimate
+/// stayed in the twin room for all 60 updates.
+#[test]
+fn kidnapped_robot_recovers_with_recovery_alphas() {
+    let params = recovery_params();
+    let to = Se2::new(8.6, 5.2, 0.0);
+    let r = kidnapping(&params, 0, to);
+    assert!(r.injections_after > r.injections_before, "the kidnapping must trigger injection");
+    let from = recovered_from(&r.errors_after);
+    eprintln!(
+        "kidnapping: recovered from update {from:?} of {}; injecting steps {} before, {} in all",
+        r.errors_after.len(),
+        r.injections_before,
+        r.injections_after
+    );
+    assert!(from.is_some_and(|n| n <= 30), "errors after the kidnapping: {:?}", r.errors_after);
 
     let mut plain = params.clone();
     plain.recovery_alpha_slow = Fraction::new(0.0).unwrap();
     plain.recovery_alpha_fast = Fraction::new(0.0).unwrap();
-    assert_eq!(go(&plain), (0, 0), "no injection without the recovery alphas");
+    let r = kidnapping(&plain, 0, to);
+    assert_eq!((r.injections_before, r.injections_after), (0, 0), "no injection without the alphas");
+    let last = r.errors_after.last().unwrap();
+    assert!(last.0 > 1.0, "without recovery the estimate stays lost: {last:?}");
+}
+
+/// The same kidnapping with other seeds (filter, odometry and range noise).
+#[test]
+fn kidnapping_recovery_over_seeds() {
+    let params = recovery_params();
+    let mut froms = Vec::new();
+    for seed in 1..10 {
+        let r = kidnapping(&params, seed, Se2::new(8.6, 5.2, 0.0));
+        froms.push(recovered_from(&r.errors_after));
+    }
+    eprintln!("kidnapping over seeds 1-9: recovered from updates {froms:?}");
+    assert!(froms.iter().all(|f| f.is_some_and(|n| n <= 30)), "{froms:?}");
 }
