@@ -104,7 +104,8 @@ enum BridgeMsg {
 }
 
 struct BridgeState {
-    session: zenoh::Session,
+    /// Set once the session is open (a robot's bridge opens it in the background).
+    session: SessionSlot,
     role: Role,
     stats: Arc<BridgeStats>,
     _pumps: Vec<AbortOnDrop<()>>,
@@ -144,7 +145,11 @@ impl Actor for BridgeActor {
         match msg {
             BridgeMsg::Check => {
                 let Role::Robot(robot) = &state.role else { return Ok(()) };
-                let now = state.session.info().routers_zid().await.next().is_some();
+                let session = state.session.get();
+                let now = match session {
+                    Some(s) => s.info().routers_zid().await.next().is_some(),
+                    None => false,
+                };
                 let was = state.stats.connected.swap(now, Ordering::Relaxed);
                 if now && !was {
                     tracing::info!(robot = %robot, "link: connected to the server");
@@ -163,7 +168,9 @@ impl Actor for BridgeActor {
     ) -> Result<(), ActorProcessingErr> {
         state._pumps.clear();
         state._declared.clear();
-        if let Err(e) = state.session.close().await {
+        if let Some(session) = state.session.take()
+            && let Err(e) = session.close().await
+        {
             tracing::debug!(error = %e, "link: closing the session");
         }
         Ok(())
@@ -176,7 +183,29 @@ pub struct Bridge {
     pub stats: Arc<BridgeStats>,
     actor: ActorRef<BridgeMsg>,
     handle: tokio::task::JoinHandle<()>,
-    session: zenoh::Session,
+    session: SessionSlot,
+}
+
+/// The bridge's session, once open.
+#[derive(Debug, Clone, Default)]
+struct SessionSlot(Arc<Mutex<Option<zenoh::Session>>>);
+
+impl SessionSlot {
+    fn of(session: zenoh::Session) -> Self {
+        SessionSlot(Arc::new(Mutex::new(Some(session))))
+    }
+
+    fn get(&self) -> Option<zenoh::Session> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
+    fn set(&self, session: zenoh::Session) {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = Some(session);
+    }
+
+    fn take(&self) -> Option<zenoh::Session> {
+        self.0.lock().unwrap_or_else(PoisonError::into_inner).take()
+    }
 }
 
 impl std::fmt::Debug for BridgeMsg {
@@ -194,10 +223,10 @@ impl Bridge {
         Ok(Bridge { stats, actor, handle, session })
     }
 
-    /// The Zenoh session (tests publish raw samples through it).
+    /// The Zenoh session once open (tests publish raw samples through it).
     #[must_use]
-    pub fn session(&self) -> &zenoh::Session {
-        &self.session
+    pub fn session(&self) -> Option<zenoh::Session> {
+        self.session.get()
     }
 
     /// Stop the bridge and close its session.
@@ -249,43 +278,24 @@ fn count_put(stats: &BridgeStats, r: zenoh::Result<()>) {
     };
 }
 
-/// Start a robot's bridge: connect to the server (in the background: the robot runs whether or not
-/// it is reachable), declare the robot's liveliness token, and return the end for its tree.
+/// Start a robot's bridge and return the end for its tree at once. The bridge opens its session in
+/// the background, retrying with backoff until the server admits it (it may boot later than the
+/// robot), then declares the robot's liveliness token; Zenoh reconnects by itself after that. The
+/// robot runs whether or not the server is reachable: its command watchdog keeps it safe.
 pub async fn start_robot_bridge(
     settings: &NetSettings,
     robot: &str,
     clock: FleetClock,
 ) -> Result<(RobotEnd, Bridge), NetError> {
-    let session = zenoh::open(settings.robot_config(robot)?).await.map_err(zerr)?;
+    let config = settings.robot_config(robot)?;
     let stats = Arc::new(BridgeStats::default());
-    let key = |ch: &str| format!("{PREFIX}/{robot}/{ch}");
-    let sid = new_session();
-
-    let scan_pub = session
-        .declare_publisher(key("scan"))
-        .priority(Priority::DataLow)
-        .congestion_control(CongestionControl::Drop)
-        .await
-        .map_err(zerr)?;
-    let odom_pub = session
-        .declare_publisher(key("odom"))
-        .priority(Priority::Data)
-        .congestion_control(CongestionControl::Drop)
-        .await
-        .map_err(zerr)?;
-    let health_pub = session
-        .declare_publisher(key("health"))
-        .priority(Priority::InteractiveLow)
-        .congestion_control(CongestionControl::Block)
-        .await
-        .map_err(zerr)?;
-    let token = session.liveliness().declare_token(key("alive")).await.map_err(zerr)?;
+    let slot = SessionSlot::default();
 
     // The tree's uplink: one queue in, split by channel. Scans and odometry keep only the latest.
     let (up_tx, mut up_rx) = mpsc::channel::<Uplink>(DEPTH);
     let (scan_tx, scan_rx) = watch::channel::<Option<Uplink>>(None);
     let (odom_tx, odom_rx) = watch::channel::<Option<Uplink>>(None);
-    let (health_tx, mut health_rx) = mpsc::channel::<Uplink>(DEPTH);
+    let (health_tx, health_rx) = mpsc::channel::<Uplink>(DEPTH);
     let split = tokio::spawn(async move {
         while let Some(u) = up_rx.recv().await {
             match uplink_channel(&u) {
@@ -301,74 +311,145 @@ pub async fn start_robot_bridge(
             }
         }
     });
-    let latest_pump = |mut rx: watch::Receiver<Option<Uplink>>,
-                       publisher: zenoh::pubsub::Publisher<'static>| {
-        let stats = Arc::clone(&stats);
-        let mut stamper = Stamper::new(sid, robot, robot);
-        tokio::spawn(async move {
-            while rx.changed().await.is_ok() {
-                let Some(u) = rx.borrow_and_update().clone() else { continue };
-                let (stamp, body) = from_uplink(&u);
-                if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
-                    count_put(&stats, publisher.put(bytes).await);
-                }
-            }
-        })
-    };
-    let scans = latest_pump(scan_rx, scan_pub);
-    let odom = latest_pump(odom_rx, odom_pub);
-    let health = {
-        let stats = Arc::clone(&stats);
-        let mut stamper = Stamper::new(sid, robot, robot);
-        tokio::spawn(async move {
-            while let Some(u) = health_rx.recv().await {
-                let (stamp, body) = from_uplink(&u);
-                if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
-                    count_put(&stats, health_pub.put(bytes).await);
-                }
-            }
-        })
-    };
-
-    // Commands: decoded, checked (for me, from the server, newer than the last) and passed on. The
-    // safety layer then applies its own rules (armed, sequence floor, stamp age).
     let (down_tx, down_rx) = mpsc::channel::<Downlink>(DEPTH);
-    let fresh = Mutex::new(Freshness::default());
-    let (me, server) = (robot.to_owned(), settings.server_user().to_owned());
-    let cmd_stats = Arc::clone(&stats);
-    let cmd_key = key("cmd");
-    let subscriber = session
-        .declare_subscriber(cmd_key.clone())
-        .callback(move |sample| {
-            let bytes = sample.payload().to_bytes();
-            let checked = Envelope::decode(&bytes).and_then(|env| {
-                fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env)?;
-                to_downlink(env, &me, &server)
-            });
-            match checked {
-                Ok(d) => {
-                    if down_tx.try_send(d).is_ok() {
-                        cmd_stats.delivered.fetch_add(1, Ordering::Relaxed);
-                    } else {
-                        cmd_stats.queue_full.fetch_add(1, Ordering::Relaxed);
+    let link = RobotLink {
+        robot: robot.to_owned(),
+        server: settings.server_user().to_owned(),
+        clock,
+        stats: Arc::clone(&stats),
+        scans: scan_rx,
+        odom: odom_rx,
+        health: health_rx,
+        down: down_tx,
+    };
+    let connector_slot = slot.clone();
+    let who = robot.to_owned();
+    let connector = tokio::spawn(async move {
+        let mut backoff = Duration::from_millis(100);
+        let mut attempt = 0u32;
+        let session = loop {
+            attempt += 1;
+            match zenoh::open(config.clone()).await {
+                Ok(s) => break s,
+                Err(e) => {
+                    if attempt <= 3 || attempt % 20 == 0 {
+                        tracing::warn!(robot = %who, attempt, error = %e, "link: cannot reach the server; retrying");
                     }
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(Duration::from_secs(5));
                 }
-                Err(r) => cmd_stats.reject(&cmd_key, r.kind(), &r),
             }
-        })
-        .await
-        .map_err(zerr)?;
-
+        };
+        connector_slot.set(session.clone());
+        if let Err(e) = link.run(session).await {
+            tracing::error!(robot = %who, error = %e, "link: the bridge failed");
+        }
+    });
     let bridge = Bridge::spawn(BridgeState {
-        session,
+        session: slot,
         role: Role::Robot(robot.to_owned()),
         stats,
-        _pumps: vec![AbortOnDrop(split), AbortOnDrop(scans), AbortOnDrop(odom), AbortOnDrop(health)],
-        _declared: vec![Box::new(subscriber), Box::new(token)],
+        _pumps: vec![AbortOnDrop(split), AbortOnDrop(connector)],
+        _declared: Vec::new(),
     })
     .await?;
     tracing::info!(robot, endpoints = ?settings.connect.as_ref().unwrap_or(&settings.network.server.connect), "link: robot bridge started");
     Ok((RobotEnd { robot: robot.to_owned(), up: UplinkSender::new(up_tx), down: down_rx }, bridge))
+}
+
+/// A robot's side of the link once its session is open.
+struct RobotLink {
+    robot: String,
+    server: String,
+    clock: FleetClock,
+    stats: Arc<BridgeStats>,
+    scans: watch::Receiver<Option<Uplink>>,
+    odom: watch::Receiver<Option<Uplink>>,
+    health: mpsc::Receiver<Uplink>,
+    down: mpsc::Sender<Downlink>,
+}
+
+impl RobotLink {
+    /// Declare the robot's keys and token and pump until the bridge stops.
+    async fn run(self, session: zenoh::Session) -> Result<(), NetError> {
+        let RobotLink { robot, server, clock, stats, scans, odom, mut health, down } = self;
+        let key = |ch: &str| format!("{PREFIX}/{robot}/{ch}");
+        let sid = new_session();
+        let scan_pub = session
+            .declare_publisher(key("scan"))
+            .priority(Priority::DataLow)
+            .congestion_control(CongestionControl::Drop)
+            .await
+            .map_err(zerr)?;
+        let odom_pub = session
+            .declare_publisher(key("odom"))
+            .priority(Priority::Data)
+            .congestion_control(CongestionControl::Drop)
+            .await
+            .map_err(zerr)?;
+        let health_pub = session
+            .declare_publisher(key("health"))
+            .priority(Priority::InteractiveLow)
+            .congestion_control(CongestionControl::Block)
+            .await
+            .map_err(zerr)?;
+
+        // Commands: decoded, checked (for me, from the server, newer than the last) and passed on.
+        // The safety layer then applies its own rules (armed, sequence floor, stamp age).
+        let fresh = Mutex::new(Freshness::default());
+        let (me, cmd_stats, cmd_key) = (robot.clone(), Arc::clone(&stats), key("cmd"));
+        let _subscriber = session
+            .declare_subscriber(cmd_key.clone())
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                let checked = Envelope::decode(&bytes).and_then(|env| {
+                    fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env)?;
+                    to_downlink(env, &me, &server)
+                });
+                match checked {
+                    Ok(d) => {
+                        if down.try_send(d).is_ok() {
+                            cmd_stats.delivered.fetch_add(1, Ordering::Relaxed);
+                        } else {
+                            cmd_stats.queue_full.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
+                    Err(r) => cmd_stats.reject(&cmd_key, r.kind(), &r),
+                }
+            })
+            .await
+            .map_err(zerr)?;
+        let _token = session.liveliness().declare_token(key("alive")).await.map_err(zerr)?;
+
+        let latest = |mut rx: watch::Receiver<Option<Uplink>>,
+                      publisher: zenoh::pubsub::Publisher<'static>| {
+            let stats = Arc::clone(&stats);
+            let mut stamper = Stamper::new(sid, &robot, &robot);
+            async move {
+                while rx.changed().await.is_ok() {
+                    let Some(u) = rx.borrow_and_update().clone() else { continue };
+                    let (stamp, body) = from_uplink(&u);
+                    if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
+                        count_put(&stats, publisher.put(bytes).await);
+                    }
+                }
+            }
+        };
+        let health_pump = {
+            let stats = Arc::clone(&stats);
+            let mut stamper = Stamper::new(sid, &robot, &robot);
+            async move {
+                while let Some(u) = health.recv().await {
+                    let (stamp, body) = from_uplink(&u);
+                    if let Some(bytes) = stamper.encode(stamp, clock.now_s(), body) {
+                        count_put(&stats, health_pub.put(bytes).await);
+                    }
+                }
+            }
+        };
+        tokio::join!(latest(scans, scan_pub), latest(odom, odom_pub), health_pump);
+        Ok(())
+    }
 }
 
 /// The server's bridge: its end for the server tree, the robots it sees, and its status channel.
@@ -549,9 +630,14 @@ pub async fn start_server_bridge(
         .congestion_control(CongestionControl::Drop)
         .await
         .map_err(zerr)?;
-    let bridge =
-        Bridge::spawn(BridgeState { session, role: Role::Server, stats, _pumps: pumps, _declared: declared })
-            .await?;
+    let bridge = Bridge::spawn(BridgeState {
+        session: SessionSlot::of(session),
+        role: Role::Server,
+        stats,
+        _pumps: pumps,
+        _declared: declared,
+    })
+    .await?;
     tracing::info!(
         endpoints = ?settings.listen.as_ref().unwrap_or(&settings.network.server.listen),
         robots = ?robots,

@@ -179,9 +179,9 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
     };
     for i in 0..10 {
         let f = amr_net::wire::Envelope { seq: i + 1, ..forged.clone() };
-        bridge_b.session().put("fleet/robot-a/cmd", f.encode().unwrap()).await.unwrap();
+        bridge_b.session().unwrap().put("fleet/robot-a/cmd", f.encode().unwrap()).await.unwrap();
         let p = amr_net::wire::Envelope { seq: i + 1, ..posing.clone() };
-        bridge_b.session().put("fleet/robot-a/health", p.encode().unwrap()).await.unwrap();
+        bridge_b.session().unwrap().put("fleet/robot-a/health", p.encode().unwrap()).await.unwrap();
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -221,6 +221,7 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     let _tap = srv
         .bridge
         .session()
+        .unwrap()
         .declare_subscriber("fleet/robot-a/cmd")
         .callback(move |s| sink.lock().unwrap().push(s.payload().to_bytes().to_vec()))
         .await
@@ -240,7 +241,7 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     let old = captured.lock().unwrap().first().cloned().expect("a captured command");
     let before = bridge_a.stats.rejected("replayed");
     for _ in 0..5 {
-        srv.bridge.session().put("fleet/robot-a/cmd", old.clone()).await.unwrap();
+        srv.bridge.session().unwrap().put("fleet/robot-a/cmd", old.clone()).await.unwrap();
     }
     timeout(WAIT, async {
         while bridge_a.stats.rejected("replayed") < before + 5 {
