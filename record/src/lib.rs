@@ -14,17 +14,27 @@
 //! **JSON schemas, not the `foxglove` SDK crate.** Foxglove opens MCAP channels with schema
 //! encoding `jsonschema` and message encoding `json` with no plugin, so the well-known schemas are
 //! written here as JSON ([`foxglove`]) and the live server is ~200 lines over `tokio-tungstenite`.
-//! `foxglove` 0.30.3 with only its `websocket` feature resolves to 152 crates (prost, serde_with,
-//! flume, sha2, tungstenite 0.30, …) against 107 for everything this crate adds (mcap without
-//! compression, tungstenite's bare handshake, serde_json); see the report of issue 12 for the build
-//! times measured.
+//! Clean release builds of a probe binary, each in its own target directory:
 //!
-//! **No compression.** `mcap`'s default features build the zstd and lz4 C libraries. Recordings
-//! are written uncompressed (chunks whole, closed about every second): the C build costs more than
-//! the disk it saves for recordings of a few minutes, and an uncompressed chunk is readable byte
-//! for byte up to a crash. `zstd -3` on a 20 s simulated recording shrinks it about 6×
-//! (numbers in the issue report); a long-running robot that needs that can turn the feature on
-//! (`mcap/zstd`) and set [`mcap::WriteOptions::compression`].
+//! | dependencies | crates (`cargo tree`) | build, elapsed |
+//! |---|---|---|
+//! | `foxglove` 0.30.3, only its `websocket` feature | 152 | 1840 s |
+//! | ours: `mcap` (no default features), `tokio-tungstenite` (`handshake`), `serde_json`, `tokio` | 107 | 576 s |
+//! | `mcap` alone, no compression | 35 | 86 s (57 s CPU) |
+//! | `mcap` with `zstd` | 43 | 225 s (152 s CPU) |
+//!
+//! (The first two ran while the machine's load was about 7, so their times are inflated; their
+//! ratio, about 3×, is the point.) In the workspace this crate adds 47 crates to what amr-actors
+//! already pulls in, of which `tracing-subscriber` and `serde_json` are in the `amr` binary anyway.
+//!
+//! **No compression.** `mcap`'s default features build the zstd and lz4 C libraries (`zstd-sys`,
+//! `lz4-sys`): zstd alone costs about 95 s more CPU per clean build and a C compiler. A 4 s
+//! two-robot recording of the tests is 1.68 MB (about 420 kB/s; the tests' ray-cast ranges carry
+//! full `f64` digits, a TiM551's millimetres print shorter); `zstd -3` makes it 186 kB (9×), `lz4`
+//! 423 kB (4×). For the runs this project records (a few minutes of simulation or a drill) that
+//! disk is cheaper than the build; a robot recording for hours would want zstd: enable
+//! `mcap/zstd`, set `compression(Some(mcap::Compression::Zstd))` in [`sink::McapFile::create`] and let
+//! [`read`]'s chunk check accept compressed chunks. Not done here because no test would cover it.
 //!
 //! # Crash safety
 //!
