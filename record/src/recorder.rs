@@ -26,8 +26,8 @@ pub struct RecordSources {
     pub clock: FleetClock,
     /// The fusion server (`amr server`, `amr sim`, `amr eval`).
     pub server: Option<Arc<ServerPorts>>,
-    /// Robots whose own ports to record (`amr robot`; in `amr sim` the server's uplink already
-    /// carries their scans, odometry, health and safety: add robots here only for IMU and wheels).
+    /// Robots whose own ports to record (`amr robot`). With a server too (`amr sim`) only their IMU
+    /// and wheels are taken from here: the uplink carries the rest.
     pub robots: Vec<Arc<RobotPorts>>,
     /// Written once as `/map`.
     pub map: Option<OccupancyGrid>,
@@ -172,15 +172,21 @@ fn subscribe_server(me: &ActorRef<RecMsg>, p: &ServerPorts) {
     p.commands.subscribe(me.clone(), move |(i, d)| ev(Event::Command(i, d)));
 }
 
-fn subscribe_robot(me: &ActorRef<RecMsg>, p: &RobotPorts) {
+/// A robot's ports. With a server recorded too (`amr sim`), its uplink already carries the scans,
+/// odometry, health and safety, and its commands port the downlink: only the IMU and the wheels
+/// are taken from the robot then.
+fn subscribe_robot(me: &ActorRef<RecMsg>, p: &RobotPorts, with_server: bool) {
     let ev = |e: Event| Some(RecMsg::Event(Box::new(e)));
     let id = p.robot.clone();
-    let r = id.clone();
-    p.scans.subscribe(me.clone(), move |s| ev(Event::Scan(r.clone(), s)));
     let r = id.clone();
     p.imu.subscribe(me.clone(), move |s| ev(Event::Imu(r.clone(), s)));
     let r = id.clone();
     p.wheels.subscribe(me.clone(), move |s| ev(Event::Wheels(r.clone(), s)));
+    if with_server {
+        return;
+    }
+    let r = id.clone();
+    p.scans.subscribe(me.clone(), move |s| ev(Event::Scan(r.clone(), s)));
     let r = id.clone();
     p.odom.subscribe(me.clone(), move |s| ev(Event::Odom(r.clone(), s)));
     let r = id.clone();
@@ -226,7 +232,7 @@ impl Actor for RecorderActor {
             subscribe_server(&me, s);
         }
         for r in &sources.robots {
-            subscribe_robot(&me, r);
+            subscribe_robot(&me, r, sources.server.is_some());
         }
         if let Some(t) = &sources.logs {
             t.set(Some(me.clone()));

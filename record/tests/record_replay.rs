@@ -11,6 +11,7 @@ use amr_actors::clock::FleetClock;
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::link::in_process;
 use amr_actors::messages::{Device, Health, HealthReport, OdomMsg, ScanMsg, Uplink};
+use amr_actors::robot::ports::{ImuReading, LidarScan, RobotPorts};
 use amr_actors::server::{ServerSetup, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
 use amr_core::config::Configuration;
@@ -97,6 +98,9 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
         let (server_end, robot_ends, _link) = in_process(&ids);
         let server = start_server(setup.clone(), server_end, clock).await.unwrap();
         let mut sources = RecordSources::server(&server.ports, &setup);
+        // The robots' own ports too (as `amr sim` can): only their IMU is taken from there.
+        let robot_ports: Vec<_> = ids.iter().map(|id| RobotPorts::new(id.clone(), clock)).collect();
+        sources.robots = robot_ports.clone();
         sources.metadata.insert("command".into(), "test".into());
         sources.logs = Some(tap.clone());
         let options = RecordOptions { file: Some(path.clone()), live: None, flush: FlushPolicy::default() };
@@ -122,6 +126,10 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
                     scan: Arc::new(site.scan(&poses, i)),
                     odom,
                 };
+                let lidar =
+                    LidarScan { seq: k as u64, stamp_s: t, received_s: t, scan: Arc::clone(&scan.scan) };
+                robot_ports[i].scans.send(lidar);
+                robot_ports[i].imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.0 });
                 assert!(end.up.send(Uplink::Scan(scan)));
                 let msg = OdomMsg { seq: k as u64, stamp_s: t, pose: odom, twist: (0.2, 0.0), gyro: true };
                 assert!(end.up.send(Uplink::Odom { robot: ids[i].clone(), msg }));
@@ -196,7 +204,8 @@ fn a_recording_reads_back_with_foxglove_schemas_counts_and_time_order() {
     let count = |t: &str| rec.messages.iter().filter(|m| m.topic == t).count();
     assert_eq!(count("/amr/uplink"), r.sent, "every uplink message recorded");
     assert_eq!(count("/robot-a/scan"), SCANS);
-    assert_eq!(count("/robot-b/scan"), SCANS);
+    assert_eq!(count("/robot-b/scan"), SCANS, "from the uplink only, not twice");
+    assert_eq!(count("/robot-a/imu"), SCANS, "from the robot's port");
     assert_eq!(count("/map"), 1);
     assert_eq!(count("/health"), 1);
     assert!(count("/amr/fused") > SCANS / 2, "{}", count("/amr/fused"));
