@@ -314,8 +314,8 @@ fn recovery_params() -> AmclParams {
 /// Kidnapped-robot recovery with α_slow/α_fast: after being carried from the corridor into the room
 /// with the triangle, the estimate is back within 0.3 m / 10° within 30 updates and stays there to
 /// the end (60 updates); without the recovery alphas nothing is injected and the estimate stays
-/// lost. Measured (seeded): back from update 19; seeds 1–9 (`kidnapping_recovery_over_seeds`): from
-/// update 2–8. The injection probability peaks near 0.18 and decays to 0 within about 40 updates
+/// lost. Measured (seeded): back from update 19; seeds 1–5 (`kidnapping_recovery_over_seeds`): from
+/// update 4–7 (seeds 6–9: 2–8). The injection probability peaks near 0.18 and decays to 0 within about 40 updates
 /// of recovering; before the kidnapping nothing is injected.
 ///
 /// Before the changes in `Amcl::resample`/`Amcl::weigh` (nav2's reset of the averages, uniform
@@ -353,10 +353,10 @@ fn kidnapped_robot_recovers_with_recovery_alphas() {
 fn kidnapping_recovery_over_seeds() {
     let params = recovery_params();
     let mut froms = Vec::new();
-    for seed in 1..10 {
+    for seed in 1..=5 {
         let r = kidnapping(&params, seed, Se2::new(8.6, 5.2, 0.0));
         froms.push(recovered_from(&r.errors_after));
     }
-    eprintln!("kidnapping over seeds 1-9: recovered from updates {froms:?}");
+    eprintln!("kidnapping over seeds 1-5: recovered from updates {froms:?}");
     assert!(froms.iter().all(|f| f.is_some_and(|n| n <= 30)), "{froms:?}");
 }
