@@ -338,6 +338,11 @@ fn kidnapped_robot_recovers_with_recovery_alphas() {
         r.injections_after
     );
     assert!(from.is_some_and(|n| n <= 30), "errors after the kidnapping: {:?}", r.errors_after);
+    // Injection draws from the filter's own generator: the same seed gives the same bits.
+    let again = kidnapping(&params, 0, to);
+    let bits =
+        |k: &Kidnapping| k.errors_after.iter().map(|e| (e.0.to_bits(), e.1.to_bits())).collect::<Vec<_>>();
+    assert_eq!(bits(&r), bits(&again));
 
     let mut plain = params.clone();
     plain.recovery_alpha_slow = Fraction::new(0.0).unwrap();
