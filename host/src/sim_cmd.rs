@@ -3,12 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use amr_actors::clock::FleetClock;
-use amr_actors::config::{ConfigSource, load};
-use amr_actors::robot::{DeviceOverrides, RobotOptions, start_robot};
-use amr_actors::server::{ServerSetup, formation_robots, start_server};
-use amr_actors::supervisor::RestartPolicy;
-use amr_core::config::{Config, Configuration};
+use amr_actors::config::load;
+use amr_core::config::Configuration;
 use amr_sim::{Sim, SimCan, SimOptions};
 use anyhow::Context;
 use hil_mocks::world::Noise;

@@ -88,7 +88,7 @@ impl BridgeStats {
             *n += 1;
             *n
         };
-        if n <= 10 || n % 1000 == 0 {
+        if n <= 10 || n.is_multiple_of(1000) {
             tracing::warn!(key, reason = %why, count = n, "link: sample refused");
         }
     }
@@ -332,7 +332,7 @@ pub async fn start_robot_bridge(
             match zenoh::open(config.clone()).await {
                 Ok(s) => break s,
                 Err(e) => {
-                    if attempt <= 3 || attempt % 20 == 0 {
+                    if attempt <= 3 || attempt.is_multiple_of(20) {
                         tracing::warn!(robot = %who, attempt, error = %e, "link: cannot reach the server; retrying");
                     }
                     tokio::time::sleep(backoff).await;

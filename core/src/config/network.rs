@@ -60,7 +60,7 @@ impl ConfigFileType for NetworkConfig {
             for (i, e) in list.iter().enumerate() {
                 rule(
                     tcp_endpoint(e),
-                    &format!("{key}[{i}]"),
+                    format!("{key}[{i}]"),
                     format!("`{e}`: expected tcp/<host>:<port> (only TCP is built in)"),
                 )?;
             }
