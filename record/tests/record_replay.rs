@@ -400,3 +400,19 @@ fn a_real_time_run_on_many_threads_replays_exactly_in_t4() {
     assert!(report.fused > 20, "{report:#?}");
     assert_eq!(report.fused_identical, report.fused, "{report:#?}");
 }
+
+#[test]
+fn a_recording_cut_by_a_crash_replays_up_to_the_cut() {
+    let r = t4();
+    let bytes = std::fs::read(&r.path).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let report = replay(&cut, None, &setup(Configuration::T4), None).unwrap();
+    assert!(report.truncated, "{report:#?}");
+    assert!(report.uplink > 0 && report.uplink < r.sent, "{report:#?}");
+    assert!(report.compared > 50, "{report:#?}");
+    assert_eq!(report.identical, report.compared, "{report:#?}");
+    // Estimates of the last messages before the cut may be after it: extra, never missing.
+    assert_eq!(report.missing, 0, "{report:#?}");
+}
