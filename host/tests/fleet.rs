@@ -167,7 +167,18 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
         let loaded = amr_actors::config::load(&ConfigSource::Dir(config.clone())).unwrap();
         let mut s = NetSettings::new(loaded.network.as_ref(), Some(&creds)).unwrap();
         s.connect = Some(vec![endpoint.clone()]);
-        let session = zenoh::open(s.observer_config("observer").unwrap()).await.unwrap();
+        // The server may not be listening yet: bounded retries.
+        let mut session = None;
+        for _ in 0..200 {
+            match zenoh::open(s.observer_config("observer").unwrap()).await {
+                Ok(z) => {
+                    session = Some(z);
+                    break;
+                }
+                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+            }
+        }
+        let session = session.expect("the server admits the observer within 20 s");
         let sink = Arc::clone(&seen);
         let status = session
             .declare_subscriber("fleet/server/status")
@@ -214,16 +225,16 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
         s.status.as_ref().is_some_and(|st| !st.alive.iter().any(|r| r == "robot-b"))
     });
     assert!(seen_gone < Duration::from_secs(2), "the server saw robot-b gone after {seen_gone:?}");
-    wait_for(&seen, "formation stopped", Duration::from_secs(10), |s| {
+    let stopped = wait_for(&seen, "formation stopped", Duration::from_secs(10), |s| {
         phase(s, "Stopped") || phase(s, "Holding")
     });
-    wait_for(&seen, "robot-a disarmed", Duration::from_secs(10), |s| {
+    let disarmed = wait_for(&seen, "robot-a disarmed", Duration::from_secs(10), |s| {
         s.safety_a.iter().any(|(t, st)| *t > killed && *st != WireSafety::Armed)
     });
 
     // Restart it: it rejoins, and after the operator's re-arm the scenario completes.
     procs.0.push(("robot-b".into(), run(robot_args("robot-b"), "robot-b-2", false)));
-    wait_for(&seen, "robot-b rejoined", Duration::from_secs(30), |s| {
+    let rejoined = wait_for(&seen, "robot-b rejoined", Duration::from_secs(30), |s| {
         s.status.as_ref().is_some_and(|st| st.alive.iter().any(|r| r == "robot-b"))
     });
     let stdin = procs.child("server").stdin.as_mut().unwrap();
@@ -231,6 +242,11 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
     stdin.flush().unwrap();
     wait_for(&seen, "formation running again", Duration::from_secs(60), |s| phase(s, "Running"));
     wait_for(&seen, "scenario finished", Duration::from_secs(90), |s| phase(s, "Finished"));
+    eprintln!(
+        "robot-b killed: seen gone after {seen_gone:?}, formation stopped {stopped:?} later, robot-a \
+         disarmed {disarmed:?} after that; restarted robot-b rejoined in {rejoined:?}; last status {:?}",
+        seen.lock().unwrap().status
+    );
     let armed_again =
         seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == WireSafety::Armed).count();
     assert!(armed_again >= 1, "robot-a was re-armed");
