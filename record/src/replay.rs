@@ -30,9 +30,11 @@
 //! and the fusion publishes the corrections it used with each fused frame; the recorder would then
 //! record those. A server tree restarted mid-run (a drill) starts its filters and tracks again:
 //! the replay does not model restarts.
-//! The live actors consume every message (unbounded mailboxes); a recorder whose port
-//! subscription lagged would miss messages, which the report counts as gaps in the robots'
-//! sequence numbers.
+//! The live actors consume every message (unbounded mailboxes). A port subscription that lagged
+//! (ractor's output ports skip the oldest of more than 10 messages queued for one subscriber)
+//! would leave the recorder without messages the server had; nothing in the uplink's sequence
+//! numbers shows it (the robots number every link message, decimated odometry too), but the
+//! comparison does: estimates missing or extra.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -93,8 +95,6 @@ pub struct ReplayReport {
     pub extra: usize,
     /// Fused frames equal to the recorded ones (by sequence number).
     pub fused_identical: usize,
-    /// Gaps in each robot's uplink sequence numbers (messages the recorder did not see).
-    pub sequence_gaps: usize,
     /// The input file was cut short (a crash): replayed up to its last whole chunk.
     pub truncated: bool,
     /// The first estimate that differs, for people.
@@ -383,7 +383,6 @@ pub fn run(
     let mut recorded_fused: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
     let mut produced: Vec<Estimate> = Vec::new();
     let mut produced_fused: Vec<FusedRecord> = Vec::new();
-    let mut last_seq: BTreeMap<(String, u8), u64> = BTreeMap::new();
     let write = |now_s: f64, ev: Event, out: &mut Option<FileRecorder>| -> Result<(), ReplayError> {
         if let Some(f) = out {
             f.put(now_s, &ev)?;
@@ -397,17 +396,6 @@ pub fn run(
                 saw_uplink = true;
                 let r = wire::decode_uplink(&m.data)?;
                 report.uplink += 1;
-                let (kind, seq) = match &r.msg {
-                    Uplink::Scan(s) => (0, s.seq),
-                    Uplink::Odom { msg, .. } => (1, msg.seq),
-                    Uplink::Health { seq, .. } => (2, *seq),
-                    Uplink::Safety { seq, .. } => (3, *seq),
-                };
-                if let Some(prev) = last_seq.insert((r.msg.robot().to_owned(), kind), seq)
-                    && seq > prev + 1
-                {
-                    report.sequence_gaps += 1;
-                }
                 if matches!(r.msg, Uplink::Scan(_)) {
                     report.scans += 1;
                 }

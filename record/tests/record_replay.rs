@@ -257,7 +257,6 @@ fn replay_reproduces_every_estimate_exactly() {
     assert_eq!(report.fused, report.recorded_fused);
     assert_eq!(report.fused_identical, report.fused, "{report:#?}");
     assert_eq!(report.uplink, r.sent);
-    assert_eq!(report.sequence_gaps, 0);
     assert!(!report.truncated);
     // The new recording says what it is, has the Foxglove views too, holds the same estimates and
     // replays to itself.
