@@ -2,9 +2,11 @@
 //! world and the mock devices, `amr server` runs the fusion server, two `amr robot --mock`
 //! processes run the robots, all linked over Zenoh on loopback with user/password authentication.
 //! The test watches through its own Zenoh session (an observer user) and checks: the formation
-//! runs; killing a robot process is seen within the liveliness lease and stops the formation (the
-//! other robot is disarmed); the restarted robot rejoins; after the operator's re-arm the short
-//! scenario completes. Every wait is bounded; the processes are killed when the test ends.
+//! runs; killing the server stops the robots by their own command watchdogs, and a new server
+//! re-arms them and resumes the plan; killing a robot process is seen within the liveliness lease
+//! and stops the formation (the other robot is disarmed); the restarted robot rejoins; after the
+//! operator's re-arm the short scenario completes. Every wait is bounded; the processes are killed
+//! when the test ends.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::io::Write as _;
@@ -100,7 +102,7 @@ fn wait_for(seen: &Mutex<Seen>, what: &str, limit: Duration, f: impl Fn(&Seen) -
 }
 
 #[test]
-fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_finish() {
+fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish() {
     let tmp = tempfile::tempdir().unwrap();
     let creds = write_config(tmp.path());
     let config = tmp.path().join("config");
@@ -156,7 +158,7 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
         "--endpoint".into(),
         endpoint.clone(),
     ];
-    procs.0.push(("server".into(), run(server, "server", true)));
+    procs.0.push(("server".into(), run(server.clone(), "server", true)));
     procs.0.push(("robot-a".into(), run(robot_args("robot-a"), "robot-a", false)));
     procs.0.push(("robot-b".into(), run(robot_args("robot-b"), "robot-b", false)));
 
@@ -218,6 +220,28 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
     });
     diag(&mut procs);
 
+    // Kill the server: each robot's own command watchdog stops it (its log says so).
+    procs.kill("server");
+    let t0 = Instant::now();
+    let watchdog = loop {
+        let text = std::fs::read_to_string(log("robot-a")).unwrap_or_default();
+        if text.contains("state=Disarmed(Watchdog)") {
+            break t0.elapsed();
+        }
+        assert!(t0.elapsed() < Duration::from_secs(5), "robot-a did not stop by its watchdog:\n{text}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    // A new server: the robots' sessions reconnect, it re-arms them and resumes the plan where V is.
+    let before = seen.lock().unwrap().status.as_ref().map_or(0.0, |st| st.plan_s);
+    seen.lock().unwrap().status = None;
+    procs.0.push(("server".into(), run(server, "server-2", true)));
+    let restarted = wait_for(&seen, "the new server running", Duration::from_secs(60), |s| {
+        phase(s, "Running") && s.status.as_ref().is_some_and(|st| st.alive.len() == 2)
+    });
+    wait_for(&seen, "the plan resumed", Duration::from_secs(30), |s| {
+        s.status.as_ref().is_some_and(|st| st.plan_s > before + 1.0)
+    });
+
     // Kill robot-b's process.
     procs.kill("robot-b");
     let killed = Instant::now();
@@ -243,8 +267,10 @@ fn two_robot_processes_and_a_server_process_run_lose_and_rejoin_a_robot_and_fini
     wait_for(&seen, "formation running again", Duration::from_secs(60), |s| phase(s, "Running"));
     wait_for(&seen, "scenario finished", Duration::from_secs(90), |s| phase(s, "Finished"));
     eprintln!(
-        "robot-b killed: seen gone after {seen_gone:?}, formation stopped {stopped:?} later, robot-a \
-         disarmed {disarmed:?} after that; restarted robot-b rejoined in {rejoined:?}; last status {:?}",
+        "server killed: robot-a's watchdog stopped it within {watchdog:?}; the new server ran the \
+         formation after {restarted:?}; robot-b killed: seen gone after {seen_gone:?}, formation \
+         stopped {stopped:?} later, robot-a disarmed {disarmed:?} after that; restarted robot-b \
+         rejoined in {rejoined:?}; last status {:?}",
         seen.lock().unwrap().status
     );
     let armed_again =
