@@ -4,7 +4,8 @@
 //! The test watches through its own Zenoh session (an observer user) and checks: the formation
 //! runs; killing the server stops the robots by their own command watchdogs, and a new server
 //! re-arms them and resumes the plan; killing a robot process is seen within the liveliness lease
-//! and stops the formation (the other robot is disarmed); the restarted robot rejoins; after the
+//! and stops the formation (the other robot is disarmed); the restarted robot rejoins; a frozen
+//! robot is seen gone when its lease runs out and rejoins when it resumes; after the
 //! operator's re-arm the short scenario completes. Every wait is bounded; the processes are killed
 //! when the test ends.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
@@ -261,6 +262,19 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     let rejoined = wait_for(&seen, "robot-b rejoined", Duration::from_secs(30), |s| {
         s.status.as_ref().is_some_and(|st| st.alive.iter().any(|r| r == "robot-b"))
     });
+    // A robot that goes silent without closing its connection (a frozen process, a dead radio):
+    // only the lease (1 s here) tells. When it resumes, its session reconnects and it rejoins.
+    let pid = procs.child("robot-a").id().to_string();
+    let signal = |sig: &str| assert!(Command::new("kill").args([sig, &pid]).status().unwrap().success());
+    signal("-STOP");
+    let silent = wait_for(&seen, "frozen robot-a seen gone", Duration::from_secs(10), |s| {
+        s.status.as_ref().is_some_and(|st| !st.alive.iter().any(|r| r == "robot-a"))
+    });
+    signal("-CONT");
+    assert!(silent < Duration::from_millis(2000), "a silent robot was seen gone after {silent:?}");
+    let resumed = wait_for(&seen, "robot-a back", Duration::from_secs(30), |s| {
+        s.status.as_ref().is_some_and(|st| st.alive.len() == 2)
+    });
     let stdin = procs.child("server").stdin.as_mut().unwrap();
     stdin.write_all(b"rearm\n").unwrap();
     stdin.flush().unwrap();
@@ -270,7 +284,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         "server killed: robot-a's watchdog stopped it within {watchdog:?}; the new server ran the \
          formation after {restarted:?}; robot-b killed: seen gone after {seen_gone:?}, formation \
          stopped {stopped:?} later, robot-a disarmed {disarmed:?} after that; restarted robot-b \
-         rejoined in {rejoined:?}; last status {:?}",
+         rejoined in {rejoined:?}; frozen robot-a seen gone after {silent:?}, back {resumed:?} after \
+         resuming; last status {:?}",
         seen.lock().unwrap().status
     );
     let armed_again =
