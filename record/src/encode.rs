@@ -118,6 +118,10 @@ pub struct Encoder {
     /// Robot ids in formation order (server side; empty on a robot).
     robots: Vec<String>,
     last_particles: BTreeMap<String, u64>,
+    /// Last health per (robot, device) and safety per robot: `/health` logs changes only (the
+    /// robots re-send their whole board now and then; `/amr/uplink` keeps every message).
+    last_health: BTreeMap<(String, &'static str), Health>,
+    last_safety: BTreeMap<String, SafetyState>,
 }
 
 fn health_level(h: Health) -> Level {
@@ -151,7 +155,12 @@ fn command(robot: &str, d: &Downlink) -> Value {
 impl Encoder {
     #[must_use]
     pub fn new(robots: Vec<String>) -> Self {
-        Encoder { robots, last_particles: BTreeMap::new() }
+        Encoder {
+            robots,
+            last_particles: BTreeMap::new(),
+            last_health: BTreeMap::new(),
+            last_safety: BTreeMap::new(),
+        }
     }
 
     fn robot_name(&self, i: usize) -> String {
@@ -193,10 +202,10 @@ impl Encoder {
                     )),
                     Uplink::Odom { robot, msg } => v.extend(self.odom(&out, robot, msg)),
                     Uplink::Health { robot, stamp_s, report, .. } => {
-                        v.push(self.health(&out, robot, *stamp_s, report));
+                        v.extend(self.health(&out, robot, *stamp_s, report));
                     }
                     Uplink::Safety { robot, stamp_s, state, .. } => {
-                        v.push(self.safety(&out, robot, *stamp_s, *state))
+                        v.extend(self.safety(&out, robot, *stamp_s, *state))
                     }
                 }
             }
@@ -309,8 +318,8 @@ impl Encoder {
                 json!({ "stamp_s": w.stamp_s, "dt_s": w.dt_s, "left_m": w.left_m, "right_m": w.right_m }),
             )),
             Event::Odom(robot, m) => v.extend(self.odom(&out, robot, m)),
-            Event::Health(robot, r) => v.push(self.health(&out, robot, now_s, r)),
-            Event::Safety(robot, s) => v.push(self.safety(&out, robot, now_s, *s)),
+            Event::Health(robot, r) => v.extend(self.health(&out, robot, now_s, r)),
+            Event::Safety(robot, s) => v.extend(self.safety(&out, robot, now_s, *s)),
             Event::Log(l) => v.push(out(
                 "/log".into(),
                 fg::LOG,
@@ -364,30 +373,32 @@ impl Encoder {
     }
 
     fn health(
-        &self,
+        &mut self,
         out: &impl Fn(String, &'static str, f64, Value) -> Out,
         robot: &str,
         stamp_s: f64,
         r: &HealthReport,
-    ) -> Out {
-        let text =
-            format!("{robot} {}: {} {}", wire::device_name(r.device), wire::health_name(r.health), r.detail);
-        out(
-            "/health".into(),
-            fg::LOG,
-            stamp_s,
-            fg::log(stamp_s, health_level(r.health), robot, text.trim_end(), "", 0),
-        )
+    ) -> Option<Out> {
+        let device = wire::device_name(r.device);
+        if self.last_health.insert((robot.to_owned(), device), r.health) == Some(r.health) {
+            return None;
+        }
+        let text = format!("{robot} {device}: {} {}", wire::health_name(r.health), r.detail);
+        let log = fg::log(stamp_s, health_level(r.health), robot, text.trim_end(), "", 0);
+        Some(out("/health".into(), fg::LOG, stamp_s, log))
     }
 
     fn safety(
-        &self,
+        &mut self,
         out: &impl Fn(String, &'static str, f64, Value) -> Out,
         robot: &str,
         stamp_s: f64,
         s: SafetyState,
-    ) -> Out {
+    ) -> Option<Out> {
+        if self.last_safety.insert(robot.to_owned(), s) == Some(s) {
+            return None;
+        }
         let text = format!("{robot} safety: {}", wire::safety_name(s));
-        out("/health".into(), fg::LOG, stamp_s, fg::log(stamp_s, safety_level(s), robot, &text, "", 0))
+        Some(out("/health".into(), fg::LOG, stamp_s, fg::log(stamp_s, safety_level(s), robot, &text, "", 0)))
     }
 }

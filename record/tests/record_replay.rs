@@ -135,12 +135,13 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
                 assert!(end.up.send(Uplink::Odom { robot: ids[i].clone(), msg }));
                 sent += 2;
             }
-            if k == 10 {
+            // The same health twice (a robot re-sends its board): `/health` logs the change once.
+            if k == 10 || k == 20 {
                 let report =
                     HealthReport { device: Device::Imu, health: Health::Degraded, detail: "test".into() };
                 assert!(robot_ends[1].up.send(Uplink::Health {
                     robot: ids[1].clone(),
-                    seq: 1,
+                    seq: k as u64,
                     stamp_s: t,
                     report
                 }));
