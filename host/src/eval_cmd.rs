@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use amr_core::config::Config;
 use amr_core::metrics::AxisStats;
 use anyhow::Context as _;
-use hil_mocks::eval::{ConfigSummary, Setup, Trial, run_trial, summarise};
+use hil_mocks::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
 use hil_mocks::world::{Noise, RobotSpec, paper_site};
 use serde::Serialize;
 
@@ -142,6 +142,7 @@ pub(crate) fn run(
     trials: usize,
     seed: u64,
     out_dir: &Path,
+    record: Option<&Path>,
 ) -> anyhow::Result<PathBuf> {
     let setup = setup(config, scenario, robots)?;
     let mut results: Vec<Trial> = Vec::with_capacity(trials);
@@ -149,7 +150,14 @@ pub(crate) fn run(
     for k in 0..trials {
         let trial_seed = seed.wrapping_add(k as u64);
         tracing::debug!(scenario, trial = k + 1, of = trials, seed = trial_seed, "running trial");
-        results.push(run_trial(&setup, trial_seed));
+        let trial = match record {
+            None => run_trial(&setup, trial_seed),
+            Some(path) => {
+                let file = if trials == 1 { path.to_path_buf() } else { trial_file(path, trial_seed) };
+                record_trial(config, &setup, scenario, trial_seed, &file)?
+            }
+        };
+        results.push(trial);
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -320,4 +328,78 @@ pub(crate) fn sweep(
     std::fs::write(dir.join(format!("{name}.json")), serde_json::to_string_pretty(&rows)? + "\n")?;
     std::fs::write(dir.join(format!("{name}.md")), &md)?;
     Ok(dir.join(format!("{name}.md")))
+}
+
+/// `--record FILE` with several trials: one file per trial, `FILE-<seed>.mcap`.
+fn trial_file(path: &Path, seed: u64) -> PathBuf {
+    let stem = path.file_stem().map_or_else(|| "eval".into(), |s| s.to_string_lossy().into_owned());
+    path.with_file_name(format!("{stem}-{seed}.mcap"))
+}
+
+/// One trial, recorded as MCAP: each robot's scans and odometry, the true poses, and T1–T4's
+/// estimates of V side by side (`/eval/<T>/V`), on simulated time.
+fn record_trial(
+    config: &Config,
+    setup: &Setup,
+    scenario: &str,
+    seed: u64,
+    file: &Path,
+) -> anyhow::Result<Trial> {
+    use amr_actors::messages::OdomMsg;
+    use amr_actors::robot::ports::LidarScan;
+    use amr_record::encode::Event;
+
+    let names: Vec<String> = (0..setup.robots)
+        .map(|i| {
+            config.server.robots.get(i).map_or_else(|| format!("robot{i}"), |m| m.id.as_str().to_owned())
+        })
+        .collect();
+    let mut meta = std::collections::BTreeMap::new();
+    meta.insert("command".to_owned(), std::env::args().collect::<Vec<_>>().join(" "));
+    meta.insert("scenario".to_owned(), scenario.to_owned());
+    meta.insert("seed".to_owned(), seed.to_string());
+    meta.insert("robots".to_owned(), names.join(","));
+    let mut rec = amr_record::FileRecorder::create(file, names.clone(), meta)
+        .with_context(|| format!("creating {}", file.display()))?;
+    rec.put(0.0, &Event::Map(setup.map.clone()))?;
+    let mount = setup.robot.lidar_mount;
+    rec.put(0.0, &Event::Mounts(names.iter().map(|n| (n.clone(), mount)).collect()))?;
+    let mut failed: Option<amr_record::RecordError> = None;
+    let mut seq = 0u64;
+    let trial = run_trial_observed(setup, seed, &mut |f: &TrialFrame<'_>| {
+        if failed.is_some() {
+            return;
+        }
+        seq += 1;
+        let t = f.t_s;
+        let mut events = Vec::new();
+        for (i, name) in names.iter().enumerate() {
+            if let Some(scan) = f.scans.get(i) {
+                let s = LidarScan { seq, stamp_s: t, received_s: t, scan: std::sync::Arc::new(scan.clone()) };
+                events.push(Event::Scan(name.clone(), s));
+            }
+            if let Some(pose) = f.odom.get(i) {
+                let o = OdomMsg { seq, stamp_s: t, pose: *pose, twist: (0.0, 0.0), gyro: false };
+                events.push(Event::Odom(name.clone(), o));
+            }
+        }
+        events.push(Event::Truth { stamp_s: t, v: hil_mocks::eval::v_of(f.truth), robots: f.truth.to_vec() });
+        for (c, est) in f.estimates {
+            if let Some(v) = est {
+                events.push(Event::EvalEstimate { stamp_s: t, configuration: *c, v: *v });
+            }
+        }
+        for e in &events {
+            if let Err(err) = rec.put(t, e) {
+                failed = Some(err);
+                return;
+            }
+        }
+    });
+    if let Some(e) = failed {
+        return Err(e).with_context(|| format!("recording to {}", file.display()));
+    }
+    let stats = rec.finish()?;
+    tracing::info!(file = %file.display(), messages = stats.messages, "trial recorded");
+    Ok(trial)
 }

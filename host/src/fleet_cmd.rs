@@ -72,7 +72,12 @@ async fn stop_signal() -> anyhow::Result<()> {
 
 /// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
 /// network, until Ctrl-C or SIGTERM (the drives quick-stop).
-pub(crate) fn robot(file: &Path, mock: Option<&Path>, net: &NetArgs) -> anyhow::Result<()> {
+pub(crate) fn robot(
+    file: &Path,
+    mock: Option<&Path>,
+    net: &NetArgs,
+    rec: &crate::record_cmd::RecordArgs,
+) -> anyhow::Result<()> {
     let (config, id) = config_around(file)?;
     let robot =
         config.robot(&id).with_context(|| format!("{}: no robot with id `{id}`", file.display()))?.clone();
@@ -99,7 +104,15 @@ pub(crate) fn robot(file: &Path, mock: Option<&Path>, net: &NetArgs) -> anyhow::
             .await
             .context("starting the robot")?;
         tracing::info!(robot = %id, mock = mock.is_some(), "robot running; Ctrl-C stops it (the drives quick-stop)");
+        let mut sources = amr_record::RecordSources::new(clock);
+        sources.robots = vec![std::sync::Arc::clone(&tree.ports)];
+        sources.mounts = vec![(id.clone(), robot.lidar_mount.to_se2())];
+        sources.metadata.insert("robots".into(), id.clone());
+        let recording = rec.start(sources).await?;
         stop_signal().await?;
+        if let Some(r) = recording {
+            r.stop().await?;
+        }
         tree.shutdown().await;
         bridge.shutdown().await;
         Ok(())
@@ -114,6 +127,7 @@ pub(crate) struct ServerArgs {
     pub seed: u64,
     pub auto_arm: bool,
     pub net: NetArgs,
+    pub rec: crate::record_cmd::RecordArgs,
 }
 
 fn phase_text(p: &Phase) -> String {
@@ -154,7 +168,10 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
             auto_arm: args.auto_arm,
             policy: RestartPolicy::default(),
         };
-        let tree = start_server(setup, end, clock).await.context("starting the server")?;
+        let tree = start_server(setup.clone(), end, clock).await.context("starting the server")?;
+        let mut sources = amr_record::RecordSources::server(&tree.ports, &setup);
+        sources.metadata.insert("scenario".into(), args.scenario.clone());
+        let recording = args.rec.start(sources).await?;
         tracing::info!(auto_arm = args.auto_arm, "server running; commands on stdin: rearm, stop; Ctrl-C stops it");
         let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
         let mut stdin_open = true;
@@ -189,6 +206,9 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
                     }).await;
                 }
             }
+        }
+        if let Some(r) = recording {
+            r.stop().await?;
         }
         tree.shutdown().await;
         bridge.bridge.shutdown().await;

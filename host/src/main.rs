@@ -7,6 +7,7 @@ mod fleet_cmd;
 mod localize;
 mod mock_cmd;
 mod plots;
+mod record_cmd;
 mod sim_cmd;
 
 use std::path::PathBuf;
@@ -96,6 +97,10 @@ enum Command {
         /// written to OUT/<scenario>/sweep-<eps|step>.{md,json}.
         #[arg(long, value_enum)]
         sweep: Option<eval_cmd::Sweep>,
+        /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
+        /// this file for one trial, FILE-<seed>.mcap for several.
+        #[arg(long, value_name = "FILE.mcap")]
+        record: Option<PathBuf>,
     },
     /// Run a mock device standalone, serving its real protocol until Ctrl-C.
     /// The whole system against the mock devices in real time: both robots' actor trees, the
@@ -140,6 +145,30 @@ enum Command {
         /// where `amr robot --mock` looks).
         #[arg(long)]
         manifest: Option<PathBuf>,
+        #[command(flatten)]
+        rec: record_cmd::RecordArgs,
+    },
+    /// Re-run the server pipeline (fusion + AMCL) on a recording's sensor data, deterministically,
+    /// and compare with the recorded estimates (identical with the original parameters). Prints a
+    /// JSON report; `--out` writes the new run as MCAP.
+    Replay {
+        /// A recording of `amr sim --record` or `amr server --record`.
+        file: PathBuf,
+        /// Write the replayed run here (MCAP, the same topics).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// T1–T4 instead of the recorded configuration.
+        #[arg(long, value_parser = sim_cmd::parse_configuration)]
+        configuration: Option<amr_core::config::Configuration>,
+        /// Configuration directory for the parameters (default: ./config, else the embedded ones).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// The scenario (default: the recorded one).
+        #[arg(long)]
+        scenario: Option<String>,
+        /// AMCL's seed (default: the recorded one).
+        #[arg(long)]
+        seed: Option<u64>,
     },
     /// Fault-recovery drills against the mock devices in real time: each injects a fault and checks
     /// detection, the safe state, recovery, the event log and the counters. Prints a table; exits
@@ -172,6 +201,8 @@ enum Command {
         mock: Option<Option<PathBuf>>,
         #[command(flatten)]
         net: fleet_cmd::NetArgs,
+        #[command(flatten)]
+        rec: record_cmd::RecordArgs,
     },
     /// The fusion server's actor tree on the network link (network.toml), until Ctrl-C or SIGTERM.
     /// Operator commands on standard input: `rearm`, `stop`.
@@ -190,6 +221,8 @@ enum Command {
         auto_arm: bool,
         #[command(flatten)]
         net: fleet_cmd::NetArgs,
+        #[command(flatten)]
+        rec: record_cmd::RecordArgs,
     },
     #[command(subcommand)]
     Mock(MockCommand),
@@ -292,7 +325,14 @@ fn main() -> ExitCode {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
     // Colour only on a terminal: logs piped to a file or another program stay plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(ansi).init();
+    {
+        use tracing_subscriber::prelude::*;
+        tracing_subscriber::registry()
+            .with(filter)
+            .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr).with_ansi(ansi))
+            .with(amr_record::LogLayer::new(record_cmd::log_tap().clone()))
+            .init();
+    }
 
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
@@ -333,6 +373,7 @@ fn main() -> ExitCode {
             config,
             quiet,
             virtual_time,
+            rec,
             ..
         } => match duration.map(std::time::Duration::try_from_secs_f64) {
             Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
@@ -346,11 +387,15 @@ fn main() -> ExitCode {
                 config,
                 quiet,
                 virtual_time,
+                rec,
             }),
         },
-        Command::Robot { config, mock, net } => {
+        Command::Robot { config, mock, net, rec } => {
             let manifest = mock.map(|m| m.unwrap_or_else(fleet_cmd::default_manifest));
-            fleet_cmd::robot(&config, manifest.as_deref(), &net)
+            fleet_cmd::robot(&config, manifest.as_deref(), &net, &rec)
+        }
+        Command::Replay { file, out, configuration, config, scenario, seed } => {
+            record_cmd::replay(&file, out.as_deref(), config, scenario, configuration, seed)
         }
         Command::Drill { name, .. } if name == "list" => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
@@ -362,14 +407,15 @@ fn main() -> ExitCode {
         Command::Drill { name, seed, soak_seconds, json, config } => {
             sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
         }
-        Command::Server { config, scenario, seed, auto_arm, net } => {
-            fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net })
+        Command::Server { config, scenario, seed, auto_arm, net, rec } => {
+            fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })
         }
-        Command::Eval { scenario, trials, seed, out, config, robots, sweep } => (|| {
+        Command::Eval { scenario, trials, seed, out, config, robots, sweep, record } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
             let report = match sweep {
                 Some(which) => eval_cmd::sweep(&config, &scenario, which, trials, seed, &out)?,
-                None => eval_cmd::run(&config, &scenario, robots, trials, seed, &out)?.join("report.md"),
+                None => eval_cmd::run(&config, &scenario, robots, trials, seed, &out, record.as_deref())?
+                    .join("report.md"),
             };
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {

@@ -23,6 +23,7 @@ pub(crate) struct SimArgs {
     pub config: Option<PathBuf>,
     pub quiet: bool,
     pub virtual_time: bool,
+    pub rec: crate::record_cmd::RecordArgs,
 }
 
 pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
@@ -72,6 +73,11 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
     };
     rt.block_on(async move {
         let sim = Sim::start(&config, options).await.context("starting the simulation")?;
+        // Attached before the robots' devices have booted: the recording holds every scan.
+        let mut sources = amr_record::RecordSources::server(&sim.server.ports, &sim.setup);
+        sources.metadata.insert("scenario".into(), args.scenario.clone());
+        sources.robots = sim.robots.iter().map(|r| std::sync::Arc::clone(&r.ports)).collect();
+        let recording = args.rec.start(sources).await?;
         let quiet = args.quiet;
         tokio::select! {
             () = sim.run(|s| {
@@ -88,6 +94,9 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
             }
         }
         let report = sim.report();
+        if let Some(r) = recording {
+            r.stop().await?;
+        }
         sim.shutdown().await;
         #[allow(clippy::print_stdout, reason = "the command's report")]
         {

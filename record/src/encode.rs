@@ -105,6 +105,18 @@ pub enum Event {
     Map(OccupancyGrid),
     /// Each robot's LiDAR in its base (static transforms).
     Mounts(Vec<(String, Se2)>),
+    /// Simulation only (`amr eval`): the true poses of V and of each robot, at `stamp_s`.
+    Truth {
+        stamp_s: f64,
+        v: Se2,
+        robots: Vec<Se2>,
+    },
+    /// `amr eval`: one configuration's estimate of V, side by side with the others.
+    EvalEstimate {
+        stamp_s: f64,
+        configuration: amr_core::config::Configuration,
+        v: Se2,
+    },
 }
 
 /// Particle clouds per source at most this often, ns of log time (a cloud is ~20 kB of JSON).
@@ -208,6 +220,35 @@ impl Encoder {
                         v.extend(self.safety(&out, robot, *stamp_s, *state))
                     }
                 }
+            }
+            Event::Truth { stamp_s, v: vt, robots } => {
+                v.push(out(
+                    "/truth/V".into(),
+                    fg::POSE_IN_FRAME,
+                    *stamp_s,
+                    fg::pose_in_frame(*stamp_s, "map", vt),
+                ));
+                let mut tf = vec![fg::transform(*stamp_s, "map", "truth/V", vt)];
+                for (i, p) in robots.iter().enumerate() {
+                    let name = self.robot_name(i);
+                    v.push(out(
+                        format!("/truth/{name}"),
+                        fg::POSE_IN_FRAME,
+                        *stamp_s,
+                        fg::pose_in_frame(*stamp_s, "map", p),
+                    ));
+                    tf.push(fg::transform(*stamp_s, "map", &format!("truth/{name}"), p));
+                }
+                v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, *stamp_s, fg::transforms(tf)));
+            }
+            Event::EvalEstimate { stamp_s, configuration, v: vm } => {
+                let c = wire::configuration_name(*configuration);
+                v.push(out(
+                    format!("/eval/{c}/V"),
+                    fg::POSE_IN_FRAME,
+                    *stamp_s,
+                    fg::pose_in_frame(*stamp_s, "map", vm),
+                ));
             }
             Event::Fused(f) => {
                 v.push(exact("/amr/fused", wire::FUSED_SCHEMA, f.stamp_s, wire::encode_fused(f)?));

@@ -144,7 +144,8 @@ pub struct Sim {
     pub options: SimOptions,
     configuration: Configuration,
     /// How the server was started (a restarted one starts the same way).
-    setup: ServerSetup,
+    /// What the server was started with.
+    pub setup: ServerSetup,
     observed: Arc<std::sync::Mutex<Observed>>,
     observer: ActorRef<ObserverMsg>,
     started: Instant,

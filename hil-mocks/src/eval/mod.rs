@@ -16,6 +16,7 @@ use amr_core::formation::{FormationGains, limit_twist, member_command, wheel_odo
 use amr_core::geometry::Polygon;
 use amr_core::map::OccupancyGrid;
 use amr_core::metrics::{AxisStats, MeanSd, Sample};
+use amr_core::scan::Scan;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::{PacketTimes, virtual_frame};
 use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
@@ -86,7 +87,7 @@ const CONFIGS: [Configuration; 4] =
     [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4];
 
 /// Eq. 16 for N robots with equal weights, in the map frame.
-fn v_of(poses: &[Se2]) -> Se2 {
+pub fn v_of(poses: &[Se2]) -> Se2 {
     let Some(first) = poses.first() else { return Se2::IDENTITY };
     let rel: Vec<(Se2, f64)> = poses.iter().map(|p| (first.inverse() * *p, 1.0)).collect();
     *first * virtual_frame(&rel)
@@ -119,6 +120,24 @@ fn record(
 /// Run one trial with `seed`.
 #[must_use]
 pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
+    run_trial_observed(setup, seed, &mut |_| {})
+}
+
+/// One scan step of a trial, as a recorder sees it (`amr eval --record`).
+#[derive(Debug)]
+pub struct TrialFrame<'a> {
+    /// Simulated time, s.
+    pub t_s: f64,
+    /// Each robot's scan, its true pose and its odometry pose (in the map, from the known start).
+    pub scans: &'a [Scan],
+    pub truth: &'a [Se2],
+    pub odom: &'a [Se2],
+    /// Each configuration's estimate of V at this step (None: none yet).
+    pub estimates: &'a [(Configuration, Option<Se2>)],
+}
+
+/// [`run_trial`], calling `observe` after every scan step.
+pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&TrialFrame<'_>)) -> Trial {
     let sc = &setup.scenario;
     let slots = slots(setup.robots, sc.spacing_m.get());
     let start_v = sc.start_pose();
@@ -223,6 +242,7 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
         }
         let t1 = own_pose.iter().copied().collect::<Option<Vec<Se2>>>().map(|p| v_of(&p));
         record(&mut series, Configuration::T1, t1, &v_true, &v_ref);
+        let mut estimates = vec![(Configuration::T1, t1)];
         let true_heading = (truth[0].inverse() * truth[1]).theta;
         for (c, pipeline, vamcl) in &mut pipelines {
             let packets: Vec<RobotPacket<'_>> = scan_list
@@ -264,7 +284,9 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
                 vamcl.pose_at(&v_odom)
             });
             record(&mut series, *c, est, &v_true, &v_ref);
+            estimates.push((*c, est));
         }
+        observe(&TrialFrame { t_s: t, scans: &scan_list, truth: &truth, odom: &odom, estimates: &estimates });
     }
     let final_particles_t4 = pipelines
         .iter()

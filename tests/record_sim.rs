@@ -1,10 +1,6 @@
+//! Issue 12: record a short simulation (the whole system against the mocks, in virtual time), read
+//! it back, replay it: the estimates are identical.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
-//! For `tests/` (hil-tests, with `amr-record` among its dependencies; the crate graph allows it).
-//! Ran green outside the workspace on 2026-12-01 (717 of 717 estimates and 239 of 239 fused frames
-//! identical). Not compiled here: amr-record may not depend on amr-sim.
-//!
-//! issue 12: record a short simulation (the whole system against the mocks, virtual time), read it
-//! back, replay it: the estimates are identical.
 
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::server::{ServerSetup, formation_robots};

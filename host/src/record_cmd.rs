@@ -1,0 +1,142 @@
+//! `--record FILE.mcap` and `--foxglove ADDR` on `amr sim`, `amr robot` and `amr server`, and
+//! `amr replay` (issue 12): wiring around amr-record.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use amr_actors::config::load;
+use amr_actors::server::{ServerSetup, formation_robots};
+use amr_actors::supervisor::RestartPolicy;
+use amr_record::{Hub, LiveServer, LogTap, RecordOptions, RecordSources, Recorder};
+use anyhow::Context as _;
+
+/// Log lines reach a running recorder through this tap (the `tracing` layer is built once, in
+/// `main`, before any command runs).
+pub(crate) fn log_tap() -> &'static LogTap {
+    static TAP: OnceLock<LogTap> = OnceLock::new();
+    TAP.get_or_init(LogTap::default)
+}
+
+/// Recording and live-view options.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub(crate) struct RecordArgs {
+    /// Record the run to this MCAP file (Foxglove's schemas: opens in Foxglove with no plugin).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Serve a live Foxglove WebSocket view here, e.g. 127.0.0.1:8765.
+    #[arg(long, value_name = "ADDR")]
+    pub foxglove: Option<SocketAddr>,
+}
+
+/// A running recording and/or live view.
+#[derive(Debug)]
+pub(crate) struct Recording {
+    recorder: Recorder,
+    _live: Option<LiveServer>,
+    file: Option<PathBuf>,
+}
+
+impl RecordArgs {
+    /// Start what was asked for (nothing: `None`). The command line goes into the metadata.
+    pub(crate) async fn start(&self, mut sources: RecordSources) -> anyhow::Result<Option<Recording>> {
+        if self.record.is_none() && self.foxglove.is_none() {
+            return Ok(None);
+        }
+        let argv: Vec<String> = std::env::args().collect();
+        sources.metadata.insert("command".into(), argv.join(" "));
+        sources.logs = Some(log_tap().clone());
+        let (hub, live) = match self.foxglove {
+            Some(addr) => {
+                let hub = Hub::default();
+                let live = amr_record::serve(addr, hub.clone(), "amr")
+                    .await
+                    .with_context(|| format!("serving the Foxglove live view on {addr}"))?;
+                tracing::info!(address = %live.addr, "Foxglove live view: open ws://{} in Foxglove", live.addr);
+                (Some(hub), Some(live))
+            }
+            None => (None, None),
+        };
+        let options = RecordOptions { file: self.record.clone(), live: hub, ..RecordOptions::default() };
+        let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;
+        if let Some(f) = &self.record {
+            tracing::info!(file = %f.display(), "recording");
+        }
+        Ok(Some(Recording { recorder, _live: live, file: self.record.clone() }))
+    }
+}
+
+impl Recording {
+    /// Close the file (its summary and index) and stop the live view.
+    pub(crate) async fn stop(self) -> anyhow::Result<()> {
+        let stats = self.recorder.stop().await.context("finishing the recording")?;
+        if let Some(f) = &self.file {
+            tracing::info!(file = %f.display(), messages = stats.messages, topics = stats.per_topic.len(), "recording written");
+        }
+        Ok(())
+    }
+}
+
+/// `amr replay FILE`: the server pipeline (fusion + AMCL) again on a recording's sensor data.
+pub(crate) fn replay(
+    input: &Path,
+    out: Option<&Path>,
+    config: Option<PathBuf>,
+    scenario: Option<String>,
+    configuration: Option<amr_core::config::Configuration>,
+    seed: Option<u64>,
+) -> anyhow::Result<()> {
+    let bytes = std::fs::read(input).with_context(|| format!("reading {}", input.display()))?;
+    let meta = amr_record::read::metadata(&bytes).remove("amr").unwrap_or_default();
+    let config = load(&crate::config_cmd::source_for(config))?;
+    let scenario = scenario.or_else(|| meta.get("scenario").cloned()).unwrap_or_else(|| "straight".into());
+    let sc = config.scenarios.get(&scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
+    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
+    let recorded_seed = meta.get("seed").and_then(|s| s.parse::<u64>().ok());
+    let seed = seed.or(recorded_seed).unwrap_or(1);
+    let mut server = config.server.clone();
+    if let Some(c) = meta.get("configuration").and_then(|c| crate::sim_cmd::parse_configuration(c).ok()) {
+        server.configuration = c;
+    }
+    let setup = ServerSetup {
+        robots: formation_robots(&server, &config.robots)?,
+        server,
+        vamr: config.vamr.clone(),
+        amcl: config.amcl.clone(),
+        map,
+        scenario: sc,
+        seed,
+        auto_arm: false,
+        policy: RestartPolicy::default(),
+    };
+    let report = amr_record::replay(input, out, &setup, configuration)
+        .with_context(|| format!("replaying {}", input.display()))?;
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    {
+        println!("{}", serde_json::to_string_pretty(&report_json(&report))?);
+        if let Some(o) = out {
+            println!("written to {}", o.display());
+        }
+    }
+    Ok(())
+}
+
+fn report_json(r: &amr_record::ReplayReport) -> serde_json::Value {
+    serde_json::json!({
+        "configuration": r.configuration.map(|c| format!("{c:?}")),
+        "uplink_messages": r.uplink,
+        "scans": r.scans,
+        "fused": r.fused,
+        "recorded_fused": r.recorded_fused,
+        "fused_identical": r.fused_identical,
+        "estimates": r.estimates,
+        "recorded_estimates": r.recorded_estimates,
+        "compared": r.compared,
+        "identical": r.identical,
+        "missing": r.missing,
+        "extra": r.extra,
+        "exact": r.exact(),
+        "truncated_input": r.truncated,
+        "first_difference": r.first_difference,
+    })
+}
