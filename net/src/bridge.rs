@@ -323,6 +323,7 @@ pub async fn start_robot_bridge(
         down: down_tx,
     };
     let connector_slot = slot.clone();
+    let connector_stats = Arc::clone(&stats);
     let who = robot.to_owned();
     let connector = tokio::spawn(async move {
         let mut backoff = Duration::from_millis(100);
@@ -341,6 +342,9 @@ pub async fn start_robot_bridge(
             }
         };
         connector_slot.set(session.clone());
+        // A client's session opens only through the router: the server is reached.
+        connector_stats.connected.store(true, Ordering::Relaxed);
+        tracing::info!(robot = %who, "link: connected to the server");
         if let Err(e) = link.run(session).await {
             tracing::error!(robot = %who, error = %e, "link: the bridge failed");
         }
