@@ -42,16 +42,14 @@ use std::sync::Arc;
 
 use amr_actors::mapping::TIM551_RANGE_M;
 use amr_actors::messages::{ScanMsg, Uplink};
-use amr_actors::server::ServerSetup;
 use amr_actors::server::amcl::{INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD};
+use amr_actors::server::fusion::FusionCore;
 use amr_actors::server::ports::{Anchored, Estimate, EstimateSource, FusionStatus};
+use amr_actors::server::{ServerSetup, fusion_setup};
 use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
 use amr_core::config::{AmclParams, Configuration};
 use amr_core::formation::slots;
-use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
-use amr_core::vamr::frame::PacketTimes;
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
 
 use crate::encode::Event;
 use crate::read::{ReadError, metadata, read_bytes};
@@ -59,8 +57,6 @@ use crate::recorder::{FileRecorder, RecordError};
 use crate::wire::{self, FusedRecord, WireError};
 
 /// Scans kept per robot for pairing (as the fusion actor).
-const BUFFER: usize = 3;
-
 /// Why a replay failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -113,22 +109,12 @@ impl ReplayReport {
     }
 }
 
-struct Member {
-    lidar_to_base: Se2,
-    chassis: Polygon,
-    weight: f64,
-}
-
-/// The server's fusion and AMCL as one deterministic state machine.
+/// The server's fusion and AMCL as one deterministic state machine: the fusion actor's own core
+/// ([`FusionCore`]) and the AMCL actor's filters, fed in the recorded order.
 pub struct Engine {
     robots: Vec<String>,
-    members: Vec<Member>,
+    fusion: FusionCore,
     configuration: Configuration,
-    pipeline: Pipeline,
-    scans: Vec<VecDeque<(ScanMsg, f64)>>,
-    fused_stamp: Vec<f64>,
-    lost: Vec<bool>,
-    seq: u64,
     params: AmclParams,
     robot_filters: Vec<Amcl>,
     virtual_filter: Amcl,
@@ -137,7 +123,7 @@ pub struct Engine {
 
 impl std::fmt::Debug for Engine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Engine").field("robots", &self.robots).field("seq", &self.seq).finish_non_exhaustive()
+        f.debug_struct("Engine").field("robots", &self.robots).finish_non_exhaustive()
     }
 }
 
@@ -153,31 +139,10 @@ impl Engine {
     /// if given, else the setup's.
     #[must_use]
     pub fn new(setup: &ServerSetup, configuration: Option<Configuration>) -> Self {
-        let configuration = configuration.unwrap_or(setup.server.configuration);
+        let (members, params) = fusion_setup(setup, configuration);
+        let configuration = params.configuration;
         let sc = &setup.scenario;
         let slot_y = slots(setup.robots.len(), sc.spacing_m.get());
-        let members: Vec<Member> = setup
-            .robots
-            .iter()
-            .zip(&setup.server.robots)
-            .map(|(r, m)| Member {
-                lidar_to_base: r.lidar_mount.to_se2(),
-                chassis: r.chassis.outline_m.clone(),
-                weight: m.weight.get(),
-            })
-            .collect();
-        let s = &setup.server.sync;
-        let mut pipeline = Pipeline::new(
-            members.len(),
-            setup.vamr.clone(),
-            configuration,
-            f64::from(s.max_stamp_spread_ms.ms()) / 1000.0,
-            f64::from(s.max_age_ms.ms()) / 1000.0,
-        );
-        let y0 = slot_y.first().copied().unwrap_or(0.0);
-        for (i, y) in slot_y.iter().enumerate().skip(1) {
-            pipeline.set_expected(i, [0.0, y - y0], 0.5);
-        }
         let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1));
         let initial_v = setup.amcl.initial_pose.map_or(sc.start_pose(), |p| p.pose());
         let filter = |k: u64, at: Se2| {
@@ -193,13 +158,8 @@ impl Engine {
         let n = members.len();
         Engine {
             robots: setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect(),
-            members,
+            fusion: FusionCore::new(members, &params),
             configuration,
-            pipeline,
-            scans: vec![VecDeque::new(); n],
-            fused_stamp: vec![f64::NEG_INFINITY; n],
-            lost: vec![false; n],
-            seq: 0,
             params: setup.amcl.clone(),
             robot_filters,
             virtual_filter: filter(0, initial_v),
@@ -215,10 +175,8 @@ impl Engine {
 
     /// A fusion status change seen in the recording.
     pub fn status(&mut self, s: FusionStatus) {
-        if let FusionStatus::RobotLost(i) = s
-            && let Some(l) = self.lost.get_mut(i)
-        {
-            *l = true;
+        if let FusionStatus::RobotLost(i) = s {
+            self.fusion.mark_lost(i);
         }
     }
 
@@ -241,14 +199,14 @@ impl Engine {
 
     /// `AmclActor`, `AmclMsg::Scan`.
     fn robot_amcl(&mut self, i: usize, s: &ScanMsg) -> Option<Estimate> {
-        let (filter, mount) = (self.robot_filters.get_mut(i)?, self.members.get(i)?.lidar_to_base);
+        let (filter, mount) = (self.robot_filters.get_mut(i)?, self.fusion.members().get(i)?.lidar_to_base);
         let points = scan_points(&s.scan, &mount, &self.params);
         filter.update(s.odom, &points, false);
         let map = filter.pose_at(&s.odom)?;
         if let Some(c) = self.corrections.get_mut(i) {
             *c = Some(map * s.odom.inverse());
         }
-        let mut robots = vec![None; self.members.len()];
+        let mut robots = vec![None; self.robots.len()];
         robots[i] = Some(Anchored { map, odom: s.odom, stamp_s: s.stamp_s });
         Some(Estimate { source: EstimateSource::Robot(i), stamp_s: s.stamp_s, v: None, robots })
     }
@@ -275,74 +233,11 @@ impl Engine {
         })
     }
 
-    /// `FusionActor`, `FusionMsg::Scan`.
+    /// `FusionActor`, `FusionMsg::Scan`: the same core, with the recorded receive time (which is
+    /// also the acquisition time's clock reading: only timings, not estimates, depend on it).
     fn fusion(&mut self, i: usize, s: &ScanMsg, rx_s: f64) -> Option<FusedRecord> {
-        let buf = self.scans.get_mut(i)?;
-        if buf.back().is_some_and(|(b, _)| b.stamp_s >= s.stamp_s) {
-            return None;
-        }
-        buf.push_back((s.clone(), rx_s));
-        while buf.len() > BUFFER {
-            buf.pop_front();
-        }
-        if self.lost[i] {
-            self.lost[i] = false;
-            if i > 0 {
-                self.pipeline.reset_robot(i);
-            } else {
-                for k in 1..self.members.len() {
-                    self.pipeline.reset_robot(k);
-                }
-            }
-        }
-        let set = self.pick(i)?;
-        self.fuse(&set)
-    }
-
-    fn pick(&self, from: usize) -> Option<Vec<(ScanMsg, f64)>> {
-        let t = self.scans.get(from)?.back()?.0.stamp_s;
-        let mut set = Vec::with_capacity(self.members.len());
-        for (i, buf) in self.scans.iter().enumerate() {
-            let best = buf
-                .iter()
-                .filter(|(s, _)| s.stamp_s > self.fused_stamp[i])
-                .min_by(|a, b| (a.0.stamp_s - t).abs().total_cmp(&(b.0.stamp_s - t).abs()))?;
-            set.push(best.clone());
-        }
-        Some(set)
-    }
-
-    fn fuse(&mut self, set: &[(ScanMsg, f64)]) -> Option<FusedRecord> {
-        let oldest = set.iter().map(|(s, _)| s.stamp_s).fold(f64::INFINITY, f64::min);
-        let packets: Vec<RobotPacket<'_>> = set
-            .iter()
-            .zip(&self.members)
-            .enumerate()
-            .map(|(i, ((s, rx), m))| RobotPacket {
-                scan: &s.scan,
-                times: PacketTimes { stamp_s: s.stamp_s, received_s: *rx },
-                lidar_to_base: m.lidar_to_base,
-                chassis: &m.chassis,
-                weight: m.weight,
-                amcl_pose: self.corrections.get(i).copied().flatten().map(|c| c * s.odom),
-            })
-            .collect();
-        let result = self.pipeline.update(&packets);
-        for (i, (s, _)) in set.iter().enumerate() {
-            self.fused_stamp[i] = s.stamp_s;
-        }
-        let u = result.ok()?;
-        self.seq += 1;
-        let first = set.first()?;
-        Some(FusedRecord {
-            seq: self.seq,
-            configuration: self.configuration,
-            stamp_s: first.0.stamp_s,
-            oldest_stamp_s: oldest,
-            v_odom: first.0.odom * u.v_in_reference,
-            points: u.virtual_scan.as_ref().map(|v| v.points.iter().map(|(p, _)| *p).collect()),
-            robots: u.bases_in_v.iter().zip(set).map(|(b, (s, _))| (*b, s.odom)).collect(),
-        })
+        let offered = self.fusion.offer(i, s.clone(), rx_s, &self.corrections, rx_s, &mut |_| {});
+        offered.fused?.ok().map(|f| FusedRecord::of(&f))
     }
 }
 

@@ -61,6 +61,14 @@ pub struct FusionActor {
 
 #[derive(Debug)]
 pub struct FusionState {
+    core: FusionCore,
+}
+
+/// The fusion without its actor, sans-IO: scans in, fused frames out. The actor drives it with the
+/// uplink port and its clock; `amr replay` drives it with a recording, so both run the same code.
+#[derive(Debug)]
+pub struct FusionCore {
+    members: Vec<Member>,
     pipeline: Pipeline,
     configuration: Configuration,
     /// Per robot: recent scans with their arrival time.
@@ -69,29 +77,145 @@ pub struct FusionState {
     fused_stamp: Vec<f64>,
     lost: Vec<bool>,
     seq: u64,
-    gate_failures: u64,
 }
 
-impl FusionActor {
+/// What one scan did.
+#[derive(Debug, Default)]
+pub struct Offered {
+    /// The robot had been lost and is back (its track is re-acquired with the full heading search);
+    /// the flag: no robot is lost any more.
+    pub back: Option<bool>,
+    /// The fusion it led to, if a set of unfused scans was complete.
+    pub fused: Option<Result<FusedFrame, UpdateError>>,
+    /// The fusion needed the full heading search.
+    pub full_search: bool,
+}
+
+impl FusionCore {
+    #[must_use]
+    pub fn new(members: Vec<Member>, params: &FusionParams) -> Self {
+        let mut pipeline = Pipeline::new(
+            members.len(),
+            params.vamr.clone(),
+            params.configuration,
+            params.max_spread_s,
+            params.max_age_s,
+        );
+        let y0 = members.first().map_or(0.0, |m| m.slot_y_m);
+        for (i, m) in members.iter().enumerate().skip(1) {
+            pipeline.set_expected(i, [0.0, m.slot_y_m - y0], 0.5);
+        }
+        let n = members.len();
+        FusionCore {
+            members,
+            pipeline,
+            configuration: params.configuration,
+            scans: vec![VecDeque::new(); n],
+            fused_stamp: vec![f64::NEG_INFINITY; n],
+            lost: vec![false; n],
+            seq: 0,
+        }
+    }
+
+    #[must_use]
+    pub fn members(&self) -> &[Member] {
+        &self.members
+    }
+
+    #[must_use]
+    pub fn configuration(&self) -> Configuration {
+        self.configuration
+    }
+
+    /// Switch T1–T4.
+    pub fn set_configuration(&mut self, c: Configuration) {
+        self.configuration = c;
+        self.pipeline.set_configuration(c);
+    }
+
+    /// Robot `i`'s scan, received at `rx_s`. `corrections`: each robot's map ← odometry from its
+    /// own AMCL (T1–T3); `now_s`: the clock when fusing (the acquisition time); `lap`: called at
+    /// the end of each pipeline stage (for timings).
+    pub fn offer(
+        &mut self,
+        i: usize,
+        s: ScanMsg,
+        rx_s: f64,
+        corrections: &[Option<Se2>],
+        now_s: f64,
+        lap: &mut dyn FnMut(Stage),
+    ) -> Offered {
+        let mut out = Offered::default();
+        let Some(buf) = self.scans.get_mut(i) else { return out };
+        if buf.back().is_some_and(|(b, _)| b.stamp_s >= s.stamp_s) {
+            // Time went backwards or a duplicate: dropped.
+            return out;
+        }
+        buf.push_back((s, rx_s));
+        while buf.len() > BUFFER {
+            buf.pop_front();
+        }
+        if self.lost[i] {
+            self.lost[i] = false;
+            if i > 0 {
+                self.pipeline.reset_robot(i);
+            } else {
+                for k in 1..self.members.len() {
+                    self.pipeline.reset_robot(k);
+                }
+            }
+            out.back = Some(!self.lost.iter().any(|l| *l));
+        }
+        if let Some(set) = self.pick(i) {
+            let (fused, full) = self.fuse(&set, corrections, now_s, lap);
+            out.fused = Some(fused);
+            out.full_search = full;
+        }
+        out
+    }
+
+    /// Robots whose last scan arrived more than `lost_after_s` before `now_s`: the ones newly lost.
+    pub fn check_lost(&mut self, now_s: f64, lost_after_s: f64) -> Vec<usize> {
+        let mut newly = Vec::new();
+        for i in 0..self.members.len() {
+            let last = self.scans[i].back().map(|(_, rx)| *rx);
+            if last.is_some_and(|t| now_s - t > lost_after_s) && !self.lost[i] {
+                self.lost[i] = true;
+                newly.push(i);
+            }
+        }
+        newly
+    }
+
+    /// Robot `i` is lost (as a recording says).
+    pub fn mark_lost(&mut self, i: usize) {
+        if let Some(l) = self.lost.get_mut(i) {
+            *l = true;
+        }
+    }
+
     /// Choose one unfused scan per robot, closest in time to robot `from`'s newest.
-    fn pick(&self, state: &FusionState, from: usize) -> Option<Vec<(ScanMsg, f64)>> {
-        let newest = state.scans[from].back()?;
-        let t = newest.0.stamp_s;
+    fn pick(&self, from: usize) -> Option<Vec<(ScanMsg, f64)>> {
+        let t = self.scans.get(from)?.back()?.0.stamp_s;
         let mut set = Vec::with_capacity(self.members.len());
-        for (i, buf) in state.scans.iter().enumerate() {
+        for (i, buf) in self.scans.iter().enumerate() {
             let best = buf
                 .iter()
-                .filter(|(s, _)| s.stamp_s > state.fused_stamp[i])
+                .filter(|(s, _)| s.stamp_s > self.fused_stamp[i])
                 .min_by(|a, b| (a.0.stamp_s - t).abs().total_cmp(&(b.0.stamp_s - t).abs()))?;
             set.push(best.clone());
         }
         Some(set)
     }
 
-    fn fuse(&self, state: &mut FusionState, set: &[(ScanMsg, f64)]) {
-        let clock = &self.ports.clock;
+    fn fuse(
+        &mut self,
+        set: &[(ScanMsg, f64)],
+        corrections: &[Option<Se2>],
+        now_s: f64,
+        lap: &mut dyn FnMut(Stage),
+    ) -> (Result<FusedFrame, UpdateError>, bool) {
         let oldest = set.iter().map(|(s, _)| s.stamp_s).fold(f64::INFINITY, f64::min);
-        let corrections = self.ports.corrections.borrow().clone();
         let packets: Vec<RobotPacket<'_>> = set
             .iter()
             .zip(&self.members)
@@ -105,54 +229,32 @@ impl FusionActor {
                 amcl_pose: corrections.get(i).copied().flatten().map(|c| c * s.odom),
             })
             .collect();
-        let mut times = StageTimes { acquisition_sync_s: clock.now_s() - oldest, ..StageTimes::default() };
-        let mut last = std::time::Instant::now();
-        let pipeline = &mut state.pipeline;
-        let result = super::compute(|| {
-            pipeline.update_with_laps(&packets, &mut |stage| {
-                let now = std::time::Instant::now();
-                let d = now.duration_since(last).as_secs_f64();
-                last = now;
-                match stage {
-                    Stage::Preprocess => times.preprocess_s += d,
-                    Stage::Tracking => times.tracking_s += d,
-                    Stage::Heading => times.heading_s += d,
-                    Stage::VirtualScan => times.virtual_scan_s += d,
-                }
-            })
-        });
+        let result = self.pipeline.update_with_laps(&packets, lap);
         for (i, (s, _)) in set.iter().enumerate() {
-            state.fused_stamp[i] = s.stamp_s;
+            self.fused_stamp[i] = s.stamp_s;
         }
-        match result {
-            Ok(u) => {
-                state.seq += 1;
-                ServerStats::add(&self.ports.stats.fused);
-                if u.pairs.iter().any(|p| p.heading_source == Source::FullSearch) {
-                    ServerStats::add(&self.ports.stats.full_searches);
-                }
-                let points = u
-                    .virtual_scan
-                    .as_ref()
-                    .map(|v| Arc::new(v.points.iter().map(|(p, _)| *p).collect::<Vec<[f64; 2]>>()));
-                self.ports.fused.send(FusedFrame {
-                    seq: state.seq,
-                    configuration: state.configuration,
-                    stamp_s: set[0].0.stamp_s,
-                    oldest_stamp_s: oldest,
-                    v_odom: set[0].0.odom * u.v_in_reference,
-                    points,
-                    robots: u.bases_in_v.iter().zip(set).map(|(b, (s, _))| (*b, s.odom)).collect(),
-                    times,
-                });
-            }
-            Err(UpdateError::Sync(f)) => {
-                state.gate_failures += 1;
-                ServerStats::add(&self.ports.stats.gate_failures);
-                tracing::debug!(failure = ?f, "fusion: sync gate");
-            }
-            Err(e) => tracing::debug!(error = %e, "fusion: no fused measurement"),
-        }
+        let u = match result {
+            Ok(u) => u,
+            Err(e) => return (Err(e), false),
+        };
+        self.seq += 1;
+        let full = u.pairs.iter().any(|p| p.heading_source == Source::FullSearch);
+        let points = u
+            .virtual_scan
+            .as_ref()
+            .map(|v| Arc::new(v.points.iter().map(|(p, _)| *p).collect::<Vec<[f64; 2]>>()));
+        let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |(s, _)| (s.stamp_s, s.odom));
+        let frame = FusedFrame {
+            seq: self.seq,
+            configuration: self.configuration,
+            stamp_s: first,
+            oldest_stamp_s: oldest,
+            v_odom: first_odom * u.v_in_reference,
+            points,
+            robots: u.bases_in_v.iter().zip(set).map(|(b, (s, _))| (*b, s.odom)).collect(),
+            times: StageTimes { acquisition_sync_s: now_s - oldest, ..StageTimes::default() },
+        };
+        (Ok(frame), full)
     }
 }
 
@@ -171,23 +273,7 @@ impl Actor for FusionActor {
             _ => None,
         });
         myself.send_interval(Duration::from_millis(100), || FusionMsg::Tick);
-        let p = &self.params;
-        let mut pipeline =
-            Pipeline::new(self.members.len(), p.vamr.clone(), p.configuration, p.max_spread_s, p.max_age_s);
-        let y0 = self.members.first().map_or(0.0, |m| m.slot_y_m);
-        for (i, m) in self.members.iter().enumerate().skip(1) {
-            pipeline.set_expected(i, [0.0, m.slot_y_m - y0], 0.5);
-        }
-        let n = self.members.len();
-        Ok(FusionState {
-            pipeline,
-            configuration: p.configuration,
-            scans: vec![VecDeque::new(); n],
-            fused_stamp: vec![f64::NEG_INFINITY; n],
-            lost: vec![false; n],
-            seq: 0,
-            gate_failures: 0,
-        })
+        Ok(FusionState { core: FusionCore::new(self.members.clone(), &self.params) })
     }
 
     async fn handle(
@@ -202,52 +288,59 @@ impl Actor for FusionActor {
                     tracing::debug!(robot = %s.robot, "fusion: scan from a robot not in the formation");
                     return Ok(());
                 };
-                let rx = self.ports.clock.now_s();
-                let buf = &mut state.scans[i];
-                if buf.back().is_some_and(|(b, _)| b.stamp_s >= s.stamp_s) {
-                    // Time went backwards or a duplicate: dropped.
-                    return Ok(());
-                }
-                buf.push_back((*s, rx));
-                while buf.len() > BUFFER {
-                    buf.pop_front();
-                }
-                if state.lost[i] {
-                    state.lost[i] = false;
-                    if i > 0 {
-                        state.pipeline.reset_robot(i);
-                    } else {
-                        for k in 1..self.members.len() {
-                            state.pipeline.reset_robot(k);
+                let clock = &self.ports.clock;
+                let rx = clock.now_s();
+                let corrections = self.ports.corrections.borrow().clone();
+                let mut times = StageTimes::default();
+                let mut last = std::time::Instant::now();
+                let core = &mut state.core;
+                let offered = super::compute(|| {
+                    core.offer(i, *s, rx, &corrections, clock.now_s(), &mut |stage| {
+                        let now = std::time::Instant::now();
+                        let d = now.duration_since(last).as_secs_f64();
+                        last = now;
+                        match stage {
+                            Stage::Preprocess => times.preprocess_s += d,
+                            Stage::Tracking => times.tracking_s += d,
+                            Stage::Heading => times.heading_s += d,
+                            Stage::VirtualScan => times.virtual_scan_s += d,
                         }
-                    }
+                    })
+                });
+                if let Some(all_back) = offered.back {
                     tracing::info!(robot = i, "fusion: robot back, re-acquiring");
                     ServerStats::add(&self.ports.stats.robots_back);
-                    if !state.lost.iter().any(|l| *l) {
+                    if all_back {
                         self.ports.status.send(FusionStatus::Fusing);
                     }
                 }
-                if let Some(set) = self.pick(state, i) {
-                    self.fuse(state, &set);
+                match offered.fused {
+                    Some(Ok(mut frame)) => {
+                        ServerStats::add(&self.ports.stats.fused);
+                        if offered.full_search {
+                            ServerStats::add(&self.ports.stats.full_searches);
+                        }
+                        frame.times =
+                            StageTimes { acquisition_sync_s: frame.times.acquisition_sync_s, ..times };
+                        self.ports.fused.send(frame);
+                    }
+                    Some(Err(UpdateError::Sync(f))) => {
+                        ServerStats::add(&self.ports.stats.gate_failures);
+                        tracing::debug!(failure = ?f, "fusion: sync gate");
+                    }
+                    Some(Err(e)) => tracing::debug!(error = %e, "fusion: no fused measurement"),
+                    None => {}
                 }
             }
             FusionMsg::Tick => {
                 let now = self.ports.clock.now_s();
-                for i in 0..self.members.len() {
-                    let last = state.scans[i].back().map(|(_, rx)| *rx);
-                    let silent = last.is_some_and(|t| now - t > self.params.lost_after_s);
-                    if silent && !state.lost[i] {
-                        state.lost[i] = true;
-                        tracing::warn!(robot = %self.ports.robots[i], "fusion: scans stopped, robot lost");
-                        ServerStats::add(&self.ports.stats.robots_lost);
-                        self.ports.status.send(FusionStatus::RobotLost(i));
-                    }
+                for i in state.core.check_lost(now, self.params.lost_after_s) {
+                    tracing::warn!(robot = %self.ports.robots[i], "fusion: scans stopped, robot lost");
+                    ServerStats::add(&self.ports.stats.robots_lost);
+                    self.ports.status.send(FusionStatus::RobotLost(i));
                 }
             }
-            FusionMsg::SetConfiguration(c) => {
-                state.configuration = c;
-                state.pipeline.set_configuration(c);
-            }
+            FusionMsg::SetConfiguration(c) => state.core.set_configuration(c),
         }
         Ok(())
     }

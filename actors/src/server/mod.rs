@@ -19,7 +19,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use amr_core::amcl::LikelihoodField;
-use amr_core::config::{AmclParams, RobotConfig, ScenarioConfig, ServerConfig, VamrParams};
+use amr_core::config::{AmclParams, Configuration, RobotConfig, ScenarioConfig, ServerConfig, VamrParams};
 use amr_core::formation::{FormationGains, slots};
 use amr_core::map::OccupancyGrid;
 use amr_core::plan::reference;
@@ -148,6 +148,37 @@ pub fn formation_robots(server: &ServerConfig, all: &[RobotConfig]) -> Result<Ve
         .collect()
 }
 
+/// The fusion's members and settings for `setup` (in `configuration` if given): what the fusion
+/// actor runs with, and what a replay of its input must run with.
+#[must_use]
+pub fn fusion_setup(
+    setup: &ServerSetup,
+    configuration: Option<Configuration>,
+) -> (Vec<Member>, FusionParams) {
+    let slot_y = slots(setup.robots.len(), setup.scenario.spacing_m.get());
+    let members = setup
+        .robots
+        .iter()
+        .zip(&slot_y)
+        .zip(&setup.server.robots)
+        .map(|((r, y), m)| Member {
+            lidar_to_base: r.lidar_mount.to_se2(),
+            chassis: r.chassis.outline_m.clone(),
+            weight: m.weight.get(),
+            slot_y_m: *y,
+        })
+        .collect();
+    let s = &setup.server.sync;
+    let params = FusionParams {
+        configuration: configuration.unwrap_or(setup.server.configuration),
+        vamr: setup.vamr.clone(),
+        max_spread_s: f64::from(s.max_stamp_spread_ms.ms()) / 1000.0,
+        max_age_s: f64::from(s.max_age_ms.ms()) / 1000.0,
+        lost_after_s: LOST_AFTER_S,
+    };
+    (members, params)
+}
+
 /// Start the server tree on `link`.
 pub async fn start_server(
     setup: ServerSetup,
@@ -161,18 +192,7 @@ pub async fn start_server(
     let sc = &setup.scenario;
     let slot_y = slots(setup.robots.len(), sc.spacing_m.get());
     let start_v = sc.start_pose();
-    let members: Vec<Member> = setup
-        .robots
-        .iter()
-        .zip(&slot_y)
-        .zip(&setup.server.robots)
-        .map(|((r, y), m)| Member {
-            lidar_to_base: r.lidar_mount.to_se2(),
-            chassis: r.chassis.outline_m.clone(),
-            weight: m.weight.get(),
-            slot_y_m: *y,
-        })
-        .collect();
+    let (members, fusion_params) = fusion_setup(&setup, None);
     let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1));
     let initial_v = setup.amcl.initial_pose.map_or(start_v, |p| p.pose());
     let amcl = AmclActor {
@@ -184,18 +204,7 @@ pub async fn start_server(
         initial_v,
         seed: setup.seed,
     };
-    let s = &setup.server.sync;
-    let fusion = FusionActor {
-        ports: Arc::clone(&ports),
-        members,
-        params: FusionParams {
-            configuration: setup.server.configuration,
-            vamr: setup.vamr.clone(),
-            max_spread_s: f64::from(s.max_stamp_spread_ms.ms()) / 1000.0,
-            max_age_s: f64::from(s.max_age_ms.ms()) / 1000.0,
-            lost_after_s: LOST_AFTER_S,
-        },
-    };
+    let fusion = FusionActor { ports: Arc::clone(&ports), members, params: fusion_params };
     let formation = FormationActor {
         ports: Arc::clone(&ports),
         params: FormationParams {

@@ -580,6 +580,10 @@ impl Master {
                     }
                 }
             }
+            // PDOs are valid only once the drive is started (CiA 301: none in PRE-OPERATIONAL).
+            // One that arrives while the drive is reset or being configured was sent before the
+            // reset: a stale "Operation enabled" must not re-enable a drive just found lost.
+            Cob::Tpdo(..) if self.drives[i].phase != Phase::Operational => {}
             Cob::Tpdo(1, _) => {
                 if let Some((sw, v)) = decode_tpdo1(frame.data()) {
                     self.on_status(i, now, sw, v);
