@@ -20,6 +20,9 @@ use tracing_subscriber::EnvFilter;
 const DEFAULT_LOG_FILTER: &str =
     "warn,amr=info,amr_core=info,amr_drivers=info,amr_actors=info,amr_sim=info,hil_mocks=info";
 
+/// Caps the log target where Zenoh dumps its configuration (zenoh 1.10 `api/session.rs`).
+const ZENOH_CONFIG_LOG: &str = "zenoh::api::session=info";
+
 #[derive(Debug, Parser)]
 #[command(
     name = "amr",
@@ -323,6 +326,12 @@ enum ConfigCommand {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(DEFAULT_LOG_FILTER));
+    // Zenoh prints its whole configuration, passwords included, at debug level when a session
+    // opens: that target never goes below info, whatever RUST_LOG asks (credentials stay out of logs).
+    let filter = match ZENOH_CONFIG_LOG.parse() {
+        Ok(d) => filter.add_directive(d),
+        Err(_) => filter,
+    };
     // Colour only on a terminal: logs piped to a file or another program stay plain text.
     let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
     {
@@ -480,5 +489,6 @@ mod tests {
     #[test]
     fn default_filter_parses() {
         assert!(EnvFilter::try_new(DEFAULT_LOG_FILTER).is_ok());
+        assert!(ZENOH_CONFIG_LOG.parse::<tracing_subscriber::filter::Directive>().is_ok());
     }
 }

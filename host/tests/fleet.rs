@@ -292,3 +292,58 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == WireSafety::Armed).count();
     assert!(armed_again >= 1, "robot-a was re-armed");
 }
+
+/// Credentials never reach the logs, even at trace level (Zenoh itself prints its configuration,
+/// password included, at debug level when a session opens).
+#[test]
+fn credentials_stay_out_of_the_logs_at_trace_level() {
+    let tmp = tempfile::tempdir().unwrap();
+    let creds = write_config(tmp.path());
+    std::fs::write(&creds, "server:srv-Zq81xx\nrobot-a:a-Zq81xx\n").unwrap();
+    let config = tmp.path().join("config");
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let args = |what: &str| -> Vec<String> {
+        let (cmd, file) =
+            if what == "server" { ("server", "server.toml") } else { ("robot", "robot-a.toml") };
+        [cmd, "--config", &config.join(file).display().to_string(), "--credentials", creds.to_str().unwrap()]
+            .iter()
+            .map(|s| (*s).to_owned())
+            .chain(["--endpoint".to_owned(), endpoint.clone()])
+            .chain(if what == "server" { vec!["--scenario".to_owned(), "short".to_owned()] } else { vec![] })
+            .collect()
+    };
+    let mut logs = Vec::new();
+    let mut procs = Procs(Vec::new());
+    for what in ["server", "robot"] {
+        let log = tmp.path().join(format!("{what}.log"));
+        let child = Command::new(env!("CARGO_BIN_EXE_amr"))
+            .args(args(what))
+            .env("RUST_LOG", "trace")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        procs.0.push((what.to_owned(), child));
+        logs.push(log);
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    // Bounded: until the robot has reached the server, at most 20 s.
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&logs[1]).unwrap_or_default().contains("connected to the server") {
+        if t0.elapsed() > Duration::from_secs(20) {
+            let tail = |p: &Path| {
+                let t = std::fs::read_to_string(p).unwrap_or_default();
+                t.lines().filter(|l| !l.contains("TRACE")).take(30).collect::<Vec<_>>().join("\n")
+            };
+            panic!("the robot never connected:\n{}\n---\n{}", tail(&logs[0]), tail(&logs[1]));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    drop(procs);
+    for log in &logs {
+        let text = std::fs::read_to_string(log).unwrap();
+        assert!(text.contains("TRACE"), "trace logging was on: {}", log.display());
+        assert!(!text.contains("Zq81xx"), "a password in {}", log.display());
+    }
+}
