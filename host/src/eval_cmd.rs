@@ -389,6 +389,20 @@ fn record_trial(
                 events.push(Event::EvalEstimate { stamp_s: t, configuration: *c, v: *v });
             }
         }
+        for (c, points) in f.virtual_scans {
+            if let Some(points) = points {
+                events.push(Event::EvalVirtualScan { stamp_s: t, configuration: *c, points: points.clone() });
+            }
+        }
+        // The complete method's particle cloud (the encoder keeps one a second).
+        if let Some((c, filter)) = f.filters.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4) {
+            let poses: Vec<amr_core::se2::Se2> = filter.particles().iter().map(|p| p.pose).collect();
+            events.push(Event::Particles(amr_actors::server::ports::ParticleCloud {
+                source: amr_actors::server::ports::EstimateSource::Fused(*c),
+                stamp_s: t,
+                poses: std::sync::Arc::new(poses),
+            }));
+        }
         for e in &events {
             if let Err(err) = rec.put(t, e) {
                 failed = Some(err);

@@ -95,4 +95,10 @@ fn an_evaluation_records_the_truth_and_every_configuration() {
         let n = t.get(&format!("/eval/{c}/V")).map_or(0, |(_, n)| *n);
         assert!(n > scans / 2 && n <= scans, "{c}: {n} estimates for {scans} scans");
     }
+    for c in ["T2", "T3", "T4"] {
+        let n = t.get(&format!("/eval/{c}/virtual_scan")).map_or(0, |(_, n)| *n);
+        assert!(n > scans / 2 && n <= scans, "{c}: {n} virtual scans for {scans} scans");
+    }
+    assert_eq!(t.get("/amcl/particles").map(|(s, _)| s.as_str()), Some("foxglove.PosesInFrame"), "{t:?}");
+    assert_eq!(t.get("/map").map(|(_, n)| *n), Some(1));
 }

@@ -117,6 +117,12 @@ pub enum Event {
         configuration: amr_core::config::Configuration,
         v: Se2,
     },
+    /// `amr eval`: one configuration's virtual scan (points in its V).
+    EvalVirtualScan {
+        stamp_s: f64,
+        configuration: amr_core::config::Configuration,
+        points: Vec<[f64; 2]>,
+    },
 }
 
 /// Particle clouds per source at most this often, ns of log time (a cloud is ~20 kB of JSON).
@@ -248,6 +254,17 @@ impl Encoder {
                     fg::POSE_IN_FRAME,
                     *stamp_s,
                     fg::pose_in_frame(*stamp_s, "map", vm),
+                ));
+                let tf = vec![fg::transform(*stamp_s, "map", &format!("eval/{c}/V"), vm)];
+                v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, *stamp_s, fg::transforms(tf)));
+            }
+            Event::EvalVirtualScan { stamp_s, configuration, points } => {
+                let c = wire::configuration_name(*configuration);
+                v.push(out(
+                    format!("/eval/{c}/virtual_scan"),
+                    fg::LASER_SCAN,
+                    *stamp_s,
+                    fg::points_scan(*stamp_s, &format!("eval/{c}/V"), points),
                 ));
             }
             Event::Fused(f) => {

@@ -134,6 +134,10 @@ pub struct TrialFrame<'a> {
     pub odom: &'a [Se2],
     /// Each configuration's estimate of V at this step (None: none yet).
     pub estimates: &'a [(Configuration, Option<Se2>)],
+    /// T2–T4: the virtual scan (points in V) each fused, when it did.
+    pub virtual_scans: &'a [(Configuration, Option<Vec<[f64; 2]>>)],
+    /// T2–T4: the AMCL filter on each one's virtual scan (its particles, for a recorder).
+    pub filters: &'a [(Configuration, &'a Amcl)],
 }
 
 /// [`run_trial`], calling `observe` after every scan step.
@@ -243,6 +247,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         let t1 = own_pose.iter().copied().collect::<Option<Vec<Se2>>>().map(|p| v_of(&p));
         record(&mut series, Configuration::T1, t1, &v_true, &v_ref);
         let mut estimates = vec![(Configuration::T1, t1)];
+        let mut virtual_scans = Vec::with_capacity(pipelines.len());
         let true_heading = (truth[0].inverse() * truth[1]).theta;
         for (c, pipeline, vamcl) in &mut pipelines {
             let packets: Vec<RobotPacket<'_>> = scan_list
@@ -277,16 +282,28 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
                     Err(_) => {}
                 }
             }
+            let mut fused_points = None;
             let est = result.ok().and_then(|u| {
                 let points: Vec<[f64; 2]> = u.virtual_scan.as_ref()?.points.iter().map(|(p, _)| *p).collect();
                 let v_odom = odom[0] * u.v_in_reference;
                 vamcl.update(v_odom, &points, false);
+                fused_points = Some(points);
                 vamcl.pose_at(&v_odom)
             });
             record(&mut series, *c, est, &v_true, &v_ref);
             estimates.push((*c, est));
+            virtual_scans.push((*c, fused_points));
         }
-        observe(&TrialFrame { t_s: t, scans: &scan_list, truth: &truth, odom: &odom, estimates: &estimates });
+        let filters: Vec<(Configuration, &Amcl)> = pipelines.iter().map(|(c, _, f)| (*c, f)).collect();
+        observe(&TrialFrame {
+            t_s: t,
+            scans: &scan_list,
+            truth: &truth,
+            odom: &odom,
+            estimates: &estimates,
+            virtual_scans: &virtual_scans,
+            filters: &filters,
+        });
     }
     let final_particles_t4 = pipelines
         .iter()
