@@ -135,26 +135,49 @@ fn markdown(report: &Report<'_>) -> String {
     out
 }
 
+/// Where `amr eval` writes: the report directory, and optionally a recording and a live view.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Outputs<'a> {
+    pub dir: &'a Path,
+    pub record: Option<&'a Path>,
+    pub live: Option<std::net::SocketAddr>,
+}
+
 pub(crate) fn run(
     config: &Config,
     scenario: &str,
     robots: usize,
     trials: usize,
     seed: u64,
-    out_dir: &Path,
-    record: Option<&Path>,
+    outputs: Outputs<'_>,
 ) -> anyhow::Result<PathBuf> {
+    let Outputs { dir: out_dir, record, live } = outputs;
     let setup = setup(config, scenario, robots)?;
+    // The live view's server runs on its own runtime while the trials run here.
+    let live = match live {
+        Some(addr) => {
+            let rt = crate::mock_cmd::runtime()?;
+            let hub = amr_record::Hub::default();
+            let server = rt
+                .block_on(amr_record::serve(addr, hub.clone(), "amr eval"))
+                .with_context(|| format!("serving the Foxglove live view on {addr}"))?;
+            tracing::info!(address = %server.addr, "Foxglove live view (simulated time, faster than real time)");
+            Some((rt, server, hub))
+        }
+        None => None,
+    };
+    let hub = live.as_ref().map(|(_, _, h)| h.clone());
     let mut results: Vec<Trial> = Vec::with_capacity(trials);
     let bar = progress(trials as u64, &format!("{scenario}: trials"));
     for k in 0..trials {
         let trial_seed = seed.wrapping_add(k as u64);
         tracing::debug!(scenario, trial = k + 1, of = trials, seed = trial_seed, "running trial");
-        let trial = match record {
-            None => run_trial(&setup, trial_seed),
-            Some(path) => {
-                let file = if trials == 1 { path.to_path_buf() } else { trial_file(path, trial_seed) };
-                record_trial(config, &setup, scenario, trial_seed, &file)?
+        let trial = match (record, &hub) {
+            (None, None) => run_trial(&setup, trial_seed),
+            _ => {
+                let file =
+                    record.map(|p| if trials == 1 { p.to_path_buf() } else { trial_file(p, trial_seed) });
+                record_trial(config, &setup, scenario, trial_seed, file.as_deref(), hub.clone())?
             }
         };
         results.push(trial);
@@ -343,7 +366,8 @@ fn record_trial(
     setup: &Setup,
     scenario: &str,
     seed: u64,
-    file: &Path,
+    file: Option<&Path>,
+    live: Option<amr_record::Hub>,
 ) -> anyhow::Result<Trial> {
     use amr_actors::messages::OdomMsg;
     use amr_actors::robot::ports::LidarScan;
@@ -359,8 +383,9 @@ fn record_trial(
     meta.insert("scenario".to_owned(), scenario.to_owned());
     meta.insert("seed".to_owned(), seed.to_string());
     meta.insert("robots".to_owned(), names.join(","));
-    let mut rec = amr_record::FileRecorder::create(file, names.clone(), meta)
-        .with_context(|| format!("creating {}", file.display()))?;
+    let shown = file.map_or_else(|| "the live view".to_owned(), |f| f.display().to_string());
+    let mut rec = amr_record::FileRecorder::to(file, live, names.clone(), meta)
+        .with_context(|| format!("creating {shown}"))?;
     rec.put(0.0, &Event::Map(setup.map.clone()))?;
     let mount = setup.robot.lidar_mount;
     rec.put(0.0, &Event::Mounts(names.iter().map(|n| (n.clone(), mount)).collect()))?;
@@ -411,9 +436,11 @@ fn record_trial(
         }
     });
     if let Some(e) = failed {
-        return Err(e).with_context(|| format!("recording to {}", file.display()));
+        return Err(e).with_context(|| format!("recording to {shown}"));
     }
     let stats = rec.finish()?;
-    tracing::info!(file = %file.display(), messages = stats.messages, "trial recorded");
+    if file.is_some() {
+        tracing::info!(file = %shown, messages = stats.messages, "trial recorded");
+    }
     Ok(trial)
 }

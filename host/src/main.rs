@@ -104,6 +104,10 @@ enum Command {
         /// this file for one trial, FILE-<seed>.mcap for several.
         #[arg(long, value_name = "FILE.mcap")]
         record: Option<PathBuf>,
+        /// Serve the trials live to Foxglove (WebSocket) here, e.g. 127.0.0.1:8765; they run in
+        /// simulated time, faster than real time.
+        #[arg(long, value_name = "ADDR")]
+        foxglove: Option<std::net::SocketAddr>,
     },
     /// Run a mock device standalone, serving its real protocol until Ctrl-C.
     /// The whole system against the mock devices in real time: both robots' actor trees, the
@@ -419,12 +423,19 @@ fn main() -> ExitCode {
         Command::Server { config, scenario, seed, auto_arm, net, rec } => {
             fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })
         }
-        Command::Eval { scenario, trials, seed, out, config, robots, sweep, record } => (|| {
+        Command::Eval { scenario, trials, seed, out, config, robots, sweep, record, foxglove } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
             let report = match sweep {
                 Some(which) => eval_cmd::sweep(&config, &scenario, which, trials, seed, &out)?,
-                None => eval_cmd::run(&config, &scenario, robots, trials, seed, &out, record.as_deref())?
-                    .join("report.md"),
+                None => eval_cmd::run(
+                    &config,
+                    &scenario,
+                    robots,
+                    trials,
+                    seed,
+                    eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
+                )?
+                .join("report.md"),
             };
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {
@@ -432,7 +443,8 @@ fn main() -> ExitCode {
                 println!("\nwritten to {}", report.display());
             }
             Ok(())
-        })(),
+        })(
+        ),
         Command::Localize { map, log, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let s = localize::run(&localize::Options { map, log, initial, params, out, seed })?;

@@ -326,7 +326,8 @@ impl Recorder {
 /// evaluation in simulated time): each event is written with the time the caller gives.
 #[derive(Debug)]
 pub struct FileRecorder {
-    file: McapFile,
+    file: Option<McapFile>,
+    live: Option<crate::live::Hub>,
     encoder: Encoder,
 }
 
@@ -337,24 +338,48 @@ impl FileRecorder {
         robots: Vec<String>,
         metadata: BTreeMap<String, String>,
     ) -> Result<Self, RecordError> {
-        let mut file = McapFile::create(path, FlushPolicy::default())?;
-        if !metadata.is_empty() {
-            file.metadata("amr", metadata)?;
-        }
-        Ok(FileRecorder { file, encoder: Encoder::new(robots) })
+        Self::to(Some(path), None, robots, metadata)
+    }
+
+    /// To a file and/or a live view (neither: the events are only encoded).
+    pub fn to(
+        path: Option<&std::path::Path>,
+        live: Option<crate::live::Hub>,
+        robots: Vec<String>,
+        metadata: BTreeMap<String, String>,
+    ) -> Result<Self, RecordError> {
+        let file = match path {
+            Some(p) => {
+                let mut file = McapFile::create(p, FlushPolicy::default())?;
+                if !metadata.is_empty() {
+                    file.metadata("amr", metadata)?;
+                }
+                Some(file)
+            }
+            None => None,
+        };
+        Ok(FileRecorder { file, live, encoder: Encoder::new(robots) })
     }
 
     /// Write `event` as seen at `t_s` (fleet-clock seconds; keep it non-decreasing).
     pub fn put(&mut self, t_s: f64, event: &Event) -> Result<(), RecordError> {
         let outs = self.encoder.encode(t_s, event)?;
         for o in &outs {
-            self.file.write(o)?;
+            if let Some(f) = self.file.as_mut() {
+                f.write(o)?;
+            }
+            if let Some(h) = &self.live {
+                h.publish(o);
+            }
         }
         Ok(())
     }
 
     /// Finish the file (summary and index).
     pub fn finish(self) -> Result<WriteStats, RecordError> {
-        Ok(self.file.finish()?)
+        match self.file {
+            Some(f) => Ok(f.finish()?),
+            None => Ok(WriteStats::default()),
+        }
     }
 }
