@@ -19,6 +19,11 @@
 //! layer refuses stale commands and stops by itself when commands stop. User/password
 //! authenticates but does not encrypt: on an untrusted network add Zenoh's TLS transport (not
 //! built in, to keep the build small) or a VPN.
+//!
+//! Logging: Zenoh 1.10 prints its whole configuration, the password included, at debug level on the
+//! `zenoh::api::session` target when a session opens. A program using these bridges must keep that
+//! target at info or above (the `amr` binary forces it, whatever `RUST_LOG` says, and a test checks
+//! it at trace level). This crate itself never logs a password ([`Credential`]'s `Debug` hides it).
 
 pub mod bridge;
 pub mod settings;
