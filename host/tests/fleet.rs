@@ -173,7 +173,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         // The server may not be listening yet: bounded retries.
         let mut session = None;
         for _ in 0..200 {
-            match zenoh::open(s.observer_config("observer").unwrap()).await {
+            match zenoh::open(s.client_config("observer").unwrap()).await {
                 Ok(z) => {
                     session = Some(z);
                     break;

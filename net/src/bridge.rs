@@ -287,7 +287,7 @@ pub async fn start_robot_bridge(
     robot: &str,
     clock: FleetClock,
 ) -> Result<(RobotEnd, Bridge), NetError> {
-    let config = settings.robot_config(robot)?;
+    let config = settings.client_config(robot)?;
     let stats = Arc::new(BridgeStats::default());
     let slot = SessionSlot::default();
 

@@ -158,22 +158,11 @@ impl NetSettings {
         Ok(c)
     }
 
-    /// A robot: a client of the server's endpoints. It keeps retrying in the background if the
-    /// server is not up yet (or restarts), so the robot's own tree never waits for the network.
-    pub fn robot_config(&self, robot: &str) -> Result<zenoh::Config, NetError> {
-        let me = self.credentials.of(robot)?;
-        let mut c = self.common("client", me)?;
-        let connect = self.connect.clone().unwrap_or_else(|| self.network.server.connect.clone());
-        set(&mut c, "connect/endpoints", &json!(connect))?;
-        set(&mut c, "connect/timeout_ms", &json!(0))?;
-        set(&mut c, "connect/exit_on_failure", &json!(false))?;
-        set(&mut c, "listen/endpoints", &json!([]))?;
-        Ok(c)
-    }
-
-    /// An observer (operator tools, tests): a client with its own user that may read everything
-    /// and, by the server's access control, publish nothing a robot listens to.
-    pub fn observer_config(&self, user: &str) -> Result<zenoh::Config, NetError> {
+    /// A client of the server's endpoints as `user`: a robot (user = its id), or an observer
+    /// (operator tools, tests) that may read everything and, by the server's access control,
+    /// publish nothing a robot or the server reads. A Zenoh client's `open` fails while no router
+    /// admits it: the robot's bridge retries in the background (see `bridge`).
+    pub fn client_config(&self, user: &str) -> Result<zenoh::Config, NetError> {
         let me = self.credentials.of(user)?;
         let mut c = self.common("client", me)?;
         let connect = self.connect.clone().unwrap_or_else(|| self.network.server.connect.clone());
