@@ -1,16 +1,14 @@
 //! `amr localize`: AMCL over a CARMEN log on a ROS map, one pose per scan as CSV.
 
-use std::fmt::Write as _;
-use std::io::Write as _;
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
-
-use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
-use amr_core::carmen::{Record, parse_line};
+use amr_core::amcl::log::{Fed, LogLocalizer, Start};
+use amr_core::carmen::parse_line;
 use amr_core::config::{AmclParams, parse_file};
 use amr_core::map::{MapYaml, OccupancyGrid, load_map};
 use amr_core::se2::Se2;
 use anyhow::Context as _;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
 
 /// Options of one run.
 #[derive(Debug)]
@@ -74,8 +72,8 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
     let mut out = String::from(HEADER);
     out.push('\n');
     let mut summary = Summary::default();
-    let mut amcl: Option<Amcl> = None;
-    let mut last_odom: Option<Se2> = None;
+    let start = Start::resolve(opts.initial, &opts.params);
+    let mut localizer = LogLocalizer::new(&grid, opts.params.clone(), start, opts.seed);
     for (n, line) in log.lines().enumerate() {
         let record = match parse_line(line) {
             Ok(Some(r)) => r,
@@ -86,40 +84,9 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
                 continue;
             }
         };
-        let laser = match record {
-            Record::Odometry { pose, .. } => {
-                last_odom = Some(pose);
-                continue;
-            }
-            Record::Laser(l) => l,
-        };
-        summary.scans += 1;
-        let Some(odom) = laser.odometry.or(last_odom) else {
-            summary.scans_without_odometry += 1;
-            continue;
-        };
-        // The field's z_rand term needs a maximum range: the parameters', else the first scan's.
-        let filter = amcl.get_or_insert_with(|| {
-            let range_max = opts.params.max_range_m().unwrap_or(laser.scan.range_max_m);
-            let field = Arc::new(LikelihoodField::new(&grid, &opts.params, range_max));
-            let mut f = Amcl::new(opts.params.clone(), field, opts.seed);
-            match (opts.initial, opts.params.initial_pose) {
-                (Some(p), spread) => {
-                    let (sxy, syaw) = spread.map_or((0.25, 0.2), |s| (s.std_xy_m.get(), s.std_yaw_rad.get()));
-                    f.init_pose(p, sxy, syaw);
-                }
-                (None, Some(ip)) => f.init_pose(ip.pose(), ip.std_xy_m.get(), ip.std_yaw_rad.get()),
-                (None, None) => f.init_global(),
-            }
-            f
-        });
-        let points = scan_points(&laser.scan, &laser.laser_in_robot, &opts.params);
-        filter.update(odom, &points, false);
-        // Between filter updates the pose follows the odometry from the last estimate.
-        if let (Some(e), Some(pose)) = (filter.estimate(), filter.pose_at(&odom)) {
-            let c = e.covariance;
-            let _ = write!(out, "{:.6},{:.6},{:.6},{:.6}", laser.timestamp_s, pose.x, pose.y, pose.theta);
-            for row in c {
+        if let Some(Fed { pose: Some(p), .. }) = localizer.feed(&record) {
+            let _ = write!(out, "{:.6},{:.6},{:.6},{:.6}", p.timestamp_s, p.pose.x, p.pose.y, p.pose.theta);
+            for row in p.covariance {
                 for v in row {
                     let _ = write!(out, ",{v:.9}");
                 }
@@ -128,6 +95,8 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
             summary.poses += 1;
         }
     }
+    summary.scans = localizer.scans;
+    summary.scans_without_odometry = localizer.scans_without_odometry;
     match &opts.out {
         Some(path) => {
             std::fs::write(path, &out).with_context(|| format!("cannot write {}", path.display()))?

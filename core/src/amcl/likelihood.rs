@@ -10,37 +10,42 @@ use crate::se2::Se2;
 /// Gaussian's normalisation), stored as `pz³` for nav2's `1 + Σ pz³` aggregation or as `ln pz` for
 /// the product model, with `d` capped at `laser_likelihood_max_dist`.
 ///
-/// Where this differs from nav2 is `d`. nav2 (and a plain distance transform) takes the distance from
-/// the endpoint's cell centre to the nearest occupied cell *centre*, and 0 anywhere inside an
-/// obstacle. A LiDAR sees the obstacle's *surface*, the boundary between occupied and other cells.
-/// With nav2's `d` the best-scoring place for an endpoint is anywhere inside the wall, so where the
-/// faces that fix a direction are seen from one side only (a corridor looking ahead) the likelihood
-/// is flat over the wall's thickness and the estimate slides up to a wall thickness beyond the truth.
-/// Measured in our corridor (`scenarios.rs`): the maximum-likelihood shift along the corridor at the
-/// true heading was up to +9.5 cm with nav2's `d`, 0 (±5 mm, the probe's step) with this one.
+/// `d` is the distance from the endpoint to the nearest *surface cell*'s centre: an occupied cell
+/// with at least one non-occupied 4-neighbour (or on the map's border). Why this and not either of
+/// the two obvious choices:
 ///
-/// Here `d` is the distance to the surface: a signed distance at the map's cell centres (`+` outside
-/// obstacles: distance to the nearest occupied centre − res/2; `−` inside: distance to the nearest
-/// non-occupied centre − res/2), interpolated bilinearly, so that it is 0 on the face between an
-/// occupied and a free cell and grows on both sides. To keep one lookup per beam, the factor of that
-/// interpolated `|d|` is sampled on a grid [`SUBDIVISION`] times finer than the map (so 4 × 4 bytes
-/// per map cell; the surface is placed to within a quarter cell).
+/// - nav2 (and a plain distance transform) measures to the nearest occupied centre, so `d` is 0
+///   anywhere inside an obstacle. Where the faces that fix a direction are seen from one side only
+///   (a corridor looking ahead) and the obstacle is thick, the likelihood is flat over the thickness
+///   and the estimate slides into the wall (measured on our polygon corridor: up to +9.5 cm).
+///   Measuring to surface cells keeps `d` growing inside thick obstacles.
+/// - The distance to the occupied/free *boundary* (what this field used before) is right only for a
+///   map whose walls are drawn exactly on cell faces. A map built the way SLAM builds maps marks the
+///   cell an endpoint falls in, so the surface lies, on average, at that cell's centre, not on its
+///   face: the boundary distance is res/2 off on every beam and has two optima per one-cell wall.
+///   Measured on three public CARMEN logs (maximum-likelihood pose offset at the reference poses, 60
+///   beams, σ 0.1 m): 5.6–6.3 cm RMS with the boundary distance, 3.7–4.2 cm with the centre one.
+///
+/// For one lookup per beam the capped `d` is interpolated bilinearly between the map's cell centres
+/// onto a grid [`SUBDIVISION`] times finer than the map and quantised to a byte (steps of
+/// `max_dist/255`, 7.8 mm at nav2's 2 m); the factor comes from a 256-entry table. That is
+/// `SUBDIVISION²` bytes per map cell (4), where f32 factors would take 16.
 #[derive(Debug, Clone)]
 pub struct LikelihoodField {
-    /// The factor grid, `SUBDIVISION` times finer than the map, row-major from the bottom row.
+    /// Quantised distances, `SUBDIVISION` times finer than the map, row-major from the bottom row.
     fine_width: usize,
     fine_height: usize,
     inv_fine_resolution: f64,
-    cells: Vec<f32>,
+    cells: Vec<u8>,
+    /// The factor of each quantised distance.
+    table: [f32; 256],
+    /// Metres per quantisation step.
+    step_m: f64,
     world_to_map: Se2,
-    /// The map's signed distances (m) at its cell centres plus a one-cell ring repeating the edge.
-    padded_width: usize,
-    padded_height: usize,
-    signed: Vec<f32>,
-    /// Off the map a point is as far as the cap (nav2 counts off-map as `max_occ_dist`).
-    off_map: f32,
-    /// Centres of the free cells (AMCL's "free": exactly 0), for random poses.
-    free: Vec<[f64; 2]>,
+    map_to_world: Se2,
+    /// Row-major indices of the free cells (AMCL's "free": exactly 0), for random poses.
+    free: Vec<u32>,
+    width: usize,
     resolution: f64,
     model: LaserModel,
 }
@@ -48,111 +53,98 @@ pub struct LikelihoodField {
 /// How many factor cells per map cell along each axis.
 pub const SUBDIVISION: usize = 2;
 
+/// The index of the largest quantised distance, which is also the value off the map.
+const OFF_MAP: u8 = u8::MAX;
+
 impl LikelihoodField {
     /// `range_max_m` is the sensor's maximum range used in the `z_rand` term.
     #[must_use]
     pub fn new(grid: &OccupancyGrid, params: &AmclParams, range_max_m: f64) -> Self {
         let (w, h, res) = (grid.width, grid.height, grid.resolution_m);
-        let occupied: Vec<bool> = grid.cells.iter().map(|&c| c == crate::map::OCCUPIED).collect();
-        let not_occupied: Vec<bool> = occupied.iter().map(|o| !o).collect();
-        let to_occupied = euclidean_distance_m(&occupied, w, h, res);
-        let to_outside = euclidean_distance_m(&not_occupied, w, h, res);
         let max_d = params.laser_likelihood_max_dist.get();
-        let (pw, ph) = (w + 2, h + 2);
-        // The ring repeats the edge cells, so that interpolation at the map's border stays flat.
-        let signed = (0..ph)
-            .flat_map(|pj| (0..pw).map(move |pi| (pi, pj)))
-            .map(|(pi, pj)| {
-                let k = pj.clamp(1, h.max(1)).saturating_sub(1) * w + pi.clamp(1, w.max(1)).saturating_sub(1);
-                let d = match occupied.get(k) {
-                    Some(true) => -(to_outside[k] - res / 2.0).min(max_d),
-                    Some(false) => (to_occupied[k] - res / 2.0).min(max_d),
-                    None => max_d,
-                };
-                d as f32
-            })
-            .collect();
+        let surface = surface_cells(grid);
+        let dist = euclidean_distance_m(&surface, w, h, res);
+        drop(surface);
         let (z_hit, z_rand, sigma) = (params.z_hit.get(), params.z_rand.get(), params.sigma_hit.get());
         let rand_term = if range_max_m > 0.0 { z_rand / range_max_m } else { 0.0 };
         let model = params.laser_model_type;
-        let factor = |d: f64| {
-            let d = d.min(max_d);
+        let step_m = max_d / f64::from(OFF_MAP);
+        let mut table = [0f32; 256];
+        for (q, t) in table.iter_mut().enumerate() {
+            let d = q as f64 * step_m;
             let pz = z_hit * (-(d * d) / (2.0 * sigma * sigma)).exp() + rand_term;
-            match model {
+            *t = match model {
                 LaserModel::LikelihoodField => (pz * pz * pz) as f32,
                 // pz > 0 is guaranteed by the config (z_hit + z_rand > 0); guard anyway.
                 LaserModel::LikelihoodFieldProb => pz.max(f64::MIN_POSITIVE).ln() as f32,
-            }
-        };
-        let free = (0..h)
-            .flat_map(|j| (0..w).map(move |i| (i, j)))
-            .filter(|&(i, j)| grid.is_free(i, j))
-            .map(|(i, j)| grid.cell_center(i, j))
-            .collect();
-        let mut field = LikelihoodField {
-            fine_width: w * SUBDIVISION,
-            fine_height: h * SUBDIVISION,
-            inv_fine_resolution: SUBDIVISION as f64 / res,
-            cells: Vec::new(),
-            world_to_map: grid.origin.inverse(),
-            padded_width: pw,
-            padded_height: ph,
-            signed,
-            off_map: factor(max_d),
-            free,
-            resolution: res,
-            model,
+            };
+        }
+        let free = (0..w * h).filter(|&k| grid.cells[k] == crate::map::FREE).map(|k| k as u32).collect();
+        let (fw, fh) = (w * SUBDIVISION, h * SUBDIVISION);
+        // The capped distance at map cell (i, j), clamped to the map (flat beyond its border).
+        let d_at = |i: isize, j: isize| -> f64 {
+            let i = i.clamp(0, w as isize - 1) as usize;
+            let j = j.clamp(0, h as isize - 1) as usize;
+            dist[j * w + i].min(max_d)
         };
         let k = SUBDIVISION as f64;
-        field.cells = (0..field.fine_height)
-            .flat_map(|b| (0..field.fine_width).map(move |a| (a, b)))
-            .map(|(a, b)| {
-                // The fine cell's centre in map cells, then in the padded centres' index.
-                let (x, y) = ((a as f64 + 0.5) / k, (b as f64 + 0.5) / k);
-                field.signed_at(x + 0.5, y + 0.5).map_or(field.off_map, |d| factor(f64::from(d.abs())))
-            })
-            .collect();
-        field
+        let mut cells = vec![OFF_MAP; fw * fh];
+        if w > 0 && h > 0 {
+            for b in 0..fh {
+                // The fine cell's centre in map-cell units, relative to the centre of cell 0.
+                let v = (b as f64 + 0.5) / k - 0.5;
+                let (j, fy) = (v.floor() as isize, v - v.floor());
+                for a in 0..fw {
+                    let u = (a as f64 + 0.5) / k - 0.5;
+                    let (i, fx) = (u.floor() as isize, u - u.floor());
+                    let bottom = d_at(i, j) + (d_at(i + 1, j) - d_at(i, j)) * fx;
+                    let top = d_at(i, j + 1) + (d_at(i + 1, j + 1) - d_at(i, j + 1)) * fx;
+                    let d = bottom + (top - bottom) * fy;
+                    cells[b * fw + a] = (d / step_m).round().clamp(0.0, f64::from(OFF_MAP)) as u8;
+                }
+            }
+        }
+        LikelihoodField {
+            fine_width: fw,
+            fine_height: fh,
+            inv_fine_resolution: k / res,
+            cells,
+            table,
+            step_m,
+            world_to_map: grid.origin.inverse(),
+            map_to_world: grid.origin,
+            free,
+            width: w,
+            resolution: res,
+            model,
+        }
     }
 
-    /// The distance (m, signed: negative inside obstacles) to the nearest obstacle surface at a world
-    /// point, interpolated bilinearly between cell centres; `None` off the map.
+    /// The (capped, quantised) distance in metres from a world point to the nearest surface cell's
+    /// centre, as the field stores it; `None` off the map.
     #[must_use]
-    pub fn signed_distance(&self, p: [f64; 2]) -> Option<f32> {
+    pub fn distance(&self, p: [f64; 2]) -> Option<f64> {
         let q = self.world_to_map.transform_point(p);
-        let r = 1.0 / self.resolution;
-        self.signed_at(q[0] * r + 0.5, q[1] * r + 0.5)
+        let (u, v) = (q[0] * self.inv_fine_resolution, q[1] * self.inv_fine_resolution);
+        self.index(u, v).map(|k| f64::from(self.cells[k]) * self.step_m)
     }
 
-    /// Bilinear interpolation at the continuous index `(u, v)` of the padded grid's cell centres
-    /// (map cell `(i, j)` is at `(i + 1, j + 1)`).
-    fn signed_at(&self, u: f64, v: f64) -> Option<f32> {
-        if !(u >= 0.0 && v >= 0.0) {
-            return None;
-        }
-        let (i, j) = (u as usize, v as usize);
-        if i + 1 >= self.padded_width || j + 1 >= self.padded_height {
-            return None;
-        }
-        let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
-        let k = j * self.padded_width + i;
-        let bottom = &self.signed[k..k + 2];
-        let top = &self.signed[k + self.padded_width..k + self.padded_width + 2];
-        let b = bottom[0] + (bottom[1] - bottom[0]) * fx;
-        let t = top[0] + (top[1] - top[0]) * fx;
-        Some(b + (t - b) * fy)
-    }
-
-    /// The factor at the continuous fine-grid coordinates `(u, v)`: one lookup.
     #[inline]
-    fn factor_at(&self, u: f64, v: f64) -> f32 {
+    fn index(&self, u: f64, v: f64) -> Option<usize> {
         if u >= 0.0 && v >= 0.0 {
             let (i, j) = (u as usize, v as usize);
             if i < self.fine_width && j < self.fine_height {
-                return self.cells[j * self.fine_width + i];
+                return Some(j * self.fine_width + i);
             }
         }
-        self.off_map
+        None
+    }
+
+    /// The factor at the continuous fine-grid coordinates `(u, v)`: one lookup and the table.
+    #[inline]
+    fn factor_at(&self, u: f64, v: f64) -> f32 {
+        let q = self.index(u, v).map_or(OFF_MAP, |k| self.cells[k]);
+        self.table[usize::from(q)]
     }
 
     /// The per-beam factor at a world point.
@@ -182,15 +174,77 @@ impl LikelihoodField {
         }
     }
 
+    /// The quantised distances of the points (base frame) seen from `pose`, into `out` (one per
+    /// point); [`Self::factor`] turns them into per-beam factors.
+    pub fn quantised_distances(&self, pose: &Se2, points: &[[f64; 2]], out: &mut [u8]) {
+        let m = self.world_to_map * *pose;
+        let (s, c) = m.theta.sin_cos();
+        let r = self.inv_fine_resolution;
+        let (u0, v0, cr, sr) = (m.x * r, m.y * r, c * r, s * r);
+        for (p, o) in points.iter().zip(out) {
+            *o = self
+                .index(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1])
+                .map_or(OFF_MAP, |k| self.cells[k]);
+        }
+    }
+
+    /// The per-beam factor of a quantised distance (`pz³` or `ln pz`, by model).
     #[must_use]
-    pub fn free_cells(&self) -> &[[f64; 2]] {
-        &self.free
+    pub fn factor(&self, q: u8) -> f32 {
+        self.table[usize::from(q)]
+    }
+
+    /// The quantised distances strictly below `distance_m` are those `< quantum_of(distance_m)`.
+    #[must_use]
+    pub fn quantum_of(&self, distance_m: f64) -> u16 {
+        (distance_m / self.step_m).ceil().clamp(0.0, 256.0) as u16
+    }
+
+    /// Number of free cells.
+    #[must_use]
+    pub fn free_count(&self) -> usize {
+        self.free.len()
+    }
+
+    /// The world centre of the `n`-th free cell (`n < free_count()`).
+    #[must_use]
+    pub fn free_cell(&self, n: usize) -> [f64; 2] {
+        let k = self.free[n] as usize;
+        let (i, j) = (k % self.width.max(1), k / self.width.max(1));
+        self.map_to_world
+            .transform_point([(i as f64 + 0.5) * self.resolution, (j as f64 + 0.5) * self.resolution])
     }
 
     #[must_use]
     pub fn resolution_m(&self) -> f64 {
         self.resolution
     }
+
+    /// Bytes held by the field's grids (the resident cost of a map).
+    #[must_use]
+    pub fn heap_bytes(&self) -> usize {
+        self.cells.len() + self.free.len() * std::mem::size_of::<u32>()
+    }
+}
+
+/// Occupied cells with a non-occupied 4-neighbour, or on the map's border.
+fn surface_cells(grid: &OccupancyGrid) -> Vec<bool> {
+    let (w, h) = (grid.width, grid.height);
+    let occ = |i: usize, j: usize| grid.cells[j * w + i] == crate::map::OCCUPIED;
+    (0..w * h)
+        .map(|k| {
+            let (i, j) = (k % w, k / w);
+            occ(i, j)
+                && (i == 0
+                    || j == 0
+                    || i + 1 == w
+                    || j + 1 == h
+                    || !occ(i - 1, j)
+                    || !occ(i + 1, j)
+                    || !occ(i, j - 1)
+                    || !occ(i, j + 1))
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -200,43 +254,65 @@ mod tests {
 
     #[test]
     fn factor_by_hand() {
-        // 1 m × 0.3 m at 0.1 m; the left column is a wall whose surface is the line x = 0.1.
+        // 1 m × 0.3 m at 0.1 m; the left column is a one-cell wall, as SLAM marks the cells that
+        // endpoints fall in: the surface is (on average) at the cell centre, x = 0.05.
         let mut g = OccupancyGrid::filled(10, 3, 0.1, Se2::IDENTITY, FREE);
         for j in 0..3 {
             g.set(0, j, OCCUPIED);
         }
         let params = crate::amcl::tests::shipped_params();
         let f = LikelihoodField::new(&g, &params, 10.0);
+        let step = params.laser_likelihood_max_dist.get() / 255.0;
+        let d = |x: f64| f.distance([x, 0.15]).unwrap();
+        // Fine cells are 0.05 m; each holds the distance at its centre (interpolated between map
+        // cell centres, exact for a flat wall), to within half a quantisation step.
+        let near = |a: f64, b: f64| (a - b).abs() <= step / 2.0 + 1e-9;
+        assert!(near(d(0.36), 0.375 - 0.05), "{}", d(0.36));
+        assert!(near(d(0.11), 0.125 - 0.05));
+        // Zero at the wall cell's centre, not on its face (the boundary distance said 0 at 0.1).
+        assert!(near(d(0.06), 0.025));
+        assert!(near(d(0.04), 0.0), "flat at the map's border");
+        assert!(d(0.04) < d(0.11), "the face is not the surface");
         let pz = |d: f64| 0.5 * (-(d * d) / (2.0 * 0.2 * 0.2)).exp() + 0.5 / 10.0;
-        let sd = |x: f64| f64::from(f.signed_distance([x, 0.15]).unwrap());
-        // Cell 3's centre is 0.25 m from the surface (nav2 would say 0.3 m, centre to centre).
-        assert!((sd(0.35) - 0.25).abs() < 1e-6);
-        // Between centres the distance is interpolated: exact for a flat face.
-        assert!((sd(0.3) - 0.2).abs() < 1e-6);
-        assert!((sd(0.137) - 0.037).abs() < 1e-6);
-        // On the face 0; inside the wall negative.
-        assert!(sd(0.1).abs() < 1e-6);
-        assert!((sd(0.05) + 0.05).abs() < 1e-6);
-        assert!((sd(0.0) + 0.05).abs() < 1e-6, "flat at the map's border");
-        // The factor is looked up on a grid twice as fine (0.05 m): the value at its cell centres.
+        let q = |d: f64| (d / step).round() * step;
         let at = |x: f64| f64::from(f.at([x, 0.15]));
-        assert!((at(0.37) - pz(0.275).powi(3)).abs() < 1e-6);
-        // Either side of the face alike (nav2: 0 anywhere inside, 0.1 m in the first free cell).
-        assert!((at(0.11) - pz(0.025).powi(3)).abs() < 1e-6);
-        assert!((at(0.09) - pz(0.025).powi(3)).abs() < 1e-6);
-        assert!((at(0.02) - pz(0.05).powi(3)).abs() < 1e-6);
-        assert!(at(0.11) > at(0.16) && at(0.09) > at(0.02), "largest at the surface");
+        assert!((at(0.36) - pz(q(0.325)).powi(3)).abs() < 1e-6);
         // Off the map: the cap, 2 m.
-        assert!((f64::from(f.at([-5.0, 0.0])) - pz(2.0).powi(3)).abs() < 1e-9);
-        assert_eq!(f.signed_distance([-5.0, 0.0]), None);
-        assert_eq!(f.free_cells().len(), 27);
-        let ll = f.log_likelihood(&Se2::IDENTITY, &[[0.11, 0.15], [0.37, 0.15]]);
-        assert!((ll - (1.0 + pz(0.025).powi(3) + pz(0.275).powi(3)).ln()).abs() < 1e-6);
+        assert!((f64::from(f.at([-5.0, 0.0])) - pz(2.0).powi(3)).abs() < 1e-6);
+        assert_eq!(f.distance([-5.0, 0.0]), None);
+        assert_eq!(f.free_count(), 27);
+        let c = f.free_cell(0);
+        assert!((c[0] - 0.15).abs() < 1e-12 && (c[1] - 0.05).abs() < 1e-12, "{c:?}");
+        let ll = f.log_likelihood(&Se2::IDENTITY, &[[0.06, 0.15], [0.36, 0.15]]);
+        assert!((ll - (1.0 + pz(q(0.025)).powi(3) + pz(q(0.325)).powi(3)).ln()).abs() < 1e-6);
         // The product model stores ln pz.
         let mut prob = params.clone();
         prob.laser_model_type = LaserModel::LikelihoodFieldProb;
         let f = LikelihoodField::new(&g, &prob, 10.0);
-        let ll = f.log_likelihood(&Se2::IDENTITY, &[[0.11, 0.15], [0.37, 0.15]]);
-        assert!((ll - (pz(0.025).ln() + pz(0.275).ln())).abs() < 1e-6);
+        let ll = f.log_likelihood(&Se2::IDENTITY, &[[0.06, 0.15], [0.36, 0.15]]);
+        assert!((ll - (pz(q(0.025)).ln() + pz(q(0.325)).ln())).abs() < 1e-5);
+        let mut qd = [0u8; 2];
+        f.quantised_distances(&Se2::IDENTITY, &[[0.06, 0.15], [-3.0, 0.0]], &mut qd);
+        assert_eq!(qd, [3, 255]);
+        assert!((f64::from(f.factor(3)) - pz(q(0.025)).ln()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn inside_a_thick_obstacle_the_distance_grows_again() {
+        // A block of columns 3..8 (x 0.3–0.8) and rows 2..11: its surface cells are its outer ring,
+        // e.g. columns 3 and 7 at row 6.
+        let mut g = OccupancyGrid::filled(12, 13, 0.1, Se2::IDENTITY, FREE);
+        for i in 3..8 {
+            for j in 2..11 {
+                g.set(i, j, OCCUPIED);
+            }
+        }
+        let f = LikelihoodField::new(&g, &crate::amcl::tests::shipped_params(), 10.0);
+        let d = |x: f64| f.distance([x, 0.65]).unwrap();
+        // nav2 (distance to any occupied centre) says 0 everywhere in 0.3..0.8. Fine cell centres
+        // are at x = 0.375, 0.475, 0.575, …, interpolated between the map's cell centres.
+        assert!((d(0.36) - 0.025).abs() < 0.01 && (d(0.74) - 0.025).abs() < 0.01);
+        assert!((d(0.56) - 0.175).abs() < 0.01, "{}", d(0.56));
+        assert!(d(0.46) > d(0.36) && d(0.56) > d(0.46) && d(0.66) < d(0.56));
     }
 }

@@ -8,6 +8,7 @@
 //! Deterministic: every draw comes from the filter's own seeded generator.
 
 pub mod likelihood;
+pub mod log;
 pub mod motion;
 pub mod particles;
 
@@ -188,7 +189,8 @@ impl Amcl {
 
     /// Motion step: every particle moves by a noisy sample of the odometry increment.
     fn predict(&mut self, old: &Se2, new: &Se2) {
-        let d = motion::delta(old, new, motion::alphas(&self.params));
+        let mut d = motion::delta(old, new, motion::alphas(&self.params));
+        d.slip_share = self.params.odom_slip_share.get();
         for p in &mut self.particles {
             motion::sample(&mut p.pose, &d, &mut self.rng);
         }
@@ -198,12 +200,14 @@ impl Amcl {
     /// and fast averages of the mean weight follow (augmented MCL).
     fn weigh(&mut self, points: &[[f64; 2]]) {
         let beams = subsample(points, self.params.max_beams.usize());
+        let likelihoods = if self.params.do_beamskip && self.converged() {
+            self.log_likelihoods_skipping(&beams)
+        } else {
+            self.particles.iter().map(|p| self.field.log_likelihood(&p.pose, &beams)).collect()
+        };
         // log(prior · likelihood), then normalised with the largest subtracted first.
-        let logs: Vec<f64> = self
-            .particles
-            .iter()
-            .map(|p| p.weight.ln() + self.field.log_likelihood(&p.pose, &beams))
-            .collect();
+        let logs: Vec<f64> =
+            self.particles.iter().zip(&likelihoods).map(|(p, l)| p.weight.ln() + l).collect();
         self.beams = beams;
         let top = logs.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let n = self.particles.len() as f64;
@@ -244,6 +248,51 @@ impl Amcl {
             self.w_slow = if self.w_slow == 0.0 { w_avg } else { self.w_slow + slow * (w_avg - self.w_slow) };
             self.w_fast = if self.w_fast == 0.0 { w_avg } else { self.w_fast + fast * (w_avg - self.w_fast) };
         }
+    }
+
+    /// nav2's `pf_update_converged`: every particle within [`CONVERGED_M`] of the mean in x and in y.
+    fn converged(&self) -> bool {
+        let n = self.particles.len() as f64;
+        let (mx, my) =
+            self.particles.iter().fold((0.0, 0.0), |(x, y), p| (x + p.pose.x / n, y + p.pose.y / n));
+        self.particles
+            .iter()
+            .all(|p| (p.pose.x - mx).abs() <= CONVERGED_M && (p.pose.y - my).abs() <= CONVERGED_M)
+    }
+
+    /// The product model's log-likelihoods with beam skipping (see `AmclParams::do_beamskip`): the
+    /// beams that too few particles can explain with the map are left out for all of them.
+    fn log_likelihoods_skipping(&self, beams: &[[f64; 2]]) -> Vec<f64> {
+        let nb = beams.len();
+        if nb == 0 {
+            return vec![0.0; self.particles.len()];
+        }
+        let mut q = vec![0u8; self.particles.len() * nb];
+        for (p, row) in self.particles.iter().zip(q.chunks_exact_mut(nb)) {
+            self.field.quantised_distances(&p.pose, beams, row);
+        }
+        let near = self.field.quantum_of(self.params.beam_skip_distance.get());
+        let mut agree = vec![0usize; nb];
+        for row in q.chunks_exact(nb) {
+            for (a, &d) in agree.iter_mut().zip(row) {
+                *a += usize::from(u16::from(d) < near);
+            }
+        }
+        let share = self.params.beam_skip_threshold.get() * self.particles.len() as f64;
+        let mut used: Vec<bool> = agree.iter().map(|&a| a as f64 > share).collect();
+        let skipped = used.iter().filter(|u| !**u).count();
+        if skipped as f64 >= self.params.beam_skip_error_threshold.get() * nb as f64 {
+            used.fill(true);
+        }
+        q.chunks_exact(nb)
+            .map(|row| {
+                row.iter()
+                    .zip(&used)
+                    .filter(|(_, u)| **u)
+                    .map(|(&d, _)| f64::from(self.field.factor(d)))
+                    .sum()
+            })
+            .collect()
     }
 
     /// Resampling step with the KLD limit and augmented-MCL injection (Probabilistic Robotics,
@@ -293,6 +342,9 @@ impl Amcl {
     }
 }
 
+/// The spread below which the particles count as converged (nav2 `pf->dist_threshold`).
+pub const CONVERGED_M: f64 = 0.5;
+
 /// Uniform candidates per injected particle (see [`Amcl::resample`]).
 pub const INJECTION_CANDIDATES: usize = 20;
 
@@ -316,11 +368,11 @@ fn best_of_random_poses(field: &LikelihoodField, beams: &[[f64; 2]], rng: &mut R
 
 /// A pose uniform over the free cells (uniform within the cell) and all headings.
 fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
-    let free = field.free_cells();
-    if free.is_empty() {
+    let n = field.free_count();
+    if n == 0 {
         return Se2::IDENTITY;
     }
-    let c = free[rng.below(free.len())];
+    let c = field.free_cell(rng.below(n));
     let h = field.resolution_m() / 2.0;
     Se2::new(
         c[0] + rng.range(-h, h),

@@ -16,6 +16,9 @@ pub struct OdometryDelta {
     pub sigma_rot1: f64,
     pub sigma_trans: f64,
     pub sigma_rot2: f64,
+    /// The share of samples whose translation is drawn uniformly from [−1.5, 1.5] × `trans`
+    /// instead (see `AmclParams::odom_slip_share`); 0 from [`delta`].
+    pub slip_share: f64,
 }
 
 /// Decompose the odometry change `old → new` (both in the odometry frame).
@@ -35,6 +38,7 @@ pub fn delta(old: &Se2, new: &Se2, alpha: [f64; 4]) -> OdometryDelta {
         sigma_rot1: (a1 * n1 * n1 + a2 * trans * trans).sqrt(),
         sigma_trans: (a3 * trans * trans + a4 * n1 * n1 + a4 * n2 * n2).sqrt(),
         sigma_rot2: (a1 * n2 * n2 + a2 * trans * trans).sqrt(),
+        slip_share: 0.0,
     }
 }
 
@@ -44,10 +48,17 @@ pub fn alphas(params: &AmclParams) -> [f64; 4] {
     [params.alpha1.get(), params.alpha2.get(), params.alpha3.get(), params.alpha4.get()]
 }
 
+/// How far a slipped translation may reach, as a multiple of the odometry's, either way.
+pub const SLIP_REACH: f64 = 1.5;
+
 /// Move one pose by a noisy sample of the increment.
 pub fn sample(pose: &mut Se2, d: &OdometryDelta, rng: &mut Rng) {
     let rot1 = angle_diff(d.rot1, rng.gaussian(d.sigma_rot1));
-    let trans = d.trans - rng.gaussian(d.sigma_trans);
+    let trans = if d.slip_share > 0.0 && rng.uniform() < d.slip_share {
+        d.trans * rng.range(-SLIP_REACH, SLIP_REACH)
+    } else {
+        d.trans - rng.gaussian(d.sigma_trans)
+    };
     let rot2 = angle_diff(d.rot2, rng.gaussian(d.sigma_rot2));
     let heading = pose.theta + rot1;
     *pose =

@@ -149,8 +149,12 @@ fn tuned_params() -> AmclParams {
 
 /// Tracking from a known pose (10 cm / 3° off, spread 10 cm / 3°) through the corridor and into a
 /// room, with 1 % odometry scale error: every estimate from the first filter update on is within
-/// 5 cm. Measured (seeded, so exact): 44 updates, worst 4.3 cm, RMS 1.9 cm, worst heading 0.28°;
-/// over 20 seeds (`tracking_holds_over_seeds`) this seed is the worst.
+/// 5 cm. Measured (seeded, so exact): 44 updates, worst 4.3 cm, RMS 1.9 cm, worst heading 0.28°
+/// with the field measuring to the occupied cells' *faces*; 2.7 cm RMS with today's field, which
+/// measures to the surface cells' *centres*: this map is rendered from polygons, so its walls lie on
+/// cell faces, while maps built the way SLAM builds them (the ones robots get) have their surfaces
+/// at the centres of the endpoint cells, where the face distance cost 1.5–2 cm RMS per scan
+/// (`likelihood.rs`). The sim's map is the less realistic one, so the bound here is 3 cm.
 ///
 /// History: with nav2's likelihood field (distance to occupied cell centres, 0 inside walls) and
 /// α = 0.02 the worst was 5.3 cm; with that field and α = 0.005, 4.3–5.2 cm over the same 20 seeds.
@@ -178,7 +182,7 @@ fn tracking_from_a_known_pose_stays_close() {
         worst_heading.to_degrees()
     );
     assert!(worst <= 0.05, "worst position error {worst:.3} m over {:?}", r.errors_m);
-    assert!(rms <= 0.025, "RMS position error {rms:.3} m");
+    assert!(rms <= 0.03, "RMS position error {rms:.3} m");
     assert!(worst_heading <= 1f64.to_radians(), "worst heading error {:.2}°", worst_heading.to_degrees());
 }
 

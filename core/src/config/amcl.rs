@@ -39,6 +39,12 @@ pub struct AmclParams {
     pub alpha3: NonNegative,
     /// Translation from rotation.
     pub alpha4: NonNegative,
+    /// Not in nav2: the share of motion samples whose translation ignores the odometry's size and
+    /// direction, drawn uniformly from [−1.5, 1.5] × the odometry's (a heavy tail for wheel slip,
+    /// bumps, and odometers that lose the direction of travel: freiburg-079's never reports
+    /// reversing while the robot reverses 83 times). Absent: 0, nav2's pure Gaussian model.
+    #[serde(default = "zero_fraction")]
+    pub odom_slip_share: Fraction,
     /// Distance-map cutoff of the likelihood field.
     pub laser_likelihood_max_dist: Positive,
     /// ≤ 0: use the scan's own maximum range (nav2 convention).
@@ -60,9 +66,38 @@ pub struct AmclParams {
     pub recovery_alpha_slow: Fraction,
     /// Augmented MCL: fast average decay (0 disables random injection).
     pub recovery_alpha_fast: Fraction,
+    /// Beam skipping (nav2 `do_beamskip`, likelihood_field_prob only): once the particles have
+    /// converged (all within 0.5 m of their mean in x and y), a beam is used only if more than
+    /// `beam_skip_threshold` of the particles place its endpoint within `beam_skip_distance` of the
+    /// map; if at least `beam_skip_error_threshold` of the beams would be skipped, all are used (the
+    /// filter is probably wrong, not the world). Unmapped obstacles (people, furniture) then stop
+    /// pulling the pose. Absent: off, as in nav2.
+    #[serde(default)]
+    pub do_beamskip: bool,
+    #[serde(default = "default_beam_skip_distance")]
+    pub beam_skip_distance: Positive,
+    #[serde(default = "default_beam_skip_threshold")]
+    pub beam_skip_threshold: Fraction,
+    #[serde(default = "default_beam_skip_error_threshold")]
+    pub beam_skip_error_threshold: Fraction,
     /// Start from this pose instead of global localisation.
     #[serde(default)]
     pub initial_pose: Option<InitialPose>,
+}
+
+fn zero_fraction() -> Fraction {
+    Fraction::new(0.0).unwrap_or_else(|_| unreachable!("0 is a fraction"))
+}
+
+// nav2's defaults (amcl_node.cpp).
+fn default_beam_skip_distance() -> Positive {
+    Positive::new(0.5).unwrap_or_else(|_| unreachable!("0.5 > 0"))
+}
+fn default_beam_skip_threshold() -> Fraction {
+    Fraction::new(0.3).unwrap_or_else(|_| unreachable!("0.3 is a fraction"))
+}
+fn default_beam_skip_error_threshold() -> Fraction {
+    Fraction::new(0.9).unwrap_or_else(|_| unreachable!("0.9 is a fraction"))
 }
 
 /// An initial pose with its spread (nav2 `initial_pose` plus the covariance it takes from
@@ -126,6 +161,11 @@ impl ConfigFileType for AmclParams {
                 format!("must be less than laser_max_range ({min} m >= {max} m)"),
             )?;
         }
+        rule(
+            !self.do_beamskip || self.laser_model_type == LaserModel::LikelihoodFieldProb,
+            "do_beamskip",
+            "beam skipping needs laser_model_type = \"likelihood_field_prob\" (nav2 ignores it otherwise)",
+        )?;
         let (slow, fast) = (self.recovery_alpha_slow.get(), self.recovery_alpha_fast.get());
         rule(
             (slow == 0.0) == (fast == 0.0),

@@ -1,0 +1,254 @@
+//! AMCL over a recorded log, and its score against a reference trajectory: what `amr localize` and
+//! `amr bench localize` share. Pure: lines and poses in, poses and statistics out; the caller times.
+
+use std::sync::Arc;
+
+use serde::Serialize;
+
+use super::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
+use crate::carmen::{LaserRecord, Record};
+use crate::config::AmclParams;
+use crate::metrics::ErrorStats;
+use crate::se2::{Se2, angle_diff};
+
+/// Where the filter starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Start {
+    /// Gaussian around a pose (nav2 `/initialpose`).
+    Pose { pose: Se2, std_xy_m: f64, std_yaw_rad: f64 },
+    /// Uniform over the free space (global localisation).
+    Global,
+}
+
+impl Start {
+    /// From a pose given on the command line (spread from the parameters' `initial_pose`, else
+    /// nav2's `/initialpose` habit of 0.25 m / 0.2 rad), else the parameters' `initial_pose`, else
+    /// global localisation.
+    #[must_use]
+    pub fn resolve(cli: Option<Se2>, params: &AmclParams) -> Start {
+        match (cli, params.initial_pose) {
+            (Some(pose), spread) => {
+                let (std_xy_m, std_yaw_rad) =
+                    spread.map_or((0.25, 0.2), |s| (s.std_xy_m.get(), s.std_yaw_rad.get()));
+                Start::Pose { pose, std_xy_m, std_yaw_rad }
+            }
+            (None, Some(ip)) => Start::Pose {
+                pose: ip.pose(),
+                std_xy_m: ip.std_xy_m.get(),
+                std_yaw_rad: ip.std_yaw_rad.get(),
+            },
+            (None, None) => Start::Global,
+        }
+    }
+}
+
+/// The pose reported for one laser record.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogPose {
+    pub timestamp_s: f64,
+    pub pose: Se2,
+    /// Of the last filter update, `[x, y, θ]`.
+    pub covariance: [[f64; 3]; 3],
+}
+
+/// AMCL fed one log record at a time. The filter (and its field) is built at the first laser
+/// record, so that a field needing the sensor's maximum range can take the scan's own.
+#[derive(Debug)]
+pub struct LogLocalizer<'g> {
+    grid: &'g crate::map::OccupancyGrid,
+    params: AmclParams,
+    start: Start,
+    seed: u64,
+    amcl: Option<Amcl>,
+    last_odom: Option<Se2>,
+    /// Laser records seen, and those without any odometry (skipped).
+    pub scans: usize,
+    pub scans_without_odometry: usize,
+}
+
+/// What one laser record gave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fed {
+    pub outcome: UpdateOutcome,
+    pub pose: Option<LogPose>,
+}
+
+impl<'g> LogLocalizer<'g> {
+    #[must_use]
+    pub fn new(grid: &'g crate::map::OccupancyGrid, params: AmclParams, start: Start, seed: u64) -> Self {
+        LogLocalizer {
+            grid,
+            params,
+            start,
+            seed,
+            amcl: None,
+            last_odom: None,
+            scans: 0,
+            scans_without_odometry: 0,
+        }
+    }
+
+    /// The filter, once the first laser record has built it.
+    #[must_use]
+    pub fn filter(&self) -> Option<&Amcl> {
+        self.amcl.as_ref()
+    }
+
+    /// Feed one record. Odometry records only update the odometry pose; a laser record runs the
+    /// filter (if it moved far enough) and gives the pose at its stamp: the last estimate moved on by
+    /// the odometry since (nav2's map→odom transform between updates).
+    pub fn feed(&mut self, record: &Record) -> Option<Fed> {
+        let laser: &LaserRecord = match record {
+            Record::Odometry { pose, .. } => {
+                self.last_odom = Some(*pose);
+                return None;
+            }
+            Record::Laser(l) => l,
+        };
+        self.scans += 1;
+        let Some(odom) = laser.odometry.or(self.last_odom) else {
+            self.scans_without_odometry += 1;
+            return None;
+        };
+        let (grid, params, start, seed) = (self.grid, &self.params, self.start, self.seed);
+        let filter = self.amcl.get_or_insert_with(|| {
+            let range_max = params.max_range_m().unwrap_or(laser.scan.range_max_m);
+            let field = Arc::new(LikelihoodField::new(grid, params, range_max));
+            let mut f = Amcl::new(params.clone(), field, seed);
+            match start {
+                Start::Pose { pose, std_xy_m, std_yaw_rad } => f.init_pose(pose, std_xy_m, std_yaw_rad),
+                Start::Global => f.init_global(),
+            }
+            f
+        });
+        let points = scan_points(&laser.scan, &laser.laser_in_robot, params);
+        let outcome = filter.update(odom, &points, false);
+        let pose = match (filter.estimate(), filter.pose_at(&odom)) {
+            (Some(e), Some(pose)) => {
+                Some(LogPose { timestamp_s: laser.timestamp_s, pose, covariance: e.covariance })
+            }
+            _ => None,
+        };
+        Some(Fed { outcome, pose })
+    }
+}
+
+/// One reference pose (`scan,timestamp,x,y,theta`, as the shared CARMEN scripts write it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RefPose {
+    pub timestamp_s: f64,
+    pub pose: Se2,
+}
+
+/// Parse a reference CSV with a header naming at least `timestamp,x,y,theta` (any order, other
+/// columns ignored). Errors name the line.
+pub fn parse_reference(text: &str) -> Result<Vec<RefPose>, String> {
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().ok_or("empty reference file")?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let col = |name: &str| {
+        cols.iter()
+            .position(|c| *c == name)
+            .ok_or_else(|| format!("line 1: no `{name}` column in `{header}`"))
+    };
+    let (ct, cx, cy, cth) = (col("timestamp")?, col("x")?, col("y")?, col("theta")?);
+    lines
+        .map(|(n, line)| {
+            let f: Vec<&str> = line.split(',').map(str::trim).collect();
+            let get = |c: usize| -> Result<f64, String> {
+                let t = f.get(c).ok_or_else(|| format!("line {}: too few columns", n + 1))?;
+                let v: f64 = t.parse().map_err(|_| format!("line {}: `{t}` is not a number", n + 1))?;
+                if v.is_finite() { Ok(v) } else { Err(format!("line {}: `{t}` is not finite", n + 1)) }
+            };
+            Ok(RefPose { timestamp_s: get(ct)?, pose: Se2::new(get(cx)?, get(cy)?, get(cth)?) })
+        })
+        .collect()
+}
+
+/// Scores of an estimated trajectory against a reference, matched by timestamp.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Score {
+    /// Reference poses, and those with an estimate within [`MATCH_TOLERANCE_S`].
+    pub reference: usize,
+    pub matched: usize,
+    pub translation: Option<ErrorStats>,
+    pub heading_rmse_deg: f64,
+    pub heading_max_deg: f64,
+    /// Share of matched poses more than [`DIVERGED_M`] off.
+    pub diverged_share: f64,
+    /// The first matched index from which every pose is within [`DIVERGED_M`] (global localisation's
+    /// convergence); `None` if the last one is off.
+    pub converged_from: Option<usize>,
+}
+
+/// An estimate farther than this from the reference counts as lost.
+pub const DIVERGED_M: f64 = 0.5;
+/// Estimates are matched to reference poses whose stamps differ by at most this.
+pub const MATCH_TOLERANCE_S: f64 = 1e-3;
+
+/// Score `estimate` (sorted or not) against `reference`. Every reference pose is matched to the
+/// estimate with the nearest stamp; farther than [`MATCH_TOLERANCE_S`] it counts as unmatched.
+#[must_use]
+pub fn score(reference: &[RefPose], estimate: &[(f64, Se2)]) -> Score {
+    let mut est: Vec<(f64, Se2)> = estimate.to_vec();
+    est.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut trans = Vec::new();
+    let mut head = Vec::new();
+    for r in reference {
+        let k = est.partition_point(|e| e.0 < r.timestamp_s);
+        let best = [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter_map(|i| est.get(i))
+            .min_by(|a, b| (a.0 - r.timestamp_s).abs().total_cmp(&(b.0 - r.timestamp_s).abs()));
+        if let Some((t, p)) = best
+            && (t - r.timestamp_s).abs() <= MATCH_TOLERANCE_S
+        {
+            trans.push((p.x - r.pose.x).hypot(p.y - r.pose.y));
+            head.push(angle_diff(p.theta, r.pose.theta).to_degrees());
+        }
+    }
+    let matched = trans.len();
+    let diverged = trans.iter().filter(|e| **e > DIVERGED_M).count();
+    let converged_from = match trans.iter().rposition(|e| *e > DIVERGED_M) {
+        None if matched > 0 => Some(0),
+        Some(i) if i + 1 < matched => Some(i + 1),
+        _ => None,
+    };
+    let hs = ErrorStats::of(&head);
+    Score {
+        reference: reference.len(),
+        matched,
+        translation: ErrorStats::of(&trans),
+        heading_rmse_deg: hs.map_or(f64::NAN, |s| s.rmse),
+        heading_max_deg: hs.map_or(f64::NAN, |s| s.max),
+        diverged_share: if matched > 0 { diverged as f64 / matched as f64 } else { f64::NAN },
+        converged_from,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_parse_and_score_by_hand() {
+        let r =
+            parse_reference("scan,timestamp,x,y,theta\n0,1.0,0,0,0\n1,2.0,1,0,0.1\n2,3.0,2,0,0\n").unwrap();
+        assert_eq!(r.len(), 3);
+        assert!(parse_reference("t,x\n1,2\n").unwrap_err().contains("timestamp"));
+        assert!(parse_reference("timestamp,x,y,theta\n1,2,x,4\n").unwrap_err().contains("line 2"));
+        // Off by 0.6 m at the first, exact after; the third has no estimate close enough in time.
+        let est = [(1.0, Se2::new(0.6, 0.0, 0.0)), (2.0004, Se2::new(1.0, 0.0, 0.1)), (3.1, Se2::IDENTITY)];
+        let s = score(&r, &est);
+        assert_eq!((s.reference, s.matched), (3, 2));
+        let t = s.translation.unwrap();
+        assert!((t.rmse - (0.36f64 / 2.0).sqrt()).abs() < 1e-12 && (t.max - 0.6).abs() < 1e-12);
+        assert!((s.diverged_share - 0.5).abs() < 1e-12);
+        assert_eq!(s.converged_from, Some(1));
+        assert!(s.heading_rmse_deg.abs() < 1e-9);
+        // Diverged at the end: never converged.
+        let s = score(&r[..2], &[(1.0, Se2::IDENTITY), (2.0, Se2::new(3.0, 0.0, 0.1))]);
+        assert_eq!(s.converged_from, None);
+    }
+}
