@@ -260,7 +260,8 @@ mod tests {
         for j in 0..3 {
             g.set(0, j, OCCUPIED);
         }
-        let params = crate::amcl::tests::shipped_params();
+        let mut params = crate::amcl::tests::shipped_params();
+        params.laser_model_type = LaserModel::LikelihoodField;
         let f = LikelihoodField::new(&g, &params, 10.0);
         let step = params.laser_likelihood_max_dist.get() / 255.0;
         let d = |x: f64| f.distance([x, 0.15]).unwrap();

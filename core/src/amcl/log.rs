@@ -22,14 +22,13 @@ pub enum Start {
 
 impl Start {
     /// From a pose given on the command line (spread from the parameters' `initial_pose`, else
-    /// nav2's `/initialpose` habit of 0.25 m / 0.2 rad), else the parameters' `initial_pose`, else
-    /// global localisation.
+    /// [`CLI_SPREAD`]), else the parameters' `initial_pose`, else global localisation.
     #[must_use]
     pub fn resolve(cli: Option<Se2>, params: &AmclParams) -> Start {
         match (cli, params.initial_pose) {
             (Some(pose), spread) => {
                 let (std_xy_m, std_yaw_rad) =
-                    spread.map_or((0.25, 0.2), |s| (s.std_xy_m.get(), s.std_yaw_rad.get()));
+                    spread.map_or(CLI_SPREAD, |s| (s.std_xy_m.get(), s.std_yaw_rad.get()));
                 Start::Pose { pose, std_xy_m, std_yaw_rad }
             }
             (None, Some(ip)) => Start::Pose {
@@ -41,6 +40,10 @@ impl Start {
         }
     }
 }
+
+/// The spread (m, rad) of a pose given without one: RViz's "2D Pose Estimate" sends nav2 variances
+/// of 0.25 m² in x and y and (π/12)² in yaw.
+pub const CLI_SPREAD: (f64, f64) = (0.5, std::f64::consts::PI / 12.0);
 
 /// The pose reported for one laser record.
 #[derive(Debug, Clone, Copy, PartialEq)]
