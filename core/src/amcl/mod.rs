@@ -48,6 +48,8 @@ pub struct Amcl {
     estimate: Option<Estimate>,
     /// The beams of the last sensor update, for choosing injected poses.
     beams: Vec<[f64; 2]>,
+    /// Global localisation waits for its first scan to place the particles (see `init_global`).
+    global_pending: bool,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -88,6 +90,7 @@ impl Amcl {
             injections: 0,
             estimate: None,
             beams: Vec::new(),
+            global_pending: false,
         }
     }
 
@@ -149,7 +152,11 @@ impl Amcl {
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
-    /// Global localisation: `max_particles` poses uniform over the free space and all headings.
+    /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
+    /// the first scan; then each particle is the best-fitting of [`GLOBAL_CANDIDATES`] uniform poses
+    /// for that scan (sensor resetting, Lenser & Veloso 2000). Uniform poses alone rarely put a
+    /// particle in the truth's basin on a building-sized map: measured on the CARMEN logs (800 m² of
+    /// free space in aces), 2 000 uniform particles never converged.
     pub fn init_global(&mut self) {
         let n = self.max();
         let w = 1.0 / n as f64;
@@ -157,7 +164,17 @@ impl Amcl {
         self.particles =
             (0..n).map(|_| Particle { pose: random_free_pose(&field, &mut self.rng), weight: w }).collect();
         self.reset_averages();
+        self.global_pending = true;
         self.estimate = particles::cluster_estimate(&self.particles);
+    }
+
+    fn place_globally(&mut self, points: &[[f64; 2]]) {
+        let beams = subsample(points, self.params.max_beams.usize());
+        let field = Arc::clone(&self.field);
+        for p in &mut self.particles {
+            p.pose = best_of_random_poses(&field, &beams, &mut self.rng, GLOBAL_CANDIDATES);
+        }
+        self.global_pending = false;
     }
 
     /// One scan with the odometry pose at its stamp. `points` are the measurement in the base frame
@@ -166,6 +183,9 @@ impl Amcl {
     pub fn update(&mut self, odom: Se2, points: &[[f64; 2]], force: bool) -> UpdateOutcome {
         if self.particles.is_empty() {
             return UpdateOutcome::NotInitialised;
+        }
+        if self.global_pending && !points.is_empty() {
+            self.place_globally(points);
         }
         if let Some(last) = self.last_odom {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
@@ -333,7 +353,7 @@ impl Amcl {
         let field = Arc::clone(&self.field);
         let beams = std::mem::take(&mut self.beams);
         self.particles = particles::resample(&self.particles, &limits, &mut self.rng, &mut |rng| {
-            best_of_random_poses(&field, &beams, rng)
+            best_of_random_poses(&field, &beams, rng, INJECTION_CANDIDATES)
         });
         self.beams = beams;
         if inject > 0.0 {
@@ -348,15 +368,23 @@ pub const CONVERGED_M: f64 = 0.5;
 /// Uniform candidates per injected particle (see [`Amcl::resample`]).
 pub const INJECTION_CANDIDATES: usize = 20;
 
-/// The best-fitting of [`INJECTION_CANDIDATES`] random free poses for `beams` (the first one if there
-/// are no beams).
-fn best_of_random_poses(field: &LikelihoodField, beams: &[[f64; 2]], rng: &mut Rng) -> Se2 {
+/// Uniform candidates per particle when global localisation places its particles on the first scan.
+pub const GLOBAL_CANDIDATES: usize = 200;
+
+/// The best-fitting of `candidates` random free poses for `beams` (the first one if there are no
+/// beams).
+fn best_of_random_poses(
+    field: &LikelihoodField,
+    beams: &[[f64; 2]],
+    rng: &mut Rng,
+    candidates: usize,
+) -> Se2 {
     let mut best = random_free_pose(field, rng);
     if beams.is_empty() {
         return best;
     }
     let mut best_ll = field.log_likelihood(&best, beams);
-    for _ in 1..INJECTION_CANDIDATES {
+    for _ in 1..candidates {
         let c = random_free_pose(field, rng);
         let l = field.log_likelihood(&c, beams);
         if l > best_ll {
