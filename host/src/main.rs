@@ -1,6 +1,7 @@
 //! `amr`: the one binary of the project. Each subcommand is wiring around the library crates.
 
 mod bench;
+mod bench_localize;
 mod config_cmd;
 mod eval_cmd;
 mod fleet_cmd;
@@ -300,6 +301,32 @@ enum BenchCommand {
     /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, and of
     /// resampling + estimate alone. Uses amcl.toml from the configuration.
     Amcl(BenchOptions),
+    /// AMCL on recorded real logs (the files `../shared/tools/carmen/regen.sh` writes) against their
+    /// references: tracking from the first reference pose and global localisation, per log and seed,
+    /// beside the odometry alone and nav2's figures (from `--nav2 DIR/<name>.csv`).
+    Localize {
+        /// Directory holding `<name>-raw.log`, `<name>_map.yaml` and `<name>-gt.csv`.
+        #[arg(long)]
+        logs: PathBuf,
+        /// Only these logs (default: every complete one in the directory).
+        #[arg(long = "log")]
+        only: Vec<String>,
+        /// Seeds, comma-separated.
+        #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
+        seeds: Vec<u64>,
+        /// A directory with nav2's estimate per log, `<name>.csv` (`timestamp,x,y,theta`).
+        #[arg(long)]
+        nav2: Option<PathBuf>,
+        /// AMCL parameters (an amcl.toml); default: the configuration's.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Configuration directory (default: ./config, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Print JSON instead of a Markdown table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Debug, clap::Args)]
@@ -351,6 +378,22 @@ fn main() -> ExitCode {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
         Command::Bench(BenchCommand::Vamr(opts)) => {
             bench(opts, "the Virtual-AMR pipeline", |c, quick| bench::run(&c.vamr, quick), bench::markdown)
+        }
+        Command::Bench(BenchCommand::Localize { logs, only, seeds, nav2, params, config, json }) => {
+            (|| -> anyhow::Result<()> {
+                let params = localize::load_params(params.as_deref(), config)?;
+                let report = bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref())?;
+                let text = if json {
+                    serde_json::to_string_pretty(&report)? + "\n"
+                } else {
+                    bench_localize::markdown(&report)
+                };
+                #[allow(clippy::print_stdout, reason = "the command's report")]
+                {
+                    print!("{text}");
+                }
+                Ok(())
+            })()
         }
         Command::Bench(BenchCommand::Amcl(opts)) => {
             bench(opts, "AMCL", |c, quick| bench::run_amcl(&c.amcl, &c.vamr, quick), bench::amcl_markdown)

@@ -50,6 +50,8 @@ pub struct Amcl {
     beams: Vec<[f64; 2]>,
     /// Global localisation waits for its first scan to place the particles (see `init_global`).
     global_pending: bool,
+    /// Candidates per particle then ([`GLOBAL_CANDIDATES`]; 1 is plain uniform).
+    global_candidates: usize,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -91,6 +93,7 @@ impl Amcl {
             estimate: None,
             beams: Vec::new(),
             global_pending: false,
+            global_candidates: GLOBAL_CANDIDATES,
         }
     }
 
@@ -172,7 +175,7 @@ impl Amcl {
         let beams = subsample(points, self.params.max_beams.usize());
         let field = Arc::clone(&self.field);
         for p in &mut self.particles {
-            p.pose = best_of_random_poses(&field, &beams, &mut self.rng, GLOBAL_CANDIDATES);
+            p.pose = best_of_random_poses(&field, &beams, &mut self.rng, self.global_candidates);
         }
         self.global_pending = false;
     }
@@ -432,12 +435,14 @@ pub(crate) mod tests {
         amcl.init_pose(Se2::new(1.0, 1.0, std::f64::consts::FRAC_PI_2), 0.0, 0.0);
         // The first update sets the odometry reference at (5, 5, 0).
         assert!(matches!(amcl.update(Se2::new(5.0, 5.0, 0.0), &[], false), UpdateOutcome::Updated { .. }));
-        // 0.1 m forward in odometry is below update_min_d: skipped, but the pose moves with it.
-        assert_eq!(amcl.update(Se2::new(5.1, 5.0, 0.0), &[], false), UpdateOutcome::Skipped);
-        let p = amcl.pose_at(&Se2::new(5.1, 5.0, 0.0)).unwrap();
+        // 0.03 m forward in odometry is below update_min_d: skipped, but the pose moves with it.
+        let d = amcl.params.update_min_d.get();
+        assert!(d > 0.03, "update_min_d {d}");
+        assert_eq!(amcl.update(Se2::new(5.03, 5.0, 0.0), &[], false), UpdateOutcome::Skipped);
+        let p = amcl.pose_at(&Se2::new(5.03, 5.0, 0.0)).unwrap();
         let e = amcl.estimate().unwrap().pose;
         assert!(
-            (p.x - e.x).abs() < 1e-9 && (p.y - (e.y + 0.1)).abs() < 1e-9,
+            (p.x - e.x).abs() < 1e-9 && (p.y - (e.y + 0.03)).abs() < 1e-9,
             "forward is +y for this heading: {p:?} vs {e:?}"
         );
     }

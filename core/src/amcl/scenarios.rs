@@ -372,27 +372,40 @@ fn kidnapping_recovery_over_seeds() {
     assert!(froms.iter().all(|f| f.is_some_and(|n| n <= 30)), "{froms:?}");
 }
 
-/// Global localisation with few particles for the map: 300 uniform particles rarely put one in the
-/// truth's basin, but placed on the first scan (best of `GLOBAL_CANDIDATES` each) the filter is
-/// within 0.3 m by its third update. Fails with one candidate per particle (plain uniform).
+/// Global localisation with few particles for the map (500, in 96 m² and all headings): uniform
+/// particles rarely put one in the truth's basin; placed on the first scan (best of
+/// `GLOBAL_CANDIDATES` uniform poses each) they do. Checked right after the first update: how many
+/// particles lie within 0.2 m and 5° of the truth. (Whether the filter then keeps the right place
+/// is another matter: this corridor has a twin 4 m along it that its first scans cannot tell apart.
+/// On four real CARMEN logs the placed filter was within 0.5 m from scan 0 or 1 in 12 of 12 runs,
+/// the uniform one in none: `amr bench localize`.)
 #[test]
 fn global_localisation_places_particles_on_the_first_scan() {
     let b = building();
     let mut params = shipped_params();
-    params.min_particles = crate::config::value::Count::new(100).unwrap();
-    params.max_particles = crate::config::value::Count::new(300).unwrap();
+    params.max_particles = crate::config::value::Count::new(500).unwrap();
     let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
-    let truth = path();
-    let odom = odometry(&truth, &mut Rng::seed(12));
-    for seed in 1..=3 {
+    let truth = Se2::new(1.0, 4.0, 0.0);
+    let near_truth = |candidates: usize, seed: u64| {
         let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), seed);
+        amcl.global_candidates = candidates;
         amcl.init_global();
-        let r = run(&mut amcl, &b, &truth, &odom, 22 + seed, &params);
-        assert!(r.errors_m.len() > 10);
+        let scan = b.scan(&truth, &mut Rng::seed(seed));
+        let points = scan_points(&scan, &Se2::IDENTITY, &params);
+        assert!(matches!(amcl.update(Se2::IDENTITY, &points, false), UpdateOutcome::Updated { .. }));
+        amcl.particles()
+            .iter()
+            .filter(|p| {
+                (p.pose.x - truth.x).hypot(p.pose.y - truth.y) < 0.2
+                    && angle_diff(p.pose.theta, truth.theta).abs() < 5f64.to_radians()
+            })
+            .count()
+    };
+    for seed in 1..=4 {
+        let (placed, uniform) = (near_truth(super::GLOBAL_CANDIDATES, seed), near_truth(1, seed));
         assert!(
-            r.errors_m[2..].iter().all(|e| *e < 0.3),
-            "seed {seed}: errors {:?}",
-            r.errors_m.iter().map(|e| (e * 100.0).round() / 100.0).collect::<Vec<_>>()
+            placed >= 5 && uniform <= 1,
+            "seed {seed}: {placed} placed particles near the truth, {uniform} uniform"
         );
     }
 }

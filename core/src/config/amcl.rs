@@ -39,10 +39,11 @@ pub struct AmclParams {
     pub alpha3: NonNegative,
     /// Translation from rotation.
     pub alpha4: NonNegative,
-    /// Not in nav2: the share of motion samples whose translation ignores the odometry's size and
-    /// direction, drawn uniformly from [−1.5, 1.5] × the odometry's (a heavy tail for wheel slip,
-    /// bumps, and odometers that lose the direction of travel: freiburg-079's never reports
-    /// reversing while the robot reverses 83 times). Absent: 0, nav2's pure Gaussian model.
+    /// Not in nav2: the share of motion samples that do not trust the odometry's increment: their
+    /// translation is drawn uniformly from [−1.5, 1.5] × the odometry's, and their heading gets
+    /// 0.2 rad more noise (a heavy tail for wheel slip, bumps, a robot turned by hand, and odometers
+    /// that lose the direction of travel: freiburg-079's never reports reversing while the robot
+    /// reverses 83 times). Absent: 0, nav2's pure Gaussian model.
     #[serde(default = "zero_fraction")]
     pub odom_slip_share: Fraction,
     /// Distance-map cutoff of the likelihood field.
