@@ -414,6 +414,8 @@ fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
 
 #[cfg(test)]
 mod scenarios;
+#[cfg(test)]
+mod surveyed;
 
 #[cfg(test)]
 pub(crate) mod tests {
