@@ -3,7 +3,7 @@
 //! final per-beam term so that a beam costs one lookup (as Beluga does).
 
 use crate::config::{AmclParams, LaserModel};
-use crate::map::{OccupancyGrid, euclidean_distance_m};
+use crate::map::{OccupancyGrid, capped_distance_q};
 use crate::se2::Se2;
 
 /// The per-beam term is nav2's `pz = z_hit·exp(−d²/2σ²) + z_rand/range_max` (without the
@@ -26,10 +26,11 @@ use crate::se2::Se2;
 ///   Measured on three public CARMEN logs (maximum-likelihood pose offset at the reference poses, 60
 ///   beams, σ 0.1 m): 5.6–6.3 cm RMS with the boundary distance, 3.7–4.2 cm with the centre one.
 ///
-/// For one lookup per beam the capped `d` is interpolated bilinearly between the map's cell centres
-/// onto a grid [`SUBDIVISION`] times finer than the map and quantised to a byte (steps of
-/// `max_dist/255`, 7.8 mm at nav2's 2 m); the factor comes from a 256-entry table. That is
-/// `SUBDIVISION²` bytes per map cell (4), where f32 factors would take 16.
+/// For one lookup per beam the capped `d` is quantised to a byte (steps of `max_dist/255`, 7.8 mm at
+/// nav2's 2 m) and interpolated bilinearly between the map's cell centres onto a grid [`SUBDIVISION`]
+/// times finer than the map (for maps of up to [`FINE_MAP_CELLS`]; larger ones keep the map's
+/// resolution); the factor comes from a 256-entry table. That is 4 bytes per map cell (1 for large
+/// maps), where f32 factors at twice the resolution took 16 (plus 4 for the distances).
 #[derive(Debug, Clone)]
 pub struct LikelihoodField {
     /// Quantised distances, `SUBDIVISION` times finer than the map, row-major from the bottom row.
@@ -43,15 +44,106 @@ pub struct LikelihoodField {
     step_m: f64,
     world_to_map: Se2,
     map_to_world: Se2,
-    /// Row-major indices of the free cells (AMCL's "free": exactly 0), for random poses.
-    free: Vec<u32>,
+    /// The free cells (AMCL's "free": exactly 0), for random poses.
+    free: FreeCells,
     width: usize,
     resolution: f64,
     model: LaserModel,
 }
 
-/// How many factor cells per map cell along each axis.
+/// How many factor cells per map cell along each axis, for maps of at most [`FINE_MAP_CELLS`].
 pub const SUBDIVISION: usize = 2;
+/// Larger maps get one factor cell per map cell (a nearest-cell lookup as nav2's), so that a
+/// 200 m × 600 m map at 0.05 m (48 M cells) needs 48 MB, not 192.
+pub const FINE_MAP_CELLS: usize = 16_000_000;
+
+fn subdivision(width: usize, height: usize) -> usize {
+    if width.saturating_mul(height) <= FINE_MAP_CELLS { SUBDIVISION } else { 1 }
+}
+
+/// The distances interpolated bilinearly between map cell centres onto a grid `sub` times finer.
+fn refine(dist: &[u8], w: usize, h: usize, sub: usize) -> Vec<u8> {
+    let (fw, fh) = (w * sub, h * sub);
+    let mut cells = vec![OFF_MAP; fw * fh];
+    if w == 0 || h == 0 {
+        return cells;
+    }
+    // The quantised distance at map cell (i, j), clamped to the map (flat beyond its border).
+    let d_at = |i: isize, j: isize| -> f64 {
+        let i = i.clamp(0, w as isize - 1) as usize;
+        let j = j.clamp(0, h as isize - 1) as usize;
+        f64::from(dist[j * w + i])
+    };
+    let k = sub as f64;
+    for b in 0..fh {
+        // The fine cell's centre in map-cell units, relative to the centre of cell 0.
+        let v = (b as f64 + 0.5) / k - 0.5;
+        let (j, fy) = (v.floor() as isize, v - v.floor());
+        for a in 0..fw {
+            let u = (a as f64 + 0.5) / k - 0.5;
+            let (i, fx) = (u.floor() as isize, u - u.floor());
+            let bottom = d_at(i, j) + (d_at(i + 1, j) - d_at(i, j)) * fx;
+            let top = d_at(i, j + 1) + (d_at(i + 1, j + 1) - d_at(i, j + 1)) * fx;
+            cells[b * fw + a] = (bottom + (top - bottom) * fy).round().clamp(0.0, f64::from(OFF_MAP)) as u8;
+        }
+    }
+    cells
+}
+
+/// The free cells as runs along rows: a uniform draw is a binary search, and a map of 48 M cells
+/// with half of them free holds a few hundred thousand runs instead of 24 M indices.
+#[derive(Debug, Clone, Default)]
+struct FreeCells {
+    /// First cell (row-major index) of each run.
+    starts: Vec<u32>,
+    /// Free cells before the end of each run.
+    ends: Vec<u64>,
+}
+
+impl FreeCells {
+    fn of(grid: &OccupancyGrid) -> Self {
+        let mut f = FreeCells::default();
+        let mut total = 0u64;
+        let mut run: Option<usize> = None;
+        let w = grid.width.max(1);
+        for (k, c) in grid.cells.iter().enumerate() {
+            let free = *c == crate::map::FREE;
+            // Runs stop at row ends, so that a run is a stretch of one row.
+            if let Some(s) = run
+                && (!free || k % w == 0)
+            {
+                total += (k - s) as u64;
+                f.starts.push(s as u32);
+                f.ends.push(total);
+                run = None;
+            }
+            if free && run.is_none() {
+                run = Some(k);
+            }
+        }
+        if let Some(s) = run {
+            total += (grid.cells.len() - s) as u64;
+            f.starts.push(s as u32);
+            f.ends.push(total);
+        }
+        f
+    }
+
+    fn count(&self) -> usize {
+        self.ends.last().map_or(0, |e| *e as usize)
+    }
+
+    /// The row-major index of the `n`-th free cell.
+    fn nth(&self, n: usize) -> usize {
+        let r = self.ends.partition_point(|e| *e <= n as u64).min(self.starts.len().saturating_sub(1));
+        let before = if r == 0 { 0 } else { self.ends[r - 1] };
+        self.starts[r] as usize + (n as u64 - before) as usize
+    }
+
+    fn bytes(&self) -> usize {
+        self.starts.len() * 4 + self.ends.len() * 8
+    }
+}
 
 /// The index of the largest quantised distance, which is also the value off the map.
 const OFF_MAP: u8 = u8::MAX;
@@ -63,7 +155,7 @@ impl LikelihoodField {
         let (w, h, res) = (grid.width, grid.height, grid.resolution_m);
         let max_d = params.laser_likelihood_max_dist.get();
         let surface = surface_cells(grid);
-        let dist = euclidean_distance_m(&surface, w, h, res);
+        let dist = capped_distance_q(&surface, w, h, res, max_d);
         drop(surface);
         let (z_hit, z_rand, sigma) = (params.z_hit.get(), params.z_rand.get(), params.sigma_hit.get());
         let rand_term = if range_max_m > 0.0 { z_rand / range_max_m } else { 0.0 };
@@ -79,41 +171,18 @@ impl LikelihoodField {
                 LaserModel::LikelihoodFieldProb => pz.max(f64::MIN_POSITIVE).ln() as f32,
             };
         }
-        let free = (0..w * h).filter(|&k| grid.cells[k] == crate::map::FREE).map(|k| k as u32).collect();
-        let (fw, fh) = (w * SUBDIVISION, h * SUBDIVISION);
-        // The capped distance at map cell (i, j), clamped to the map (flat beyond its border).
-        let d_at = |i: isize, j: isize| -> f64 {
-            let i = i.clamp(0, w as isize - 1) as usize;
-            let j = j.clamp(0, h as isize - 1) as usize;
-            dist[j * w + i].min(max_d)
-        };
-        let k = SUBDIVISION as f64;
-        let mut cells = vec![OFF_MAP; fw * fh];
-        if w > 0 && h > 0 {
-            for b in 0..fh {
-                // The fine cell's centre in map-cell units, relative to the centre of cell 0.
-                let v = (b as f64 + 0.5) / k - 0.5;
-                let (j, fy) = (v.floor() as isize, v - v.floor());
-                for a in 0..fw {
-                    let u = (a as f64 + 0.5) / k - 0.5;
-                    let (i, fx) = (u.floor() as isize, u - u.floor());
-                    let bottom = d_at(i, j) + (d_at(i + 1, j) - d_at(i, j)) * fx;
-                    let top = d_at(i, j + 1) + (d_at(i + 1, j + 1) - d_at(i, j + 1)) * fx;
-                    let d = bottom + (top - bottom) * fy;
-                    cells[b * fw + a] = (d / step_m).round().clamp(0.0, f64::from(OFF_MAP)) as u8;
-                }
-            }
-        }
+        let sub = subdivision(w, h);
+        let cells = if sub == 1 { dist } else { refine(&dist, w, h, sub) };
         LikelihoodField {
-            fine_width: fw,
-            fine_height: fh,
-            inv_fine_resolution: k / res,
+            fine_width: w * sub,
+            fine_height: h * sub,
+            inv_fine_resolution: sub as f64 / res,
             cells,
             table,
             step_m,
             world_to_map: grid.origin.inverse(),
             map_to_world: grid.origin,
-            free,
+            free: FreeCells::of(grid),
             width: w,
             resolution: res,
             model,
@@ -203,13 +272,13 @@ impl LikelihoodField {
     /// Number of free cells.
     #[must_use]
     pub fn free_count(&self) -> usize {
-        self.free.len()
+        self.free.count()
     }
 
     /// The world centre of the `n`-th free cell (`n < free_count()`).
     #[must_use]
     pub fn free_cell(&self, n: usize) -> [f64; 2] {
-        let k = self.free[n] as usize;
+        let k = self.free.nth(n);
         let (i, j) = (k % self.width.max(1), k / self.width.max(1));
         self.map_to_world
             .transform_point([(i as f64 + 0.5) * self.resolution, (j as f64 + 0.5) * self.resolution])
@@ -223,7 +292,7 @@ impl LikelihoodField {
     /// Bytes held by the field's grids (the resident cost of a map).
     #[must_use]
     pub fn heap_bytes(&self) -> usize {
-        self.cells.len() + self.free.len() * std::mem::size_of::<u32>()
+        self.cells.len() + self.free.bytes()
     }
 }
 

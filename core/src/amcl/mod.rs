@@ -223,10 +223,11 @@ impl Amcl {
     /// and fast averages of the mean weight follow (augmented MCL).
     fn weigh(&mut self, points: &[[f64; 2]]) {
         let beams = subsample(points, self.params.max_beams.usize());
-        let likelihoods = if self.params.do_beamskip && self.converged() {
+        // The likelihoods, and how many beams each is a product of.
+        let (likelihoods, used_beams) = if self.params.do_beamskip && self.converged() {
             self.log_likelihoods_skipping(&beams)
         } else {
-            self.particles.iter().map(|p| self.field.log_likelihood(&p.pose, &beams)).collect()
+            (self.particles.iter().map(|p| self.field.log_likelihood(&p.pose, &beams)).collect(), beams.len())
         };
         // log(prior · likelihood), then normalised with the largest subtracted first.
         let logs: Vec<f64> =
@@ -259,7 +260,9 @@ impl Amcl {
         // compare scenes rather than fits: after a kidnapping into a room the filter kept injecting
         // after it had found the pose, and lost it again. For that model the averages follow the
         // per-beam (geometric) mean, `w_avg^(1/beams)`.
-        let n_beams = self.beams.len();
+        // With beam skipping the product runs over the beams used, so the per-beam mean divides by
+        // their number (dividing by all would count each skipped beam as a perfect fit).
+        let n_beams = used_beams;
         let w_avg = match self.params.laser_model_type {
             crate::config::LaserModel::LikelihoodFieldProb if n_beams > 0 => {
                 ((top + total.ln()) / n_beams as f64).exp()
@@ -285,10 +288,10 @@ impl Amcl {
 
     /// The product model's log-likelihoods with beam skipping (see `AmclParams::do_beamskip`): the
     /// beams that too few particles can explain with the map are left out for all of them.
-    fn log_likelihoods_skipping(&self, beams: &[[f64; 2]]) -> Vec<f64> {
+    fn log_likelihoods_skipping(&self, beams: &[[f64; 2]]) -> (Vec<f64>, usize) {
         let nb = beams.len();
         if nb == 0 {
-            return vec![0.0; self.particles.len()];
+            return (vec![0.0; self.particles.len()], 0);
         }
         let mut q = vec![0u8; self.particles.len() * nb];
         for (p, row) in self.particles.iter().zip(q.chunks_exact_mut(nb)) {
@@ -307,7 +310,9 @@ impl Amcl {
         if skipped as f64 >= self.params.beam_skip_error_threshold.get() * nb as f64 {
             used.fill(true);
         }
-        q.chunks_exact(nb)
+        let n_used = used.iter().filter(|u| **u).count();
+        let logs = q
+            .chunks_exact(nb)
             .map(|row| {
                 row.iter()
                     .zip(&used)
@@ -315,7 +320,8 @@ impl Amcl {
                     .map(|(&d, _)| f64::from(self.field.factor(d)))
                     .sum()
             })
-            .collect()
+            .collect();
+        (logs, n_used)
     }
 
     /// Resampling step with the KLD limit and augmented-MCL injection (Probabilistic Robotics,
@@ -447,6 +453,42 @@ pub(crate) mod tests {
             (p.x - e.x).abs() < 1e-9 && (p.y - (e.y + 0.03)).abs() < 1e-9,
             "forward is +y for this heading: {p:?} vs {e:?}"
         );
+    }
+
+    /// With beam skipping the recovery averages are per-beam means over the beams used: half the
+    /// beams skipped must not make the fit look better than a perfect one (dividing by all beams
+    /// did: the square root of the best per-beam likelihood).
+    #[test]
+    fn skipped_beams_do_not_count_as_perfect_fits() {
+        let mut g = crate::map::OccupancyGrid::filled(100, 100, 0.05, Se2::IDENTITY, crate::map::FREE);
+        for j in 0..100 {
+            g.set(80, j, crate::map::OCCUPIED);
+        }
+        let mut params = shipped_params();
+        assert!(
+            params.do_beamskip && params.laser_model_type == crate::config::LaserModel::LikelihoodFieldProb
+        );
+        params.recovery_alpha_slow = crate::config::value::Fraction::new(0.001).unwrap();
+        params.recovery_alpha_fast = crate::config::value::Fraction::new(0.1).unwrap();
+        let field = Arc::new(LikelihoodField::new(&g, &params, 10.0));
+        let mut amcl = Amcl::new(params.clone(), field, 1);
+        // Every particle at one pose: converged, so beams are skipped.
+        amcl.init_pose(Se2::new(1.0, 2.5, 0.0), 0.0, 0.0);
+        // 30 beams on the wall's cell centres (x = 4.025), 30 on nothing 1.5 m short of it.
+        let points: Vec<[f64; 2]> = (0..60)
+            .map(|k| {
+                let y = -1.0 + f64::from(k / 2) * 0.07;
+                if k % 2 == 0 { [3.025, y] } else { [1.5, y] }
+            })
+            .collect();
+        assert!(matches!(amcl.update(Se2::IDENTITY, &points, false), UpdateOutcome::Updated { .. }));
+        let best = (0.5 + 0.5 / 10.0_f64).max(0.0);
+        assert!(
+            amcl.w_slow > 0.0 && amcl.w_slow <= best * 1.001,
+            "w_slow {} > the best per-beam {best}",
+            amcl.w_slow
+        );
+        assert!(amcl.w_slow > best * 0.9, "the used beams fit: {}", amcl.w_slow);
     }
 
     #[test]

@@ -11,7 +11,7 @@ mod distance;
 mod ros;
 mod survey;
 
-pub use distance::{distance_transform_sq, euclidean_distance_m};
+pub use distance::{capped_distance_q, distance_transform_sq, euclidean_distance_m};
 pub use ros::{MapError, MapMode, MapYaml, load_map, save_map};
 pub use survey::Survey;
 
