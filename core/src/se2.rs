@@ -12,6 +12,16 @@ use std::ops::Mul;
 /// Non-finite input stays non-finite (NaN in, NaN out); callers validate their inputs.
 #[must_use]
 pub fn normalize_angle(angle_rad: f64) -> f64 {
+    // Most angles are in range already, or one turn off (a sum or difference of two normalised
+    // angles): no division for those (`rem_euclid` is a library call, and this runs for every
+    // particle of every filter update). In range the angle is returned exactly.
+    if angle_rad > -PI && angle_rad <= PI {
+        return angle_rad;
+    }
+    let a = if angle_rad > 0.0 { angle_rad - TAU } else { angle_rad + TAU };
+    if a > -PI && a <= PI {
+        return a;
+    }
     // rem_euclid gives [0, 2π] (2π itself only through rounding of tiny negative inputs).
     let a = angle_rad.rem_euclid(TAU);
     if a > PI { a - TAU } else { a }

@@ -43,6 +43,8 @@ pub struct LikelihoodField {
     /// Metres per quantisation step.
     step_m: f64,
     world_to_map: Se2,
+    /// `sin_cos` of `world_to_map`'s rotation.
+    map_rotation: (f64, f64),
     map_to_world: Se2,
     /// The free cells (AMCL's "free": exactly 0), for random poses.
     free: FreeCells,
@@ -181,6 +183,7 @@ impl LikelihoodField {
             table,
             step_m,
             world_to_map: grid.origin.inverse(),
+            map_rotation: grid.origin.inverse().theta.sin_cos(),
             map_to_world: grid.origin,
             free: FreeCells::of(grid),
             width: w,
@@ -198,15 +201,30 @@ impl LikelihoodField {
         self.index(u, v).map(|k| f64::from(self.cells[k]) * self.step_m)
     }
 
+    /// A pose in the map frame scaled to fine cells, as `(u0, v0, cos·k, sin·k)`: a base-frame point
+    /// `p` lands at `(u0 + cos·k·p.x − sin·k·p.y, v0 + sin·k·p.x + cos·k·p.y)`. One `sin_cos` per
+    /// pose (composing `Se2`s would take two and a normalisation).
+    #[inline]
+    fn fine_pose(&self, pose: &Se2) -> (f64, f64, f64, f64) {
+        let (sp, cp) = pose.theta.sin_cos();
+        let (s0, c0) = self.map_rotation;
+        let m = &self.world_to_map;
+        let r = self.inv_fine_resolution;
+        let (x, y) = (m.x + c0 * pose.x - s0 * pose.y, m.y + s0 * pose.x + c0 * pose.y);
+        (x * r, y * r, (c0 * cp - s0 * sp) * r, (s0 * cp + c0 * sp) * r)
+    }
+
+    /// The fine cell holding continuous fine-grid coordinates `(u, v)`, if on the map. `floor` is a
+    /// library call on x86-64 without SSE4.1, and a float-to-unsigned cast costs a dozen
+    /// instructions; biasing by 2³⁰ makes truncation a floor, and one unsigned compare per axis
+    /// rejects both sides (NaN included). This is the inner loop of every filter update.
     #[inline]
     fn index(&self, u: f64, v: f64) -> Option<usize> {
-        if u >= 0.0 && v >= 0.0 {
-            let (i, j) = (u as usize, v as usize);
-            if i < self.fine_width && j < self.fine_height {
-                return Some(j * self.fine_width + i);
-            }
-        }
-        None
+        const BIAS: i64 = 1 << 30;
+        let i = ((u + BIAS as f64) as i64).wrapping_sub(BIAS) as u64;
+        let j = ((v + BIAS as f64) as i64).wrapping_sub(BIAS) as u64;
+        (i < self.fine_width as u64 && j < self.fine_height as u64)
+            .then(|| j as usize * self.fine_width + i as usize)
     }
 
     /// The factor at the continuous fine-grid coordinates `(u, v)`: one lookup and the table.
@@ -228,11 +246,7 @@ impl LikelihoodField {
     /// virtual-scan points from underflowing.
     #[must_use]
     pub fn log_likelihood(&self, pose: &Se2, points: &[[f64; 2]]) -> f64 {
-        // The pose in the map frame, scaled to fine cells: one transform per beam.
-        let m = self.world_to_map * *pose;
-        let (s, c) = m.theta.sin_cos();
-        let r = self.inv_fine_resolution;
-        let (u0, v0, cr, sr) = (m.x * r, m.y * r, c * r, s * r);
+        let (u0, v0, cr, sr) = self.fine_pose(pose);
         let sum: f64 = points
             .iter()
             .map(|p| f64::from(self.factor_at(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1])))
@@ -246,10 +260,7 @@ impl LikelihoodField {
     /// The quantised distances of the points (base frame) seen from `pose`, into `out` (one per
     /// point); [`Self::factor`] turns them into per-beam factors.
     pub fn quantised_distances(&self, pose: &Se2, points: &[[f64; 2]], out: &mut [u8]) {
-        let m = self.world_to_map * *pose;
-        let (s, c) = m.theta.sin_cos();
-        let r = self.inv_fine_resolution;
-        let (u0, v0, cr, sr) = (m.x * r, m.y * r, c * r, s * r);
+        let (u0, v0, cr, sr) = self.fine_pose(pose);
         for (p, o) in points.iter().zip(out) {
             *o = self
                 .index(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1])
