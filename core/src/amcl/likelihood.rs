@@ -39,7 +39,7 @@ pub struct LikelihoodField {
     inv_fine_resolution: f64,
     cells: Vec<u8>,
     /// The factor of each quantised distance.
-    table: [f32; 256],
+    table: [f64; 256],
     /// Metres per quantisation step.
     step_m: f64,
     world_to_map: Se2,
@@ -163,14 +163,14 @@ impl LikelihoodField {
         let rand_term = if range_max_m > 0.0 { z_rand / range_max_m } else { 0.0 };
         let model = params.laser_model_type;
         let step_m = max_d / f64::from(OFF_MAP);
-        let mut table = [0f32; 256];
+        let mut table = [0f64; 256];
         for (q, t) in table.iter_mut().enumerate() {
             let d = q as f64 * step_m;
             let pz = z_hit * (-(d * d) / (2.0 * sigma * sigma)).exp() + rand_term;
             *t = match model {
-                LaserModel::LikelihoodField => (pz * pz * pz) as f32,
+                LaserModel::LikelihoodField => pz * pz * pz,
                 // pz > 0 is guaranteed by the config (z_hit + z_rand > 0); guard anyway.
-                LaserModel::LikelihoodFieldProb => pz.max(f64::MIN_POSITIVE).ln() as f32,
+                LaserModel::LikelihoodFieldProb => pz.max(f64::MIN_POSITIVE).ln(),
             };
         }
         let sub = subdivision(w, h);
@@ -229,14 +229,14 @@ impl LikelihoodField {
 
     /// The factor at the continuous fine-grid coordinates `(u, v)`: one lookup and the table.
     #[inline]
-    fn factor_at(&self, u: f64, v: f64) -> f32 {
+    fn factor_at(&self, u: f64, v: f64) -> f64 {
         let q = self.index(u, v).map_or(OFF_MAP, |k| self.cells[k]);
         self.table[usize::from(q)]
     }
 
     /// The per-beam factor at a world point.
     #[must_use]
-    pub fn at(&self, p: [f64; 2]) -> f32 {
+    pub fn at(&self, p: [f64; 2]) -> f64 {
         let q = self.world_to_map.transform_point(p);
         self.factor_at(q[0] * self.inv_fine_resolution, q[1] * self.inv_fine_resolution)
     }
@@ -249,7 +249,7 @@ impl LikelihoodField {
         let (u0, v0, cr, sr) = self.fine_pose(pose);
         let sum: f64 = points
             .iter()
-            .map(|p| f64::from(self.factor_at(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1])))
+            .map(|p| self.factor_at(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1]))
             .sum();
         match self.model {
             LaserModel::LikelihoodField => sum.ln_1p(),
@@ -270,7 +270,7 @@ impl LikelihoodField {
 
     /// The per-beam factor of a quantised distance (`pz³` or `ln pz`, by model).
     #[must_use]
-    pub fn factor(&self, q: u8) -> f32 {
+    pub fn factor(&self, q: u8) -> f64 {
         self.table[usize::from(q)]
     }
 
@@ -356,10 +356,10 @@ mod tests {
         assert!(d(0.04) < d(0.11), "the face is not the surface");
         let pz = |d: f64| 0.5 * (-(d * d) / (2.0 * 0.2 * 0.2)).exp() + 0.5 / 10.0;
         let q = |d: f64| (d / step).round() * step;
-        let at = |x: f64| f64::from(f.at([x, 0.15]));
+        let at = |x: f64| f.at([x, 0.15]);
         assert!((at(0.36) - pz(q(0.325)).powi(3)).abs() < 1e-6);
         // Off the map: the cap, 2 m.
-        assert!((f64::from(f.at([-5.0, 0.0])) - pz(2.0).powi(3)).abs() < 1e-6);
+        assert!((f.at([-5.0, 0.0]) - pz(2.0).powi(3)).abs() < 1e-6);
         assert_eq!(f.distance([-5.0, 0.0]), None);
         assert_eq!(f.free_count(), 27);
         let c = f.free_cell(0);
@@ -375,7 +375,7 @@ mod tests {
         let mut qd = [0u8; 2];
         f.quantised_distances(&Se2::IDENTITY, &[[0.06, 0.15], [-3.0, 0.0]], &mut qd);
         assert_eq!(qd, [3, 255]);
-        assert!((f64::from(f.factor(3)) - pz(q(0.025)).ln()).abs() < 1e-6);
+        assert!((f.factor(3) - pz(q(0.025)).ln()).abs() < 1e-6);
     }
 
     #[test]

@@ -317,7 +317,7 @@ impl Amcl {
                 row.iter()
                     .zip(&used)
                     .filter(|(_, u)| **u)
-                    .map(|(&d, _)| f64::from(self.field.factor(d)))
+                    .map(|(&d, _)| self.field.factor(d))
                     .sum()
             })
             .collect();

@@ -69,9 +69,8 @@ pub fn sample(pose: &mut Se2, d: &OdometryDelta, rng: &mut Rng) {
         d.rot2,
         rng.gaussian(d.sigma_rot2) + if slip { rng.gaussian(SLIP_HEADING_SIGMA) } else { 0.0 },
     );
-    let heading = pose.theta + rot1;
-    *pose =
-        Se2::new(pose.x + trans * heading.cos(), pose.y + trans * heading.sin(), pose.theta + rot1 + rot2);
+    let (sin, cos) = (pose.theta + rot1).sin_cos();
+    *pose = Se2::new(pose.x + trans * cos, pose.y + trans * sin, pose.theta + rot1 + rot2);
 }
 
 #[cfg(test)]

@@ -207,8 +207,9 @@ pub fn cluster_estimate(particles: &[Particle]) -> Option<Estimate> {
         let wk = p.weight / w;
         mx += wk * p.pose.x;
         my += wk * p.pose.y;
-        ms += wk * p.pose.theta.sin();
-        mc += wk * p.pose.theta.cos();
+        let (sin, cos) = p.pose.theta.sin_cos();
+        ms += wk * sin;
+        mc += wk * cos;
         sxx += wk * p.pose.x * p.pose.x;
         sxy += wk * p.pose.x * p.pose.y;
         syy += wk * p.pose.y * p.pose.y;

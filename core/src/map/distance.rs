@@ -86,7 +86,7 @@ pub fn capped_distance_q(
 ) -> Vec<u8> {
     const BAND: usize = 512;
     let mut out = vec![u8::MAX; width * height];
-    if width == 0 || height == 0 || seed.len() < width * height || !(cap_m > 0.0) {
+    if width == 0 || height == 0 || seed.len() < width * height || cap_m.is_nan() || cap_m <= 0.0 {
         return out;
     }
     let halo = (cap_m / resolution_m).ceil() as usize + 1;
