@@ -53,6 +53,31 @@ pub struct LikelihoodField {
     model: LaserModel,
 }
 
+/// Points in a robot's frame as fixed-point metres (× 2¹⁶, 15 µm), converted once per scan for the
+/// field's integer lookups ([`LikelihoodField::log_likelihood_of`]).
+#[derive(Debug, Clone, Default)]
+pub struct FixedPoints {
+    xy: Vec<(i64, i64)>,
+}
+
+impl FixedPoints {
+    #[must_use]
+    pub fn new(points: &[[f64; 2]]) -> Self {
+        let f = |v: f64| (v * 65_536.0).round() as i64;
+        FixedPoints { xy: points.iter().map(|p| (f(p[0]), f(p[1]))).collect() }
+    }
+
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.xy.len()
+    }
+
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.xy.is_empty()
+    }
+}
+
 /// How many factor cells per map cell along each axis, for maps of at most [`FINE_MAP_CELLS`].
 pub const SUBDIVISION: usize = 2;
 /// Larger maps get one factor cell per map cell (a nearest-cell lookup as nav2's), so that a
@@ -196,9 +221,10 @@ impl LikelihoodField {
     /// centre, as the field stores it; `None` off the map.
     #[must_use]
     pub fn distance(&self, p: [f64; 2]) -> Option<f64> {
-        let q = self.world_to_map.transform_point(p);
-        let (u, v) = (q[0] * self.inv_fine_resolution, q[1] * self.inv_fine_resolution);
-        self.index(u, v).map(|k| f64::from(self.cells[k]) * self.step_m)
+        let (u0, v0, cr, sr) = self.fixed_pose(&Se2::IDENTITY);
+        let f = FixedPoints::new(&[p]);
+        let &(x, y) = f.xy.first()?;
+        self.fixed_index(u0, v0, cr, sr, x, y).map(|k| f64::from(self.cells[k]) * self.step_m)
     }
 
     /// A pose in the map frame scaled to fine cells, as `(u0, v0, cos·k, sin·k)`: a base-frame point
@@ -214,31 +240,16 @@ impl LikelihoodField {
         (x * r, y * r, (c0 * cp - s0 * sp) * r, (s0 * cp + c0 * sp) * r)
     }
 
-    /// The fine cell holding continuous fine-grid coordinates `(u, v)`, if on the map. `floor` is a
-    /// library call on x86-64 without SSE4.1, and a float-to-unsigned cast costs a dozen
-    /// instructions; biasing by 2³⁰ makes truncation a floor, and one unsigned compare per axis
-    /// rejects both sides (NaN included). This is the inner loop of every filter update.
-    #[inline]
-    fn index(&self, u: f64, v: f64) -> Option<usize> {
-        const BIAS: i64 = 1 << 30;
-        let i = ((u + BIAS as f64) as i64).wrapping_sub(BIAS) as u64;
-        let j = ((v + BIAS as f64) as i64).wrapping_sub(BIAS) as u64;
-        (i < self.fine_width as u64 && j < self.fine_height as u64)
-            .then(|| j as usize * self.fine_width + i as usize)
-    }
-
-    /// The factor at the continuous fine-grid coordinates `(u, v)`: one lookup and the table.
-    #[inline]
-    fn factor_at(&self, u: f64, v: f64) -> f64 {
-        let q = self.index(u, v).map_or(OFF_MAP, |k| self.cells[k]);
-        self.table[usize::from(q)]
-    }
-
     /// The per-beam factor at a world point.
     #[must_use]
     pub fn at(&self, p: [f64; 2]) -> f64 {
-        let q = self.world_to_map.transform_point(p);
-        self.factor_at(q[0] * self.inv_fine_resolution, q[1] * self.inv_fine_resolution)
+        self.table[usize::from(self.fixed_lookup_world(p))]
+    }
+
+    fn fixed_lookup_world(&self, p: [f64; 2]) -> u8 {
+        let (u0, v0, cr, sr) = self.fixed_pose(&Se2::IDENTITY);
+        let f = FixedPoints::new(&[p]);
+        f.xy.first().map_or(OFF_MAP, |&(x, y)| self.fixed_lookup(u0, v0, cr, sr, x, y))
     }
 
     /// The log-likelihood of the points (base frame) seen from `pose`: `ln(1 + Σ pz³)` (nav2
@@ -246,10 +257,17 @@ impl LikelihoodField {
     /// virtual-scan points from underflowing.
     #[must_use]
     pub fn log_likelihood(&self, pose: &Se2, points: &[[f64; 2]]) -> f64 {
-        let (u0, v0, cr, sr) = self.fine_pose(pose);
+        self.log_likelihood_of(pose, &FixedPoints::new(points))
+    }
+
+    /// [`Self::log_likelihood`] of points converted once (for many poses).
+    #[must_use]
+    pub fn log_likelihood_of(&self, pose: &Se2, points: &FixedPoints) -> f64 {
+        let (u0, v0, cr, sr) = self.fixed_pose(pose);
         let sum: f64 = points
+            .xy
             .iter()
-            .map(|p| self.factor_at(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1]))
+            .map(|&(x, y)| self.table[usize::from(self.fixed_lookup(u0, v0, cr, sr, x, y))])
             .sum();
         match self.model {
             LaserModel::LikelihoodField => sum.ln_1p(),
@@ -257,15 +275,41 @@ impl LikelihoodField {
         }
     }
 
-    /// The quantised distances of the points (base frame) seen from `pose`, into `out` (one per
-    /// point); [`Self::factor`] turns them into per-beam factors.
-    pub fn quantised_distances(&self, pose: &Se2, points: &[[f64; 2]], out: &mut [u8]) {
-        let (u0, v0, cr, sr) = self.fine_pose(pose);
-        for (p, o) in points.iter().zip(out) {
-            *o = self
-                .index(u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1])
-                .map_or(OFF_MAP, |k| self.cells[k]);
+    /// The quantised distances of the points seen from `pose`, into `out` (one per point);
+    /// [`Self::factor`] turns them into per-beam factors.
+    pub fn quantised_distances(&self, pose: &Se2, points: &FixedPoints, out: &mut [u8]) {
+        let (u0, v0, cr, sr) = self.fixed_pose(pose);
+        for (&(x, y), o) in points.xy.iter().zip(out) {
+            *o = self.fixed_lookup(u0, v0, cr, sr, x, y);
         }
+    }
+
+    /// A pose as fixed-point numbers for [`Self::fixed_lookup`]: the origin in fine cells × 2³², the
+    /// rotation's cosine and sine in fine cells per metre × 2¹⁶.
+    #[inline]
+    fn fixed_pose(&self, pose: &Se2) -> (i64, i64, i64, i64) {
+        let (u0, v0, cr, sr) = self.fine_pose(pose);
+        let (hi, lo) = (4_294_967_296.0, 65_536.0);
+        ((u0 * hi) as i64, (v0 * hi) as i64, (cr * lo) as i64, (sr * lo) as i64)
+    }
+
+    /// The quantised distance where a point (metres × 2¹⁶) lands from a fixed-point pose. Integer
+    /// arithmetic: an arithmetic shift is a floor, one unsigned compare per axis rejects both sides,
+    /// and nothing can overflow into a panic (wrapping; a wrapped index is off the map). This is the
+    /// inner loop of every filter update: a float-to-int conversion with Rust's saturation costs
+    /// five instructions per axis on x86-64, and `floor` is a library call without SSE4.1.
+    #[inline]
+    fn fixed_lookup(&self, u0: i64, v0: i64, cr: i64, sr: i64, x: i64, y: i64) -> u8 {
+        self.fixed_index(u0, v0, cr, sr, x, y).and_then(|k| self.cells.get(k).copied()).unwrap_or(OFF_MAP)
+    }
+
+    #[inline]
+    fn fixed_index(&self, u0: i64, v0: i64, cr: i64, sr: i64, x: i64, y: i64) -> Option<usize> {
+        let u = u0.wrapping_add(cr.wrapping_mul(x)).wrapping_sub(sr.wrapping_mul(y));
+        let v = v0.wrapping_add(sr.wrapping_mul(x)).wrapping_add(cr.wrapping_mul(y));
+        let (i, j) = ((u >> 32) as u64, (v >> 32) as u64);
+        (i < self.fine_width as u64 && j < self.fine_height as u64)
+            .then(|| j as usize * self.fine_width + i as usize)
     }
 
     /// The per-beam factor of a quantised distance (`pz³` or `ln pz`, by model).
@@ -373,7 +417,7 @@ mod tests {
         let ll = f.log_likelihood(&Se2::IDENTITY, &[[0.06, 0.15], [0.36, 0.15]]);
         assert!((ll - (pz(q(0.025)).ln() + pz(q(0.325)).ln())).abs() < 1e-5);
         let mut qd = [0u8; 2];
-        f.quantised_distances(&Se2::IDENTITY, &[[0.06, 0.15], [-3.0, 0.0]], &mut qd);
+        f.quantised_distances(&Se2::IDENTITY, &FixedPoints::new(&[[0.06, 0.15], [-3.0, 0.0]]), &mut qd);
         assert_eq!(qd, [3, 255]);
         assert!((f.factor(3) - pz(q(0.025)).ln()).abs() < 1e-6);
     }

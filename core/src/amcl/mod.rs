@@ -19,7 +19,7 @@ use crate::rng::Rng;
 use crate::scan::Scan;
 use crate::se2::{Se2, angle_diff};
 
-pub use likelihood::LikelihoodField;
+pub use likelihood::{FixedPoints, LikelihoodField};
 pub use particles::{Estimate, Particle};
 
 /// What one call of [`Amcl::update`] did.
@@ -227,7 +227,11 @@ impl Amcl {
         let (likelihoods, used_beams) = if self.params.do_beamskip && self.converged() {
             self.log_likelihoods_skipping(&beams)
         } else {
-            (self.particles.iter().map(|p| self.field.log_likelihood(&p.pose, &beams)).collect(), beams.len())
+            let fixed = FixedPoints::new(&beams);
+            (
+                self.particles.iter().map(|p| self.field.log_likelihood_of(&p.pose, &fixed)).collect(),
+                beams.len(),
+            )
         };
         // log(prior · likelihood), then normalised with the largest subtracted first.
         let logs: Vec<f64> =
@@ -293,9 +297,10 @@ impl Amcl {
         if nb == 0 {
             return (vec![0.0; self.particles.len()], 0);
         }
+        let fixed = FixedPoints::new(beams);
         let mut q = vec![0u8; self.particles.len() * nb];
         for (p, row) in self.particles.iter().zip(q.chunks_exact_mut(nb)) {
-            self.field.quantised_distances(&p.pose, beams, row);
+            self.field.quantised_distances(&p.pose, &fixed, row);
         }
         let near = self.field.quantum_of(self.params.beam_skip_distance.get());
         let mut agree = vec![0usize; nb];
@@ -313,13 +318,7 @@ impl Amcl {
         let n_used = used.iter().filter(|u| **u).count();
         let logs = q
             .chunks_exact(nb)
-            .map(|row| {
-                row.iter()
-                    .zip(&used)
-                    .filter(|(_, u)| **u)
-                    .map(|(&d, _)| self.field.factor(d))
-                    .sum()
-            })
+            .map(|row| row.iter().zip(&used).filter(|(_, u)| **u).map(|(&d, _)| self.field.factor(d)).sum())
             .collect();
         (logs, n_used)
     }
@@ -392,10 +391,11 @@ fn best_of_random_poses(
     if beams.is_empty() {
         return best;
     }
-    let mut best_ll = field.log_likelihood(&best, beams);
+    let fixed = FixedPoints::new(beams);
+    let mut best_ll = field.log_likelihood_of(&best, &fixed);
     for _ in 1..candidates {
         let c = random_free_pose(field, rng);
-        let l = field.log_likelihood(&c, beams);
+        let l = field.log_likelihood_of(&c, &fixed);
         if l > best_ll {
             (best, best_ll) = (c, l);
         }
