@@ -66,15 +66,22 @@ impl Building {
     /// A 271-beam, 270° scan from `pose` (LiDAR at the base origin), with range noise.
     fn scan(&self, pose: &Se2, rng: &mut Rng) -> Scan {
         let geom = Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![f64::NAN; 271]);
-        let scene: Vec<(Se2, &Polygon)> = self.walls.iter().map(|w| (Se2::IDENTITY, w)).collect();
-        let ranges = (0..geom.len())
-            .map(|i| {
-                cast_ray([pose.x, pose.y], pose.theta + geom.angle(i), 10.0, &scene)
-                    .map_or(f64::NAN, |r| r + rng.gaussian(0.01))
-            })
-            .collect();
-        geom.with_ranges(ranges)
+        ray_cast(&self.walls, pose, geom, rng)
     }
+}
+
+/// The beams of `geom` (ranges unused) cast from `pose` into `walls`, with 1 cm range noise; no
+/// return within the scan's maximum range is NaN.
+pub(super) fn ray_cast(walls: &[Polygon], pose: &Se2, geom: Scan, rng: &mut Rng) -> Scan {
+    let scene: Vec<(Se2, &Polygon)> = walls.iter().map(|w| (Se2::IDENTITY, w)).collect();
+    let max = geom.range_max_m;
+    let ranges = (0..geom.len())
+        .map(|i| {
+            cast_ray([pose.x, pose.y], pose.theta + geom.angle(i), max, &scene)
+                .map_or(f64::NAN, |r| r + rng.gaussian(0.01))
+        })
+        .collect();
+    geom.with_ranges(ranges)
 }
 
 /// True poses every 0.1 m along a path through the corridor and into a room.

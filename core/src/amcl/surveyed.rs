@@ -13,7 +13,7 @@ use std::sync::Arc;
 use super::log::{RefPose, score};
 use super::{Amcl, LikelihoodField, scan_points, tests::shipped_params};
 use crate::config::{AmclParams, LaserModel};
-use crate::geometry::{Polygon, cast_ray};
+use crate::geometry::Polygon;
 use crate::map::{OccupancyGrid, Survey};
 use crate::rng::Rng;
 use crate::scan::Scan;
@@ -100,14 +100,7 @@ fn drive(step: f64) -> Vec<Se2> {
 /// A 180-beam scan over 180° from `pose`, 30 m range, 1 cm noise; no return is NaN.
 fn scan(world: &[Polygon], pose: &Se2, rng: &mut Rng) -> Scan {
     let geom = Scan::new(-90f64.to_radians(), 1f64.to_radians(), 0.05, 30.0, vec![f64::NAN; 180]);
-    let scene: Vec<(Se2, &Polygon)> = world.iter().map(|w| (Se2::IDENTITY, w)).collect();
-    let ranges = (0..geom.len())
-        .map(|i| {
-            cast_ray([pose.x, pose.y], pose.theta + geom.angle(i), 30.0, &scene)
-                .map_or(f64::NAN, |r| r + rng.gaussian(0.01))
-        })
-        .collect();
-    geom.with_ranges(ranges)
+    super::scenarios::ray_cast(world, pose, geom, rng)
 }
 
 /// The map from a survey drive (every 0.15 m) whose poses err by 2 cm and 0.3° (SLAM's residue).
