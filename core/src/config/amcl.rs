@@ -1,4 +1,4 @@
-//! `amcl.toml`: AMCL parameters, with nav2_amcl's names and defaults (research/amcl.md §1.1) so that a
+//! `amcl.toml`: AMCL parameters, with nav2_amcl's names (research/amcl.md §1.1) so that a
 //! nav2 user can carry a parameter file over key by key. Keys we do not implement are rejected,
 //! not silently ignored.
 

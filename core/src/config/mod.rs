@@ -7,7 +7,7 @@
 //! | `robot-<id>.toml` | [`RobotConfig`] | one robot: chassis, kinematics, LiDAR mount, limits, devices |
 //! | `server.toml` | [`ServerConfig`] | the formation, fusion weights and gates, the T1–T4 switch |
 //! | `vamr.toml` | [`VamrParams`] | the Virtual-AMR pipeline parameters (paper Table 2) |
-//! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names and defaults) |
+//! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names; `odom_slip_share` is ours) |
 //! | `maps/<name>.yaml` + its image | [`OccupancyGrid`] | a ROS map_server map, checked by loading it |
 //! | `scenarios/<name>.toml` | [`ScenarioConfig`] | an experiment: start, spacing, V's path, on a map |
 //! | `*.md` | — | documentation, ignored |
