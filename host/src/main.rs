@@ -298,9 +298,23 @@ enum BenchCommand {
     /// points on a synthetic two-robot scene, with the paper-faithful KD-tree heading search as the
     /// baseline measured in the same run. Uses vamr.toml from the configuration.
     Vamr(BenchOptions),
-    /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, and of
-    /// resampling + estimate alone. Uses amcl.toml from the configuration.
-    Amcl(BenchOptions),
+    /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, of
+    /// resampling + estimate alone, at 10 000 particles × 100 beams; a 200 m × 600 m map's load time
+    /// and memory; with `--log`, the same on a recorded log beside nav2's core (`--nav2`). Uses
+    /// amcl.toml from the configuration.
+    Amcl {
+        #[command(flatten)]
+        common: BenchOptions,
+        /// A recorded log's prefix, `DIR/NAME` (`NAME_map.yaml`, `NAME-raw.log`, `NAME-gt.csv`).
+        #[arg(long)]
+        log: Option<PathBuf>,
+        /// nav2's reference harness (docs/nav2-reference.md), run with `--bench` on that log.
+        #[arg(long, requires = "log")]
+        nav2: Option<PathBuf>,
+        /// Skip the large-map measurement (it writes a 48 MB file to the temporary directory).
+        #[arg(long)]
+        no_large_map: bool,
+    },
     /// AMCL on recorded real logs (the files `../shared/tools/carmen/regen.sh` writes) against their
     /// references: tracking from the first reference pose and global localisation, per log and seed,
     /// beside the odometry alone and nav2's figures (from `--nav2 DIR/<name>.csv`).
@@ -395,8 +409,14 @@ fn main() -> ExitCode {
                 Ok(())
             })()
         }
-        Command::Bench(BenchCommand::Amcl(opts)) => {
-            bench(opts, "AMCL", |c, quick| bench::run_amcl(&c.amcl, &c.vamr, quick), bench::amcl_markdown)
+        Command::Bench(BenchCommand::Amcl { common, log, nav2, no_large_map }) => {
+            let extras = bench::AmclExtras { log, nav2, no_large_map };
+            bench(
+                common,
+                "AMCL",
+                |c, quick| bench::run_amcl(&c.amcl, &c.vamr, quick, &extras),
+                bench::amcl_markdown,
+            )
         }
         Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
             mock_cmd::lidar(&listen, points, dialect)
