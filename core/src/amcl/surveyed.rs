@@ -232,3 +232,39 @@ fn tracks_a_surveyed_map_where_nav2_defaults_get_lost() {
     assert!(worst > 0.5, "without odom_slip_share the worst scan is only {worst:.3} m off");
     assert!(nav2_rmse > 0.25, "this world is kinder than the real logs: {nav2:?}");
 }
+
+/// The same world as a CARMEN log and a reference CSV, the files `../shared/tools/carmen/` makes
+/// from real logs, through what `amr localize` and `amr bench localize` run: the log reader,
+/// `LogLocalizer` (start from the first reference pose) and `score`.
+#[test]
+fn a_surveyed_log_through_the_log_localiser_and_its_score() {
+    use super::log::{LogLocalizer, Start, parse_reference};
+    let world = walls();
+    let map = surveyed_map(&world);
+    let (truth, scans, odom) = log(&world, 4);
+    let mut text = String::new();
+    let mut reference = String::from("scan,timestamp,x,y,theta\n");
+    for (k, ((t, s), o)) in truth.iter().zip(&scans).zip(&odom).enumerate() {
+        let stamp = 100.0 + 0.5 * k as f64;
+        text += &crate::carmen::flaser_line(s.ranges_m(), o, o, stamp);
+        text.push('\n');
+        reference += &format!("{k},{stamp:.6},{:.6},{:.6},{:.6}\n", t.x, t.y, t.theta);
+    }
+    let reference = parse_reference(&reference).unwrap();
+    let params = shipped_params();
+    let start = Start::resolve(Some(reference[0].pose), &params);
+    let mut loc = LogLocalizer::new(&map, params, start, 4);
+    let mut est = Vec::new();
+    for line in text.lines() {
+        let record = crate::carmen::parse_line(line).unwrap().unwrap();
+        if let Some(p) = loc.feed(&record).and_then(|f| f.pose) {
+            est.push((p.timestamp_s, p.pose));
+        }
+    }
+    assert_eq!((loc.scans, loc.scans_without_odometry), (truth.len(), 0));
+    let s = score(&reference, &est);
+    let t = s.translation.unwrap();
+    assert_eq!(s.matched, truth.len());
+    assert!(t.rmse <= 0.10 && t.max <= 0.5 && s.heading_rmse_deg <= 2.0, "{s:?}");
+    assert_eq!(s.converged_from, Some(0));
+}
