@@ -172,7 +172,7 @@ impl Amcl {
     }
 
     fn place_globally(&mut self, points: &[[f64; 2]]) {
-        let beams = subsample(points, self.params.max_beams.usize());
+        let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let field = Arc::clone(&self.field);
         for p in &mut self.particles {
             p.pose = best_of_random_poses(&field, &beams, &mut self.rng, self.global_candidates);
@@ -268,6 +268,9 @@ impl Amcl {
         // weights trust, the averages measure how well the map explains the scan. Taken over the
         // beams used only, a filter carried into another room skips the beams that contradict it
         // and looks fine (a kidnapping then went unnoticed for 30+ updates in one seed of five).
+        if !recovery {
+            return;
+        }
         let n_beams = self.beams.len();
         let (top, total) = match &all_beams {
             Some(all) => {
@@ -370,11 +373,10 @@ impl Amcl {
             inject_probability: inject,
         };
         let field = Arc::clone(&self.field);
-        let beams = std::mem::take(&mut self.beams);
+        let beams = FixedPoints::new(&self.beams);
         self.particles = particles::resample(&self.particles, &limits, &mut self.rng, &mut |rng| {
             best_of_random_poses(&field, &beams, rng, INJECTION_CANDIDATES)
         });
-        self.beams = beams;
         if inject > 0.0 {
             self.injections += 1;
         }
@@ -394,7 +396,7 @@ pub const GLOBAL_CANDIDATES: usize = 200;
 /// beams).
 fn best_of_random_poses(
     field: &LikelihoodField,
-    beams: &[[f64; 2]],
+    beams: &FixedPoints,
     rng: &mut Rng,
     candidates: usize,
 ) -> Se2 {
@@ -402,11 +404,10 @@ fn best_of_random_poses(
     if beams.is_empty() {
         return best;
     }
-    let fixed = FixedPoints::new(beams);
-    let mut best_ll = field.log_likelihood_of(&best, &fixed);
+    let mut best_ll = field.log_likelihood_of(&best, beams);
     for _ in 1..candidates {
         let c = random_free_pose(field, rng);
-        let l = field.log_likelihood_of(&c, &fixed);
+        let l = field.log_likelihood_of(&c, beams);
         if l > best_ll {
             (best, best_ll) = (c, l);
         }
