@@ -300,16 +300,21 @@ impl LikelihoodField {
     /// five instructions per axis on x86-64, and `floor` is a library call without SSE4.1.
     #[inline]
     fn fixed_lookup(&self, u0: i64, v0: i64, cr: i64, sr: i64, x: i64, y: i64) -> u8 {
-        self.fixed_index(u0, v0, cr, sr, x, y).and_then(|k| self.cells.get(k).copied()).unwrap_or(OFF_MAP)
+        self.fixed_index(u0, v0, cr, sr, x, y).map_or(OFF_MAP, |k| self.cells[k])
     }
 
+    /// The fine cell a point lands in, if on the map. A row index outside the map (either side)
+    /// gives a cell index beyond the grid, so one compare on the column and the slice's own bound
+    /// check reject everything off the map.
     #[inline]
     fn fixed_index(&self, u0: i64, v0: i64, cr: i64, sr: i64, x: i64, y: i64) -> Option<usize> {
         let u = u0.wrapping_add(cr.wrapping_mul(x)).wrapping_sub(sr.wrapping_mul(y));
         let v = v0.wrapping_add(sr.wrapping_mul(x)).wrapping_add(cr.wrapping_mul(y));
         let (i, j) = ((u >> 32) as u64, (v >> 32) as u64);
-        (i < self.fine_width as u64 && j < self.fine_height as u64)
-            .then(|| j as usize * self.fine_width + i as usize)
+        if i >= self.fine_width as u64 || j >= self.fine_height as u64 {
+            return None;
+        }
+        Some(j as usize * self.fine_width + i as usize)
     }
 
     /// The per-beam factor of a quantised distance (`pz³` or `ln pz`, by model).

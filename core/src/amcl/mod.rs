@@ -52,6 +52,8 @@ pub struct Amcl {
     global_pending: bool,
     /// Candidates per particle then ([`GLOBAL_CANDIDATES`]; 1 is plain uniform).
     global_candidates: usize,
+    /// Beam skipping's particles × beams distances, kept between updates (no allocation).
+    scratch: Vec<u8>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -94,6 +96,7 @@ impl Amcl {
             beams: Vec::new(),
             global_pending: false,
             global_candidates: GLOBAL_CANDIDATES,
+            scratch: Vec::new(),
         }
     }
 
@@ -227,7 +230,10 @@ impl Amcl {
         // The likelihoods the weights take (over the beams not skipped) and, with beam skipping and
         // recovery on, those over every beam for the recovery averages (below).
         let (likelihoods, all_beams) = if self.params.do_beamskip && self.converged() {
-            self.log_likelihoods_skipping(&beams, recovery)
+            let mut q = std::mem::take(&mut self.scratch);
+            let out = self.log_likelihoods_skipping(&beams, recovery, &mut q);
+            self.scratch = q;
+            out
         } else {
             let fixed = FixedPoints::new(&beams);
             (self.particles.iter().map(|p| self.field.log_likelihood_of(&p.pose, &fixed)).collect(), None)
@@ -305,33 +311,41 @@ impl Amcl {
 
     /// The product model's log-likelihoods with beam skipping (see `AmclParams::do_beamskip`): the
     /// beams that too few particles can explain with the map are left out for all of them.
-    fn log_likelihoods_skipping(&self, beams: &[[f64; 2]], all_too: bool) -> (Vec<f64>, Option<Vec<f64>>) {
+    fn log_likelihoods_skipping(
+        &self,
+        beams: &[[f64; 2]],
+        all_too: bool,
+        q: &mut Vec<u8>,
+    ) -> (Vec<f64>, Option<Vec<f64>>) {
         let nb = beams.len();
         if nb == 0 {
             return (vec![0.0; self.particles.len()], None);
         }
         let fixed = FixedPoints::new(beams);
-        let mut q = vec![0u8; self.particles.len() * nb];
+        q.resize(self.particles.len() * nb, 0);
         for (p, row) in self.particles.iter().zip(q.chunks_exact_mut(nb)) {
             self.field.quantised_distances(&p.pose, &fixed, row);
         }
+        // Per beam, how many particles put its endpoint within beam_skip_distance of the map.
         let near = self.field.quantum_of(self.params.beam_skip_distance.get());
-        let mut agree = vec![0usize; nb];
-        for row in q.chunks_exact(nb) {
-            for (a, &d) in agree.iter_mut().zip(row) {
-                *a += usize::from(u16::from(d) < near);
+        let mut agree = vec![0u32; nb];
+        if near > u16::from(u8::MAX) {
+            agree.fill(self.particles.len() as u32);
+        } else {
+            let near = near as u8;
+            for row in q.chunks_exact(nb) {
+                for (a, &d) in agree.iter_mut().zip(row) {
+                    *a += u32::from(d < near);
+                }
             }
         }
         let share = self.params.beam_skip_threshold.get() * self.particles.len() as f64;
-        let mut used: Vec<bool> = agree.iter().map(|&a| a as f64 > share).collect();
-        let skipped = used.iter().filter(|u| !**u).count();
-        if skipped as f64 >= self.params.beam_skip_error_threshold.get() * nb as f64 {
-            used.fill(true);
+        let mut used: Vec<usize> = (0..nb).filter(|&k| f64::from(agree[k]) > share).collect();
+        if (nb - used.len()) as f64 >= self.params.beam_skip_error_threshold.get() * nb as f64 {
+            used = (0..nb).collect();
         }
-        let logs = q
-            .chunks_exact(nb)
-            .map(|row| row.iter().zip(&used).filter(|(_, u)| **u).map(|(&d, _)| self.field.factor(d)).sum())
-            .collect();
+        let logs =
+            q.chunks_exact(nb).map(|row| used.iter().map(|&k| self.field.factor(row[k])).sum()).collect();
         let all = all_too
             .then(|| q.chunks_exact(nb).map(|row| row.iter().map(|&d| self.field.factor(d)).sum()).collect());
         (logs, all)

@@ -20,11 +20,14 @@ pub const BIN_THETA_RAD: f64 = 10.0 * std::f64::consts::PI / 180.0;
 type Bin = (i64, i64, i64);
 
 fn bin(p: &Se2) -> Bin {
-    (
-        (p.x / BIN_XY_M).floor() as i64,
-        (p.y / BIN_XY_M).floor() as i64,
-        wrap_theta_bin((p.theta / BIN_THETA_RAD).floor() as i64),
-    )
+    (floor(p.x / BIN_XY_M), floor(p.y / BIN_XY_M), wrap_theta_bin(floor(p.theta / BIN_THETA_RAD)))
+}
+
+/// `x.floor() as i64` for |x| < 2⁴⁰ without the library call `floor` is on x86-64 without SSE4.1
+/// (this runs for every particle at every resampling): biased, truncation is a floor.
+fn floor(x: f64) -> i64 {
+    const BIAS: i64 = 1 << 40;
+    ((x + BIAS as f64) as i64).wrapping_sub(BIAS)
 }
 
 /// θ bin indices wrapped into `[−n/2, n/2)`, so +π and −π share a bin.
