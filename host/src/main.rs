@@ -57,7 +57,8 @@ enum Command {
         /// The CARMEN log.
         #[arg(long)]
         log: PathBuf,
-        /// Initial pose `x,y,theta` (m, m, rad); without it: amcl.toml's initial_pose, else global
+        /// Initial pose `x,y,theta` (m, m, rad), spread as amcl.toml's initial_pose says, else as
+        /// RViz's "2D Pose Estimate" (0.5 m, 15°); without it: amcl.toml's initial_pose, else global
         /// localisation.
         #[arg(long, value_parser = localize::parse_pose, allow_hyphen_values = true)]
         initial: Option<amr_core::se2::Se2>,

@@ -233,6 +233,18 @@ pub fn score(reference: &[RefPose], estimate: &[(f64, Se2)]) -> Score {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Any text: rows or an error naming the line, never a panic.
+        #[test]
+        fn reference_parser_never_panics(text in "(timestamp,x,y,theta\n)?([-0-9.,a-z ]{0,40}\n){0,8}") {
+            match parse_reference(&text) {
+                Ok(rows) => prop_assert!(rows.iter().all(|r| r.timestamp_s.is_finite() && r.pose.x.is_finite())),
+                Err(e) => prop_assert!(e.contains("line") || e.contains("empty"), "{e}"),
+            }
+        }
+    }
 
     #[test]
     fn reference_parse_and_score_by_hand() {
