@@ -483,23 +483,12 @@ pub(crate) fn run_amcl(
     let points: Vec<[f64; 2]> =
         fuse(&inputs, vamr.fusion.mask_inflation_m.get(), None).points.iter().map(|(p, _)| *p).collect();
     let scale = if quick { 1 } else { 5 };
-    let update_with = |max_beams: usize| -> anyhow::Result<Timing> {
-        let mut p = params.clone();
-        p.max_beams = Count::new(max_beams as i64).map_err(anyhow::Error::msg)?;
-        let mut amcl = Amcl::new(p, Arc::clone(&field), 1);
-        amcl.init_pose(amr_core::se2::Se2::IDENTITY, 0.1, 0.05);
-        let mut odom = amr_core::se2::Se2::IDENTITY;
-        Ok(time(40 * scale, || {
-            odom = odom * amr_core::se2::Se2::new(0.01, 0.0, 0.0);
-            amcl.update(odom, &points, true)
-        }))
+    let update_with = |max_beams: usize, particles: usize, runs: usize| {
+        fixed_updates(&params, &field, amr_core::se2::Se2::IDENTITY, &points, particles, max_beams, runs)
     };
-    let update_60_beams = update_with(60)?;
-    let update_10000_100 = {
-        let field = Arc::clone(&field);
-        fixed_updates(&params, &field, amr_core::se2::Se2::IDENTITY, &points, 10_000, 100, 8 * scale)?
-    };
-    let update_full_scan = update_with(points.len().max(2))?;
+    let update_60_beams = update_with(60, n, 40 * scale)?;
+    let update_full_scan = update_with(points.len().max(2), n, 40 * scale)?;
+    let update_10000_100 = update_with(100, 10_000, 8 * scale)?;
     let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 2);
     amcl.init_pose(amr_core::se2::Se2::IDENTITY, 0.1, 0.05);
     amcl.update(amr_core::se2::Se2::IDENTITY, &points, true);

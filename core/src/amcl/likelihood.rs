@@ -221,10 +221,14 @@ impl LikelihoodField {
     /// centre, as the field stores it; `None` off the map.
     #[must_use]
     pub fn distance(&self, p: [f64; 2]) -> Option<f64> {
+        self.world_index(p).map(|k| f64::from(self.cells[k]) * self.step_m)
+    }
+
+    /// The fine cell holding a world point, by the same arithmetic as the filter's lookups.
+    fn world_index(&self, p: [f64; 2]) -> Option<usize> {
         let (u0, v0, cr, sr) = self.fixed_pose(&Se2::IDENTITY);
-        let f = FixedPoints::new(&[p]);
-        let &(x, y) = f.xy.first()?;
-        self.fixed_index(u0, v0, cr, sr, x, y).map(|k| f64::from(self.cells[k]) * self.step_m)
+        let &(x, y) = FixedPoints::new(&[p]).xy.first()?;
+        self.fixed_index(u0, v0, cr, sr, x, y)
     }
 
     /// A pose in the map frame scaled to fine cells, as `(u0, v0, cos·k, sin·k)`: a base-frame point
@@ -243,13 +247,7 @@ impl LikelihoodField {
     /// The per-beam factor at a world point.
     #[must_use]
     pub fn at(&self, p: [f64; 2]) -> f64 {
-        self.table[usize::from(self.fixed_lookup_world(p))]
-    }
-
-    fn fixed_lookup_world(&self, p: [f64; 2]) -> u8 {
-        let (u0, v0, cr, sr) = self.fixed_pose(&Se2::IDENTITY);
-        let f = FixedPoints::new(&[p]);
-        f.xy.first().map_or(OFF_MAP, |&(x, y)| self.fixed_lookup(u0, v0, cr, sr, x, y))
+        self.table[usize::from(self.world_index(p).map_or(OFF_MAP, |k| self.cells[k]))]
     }
 
     /// The log-likelihood of the points (base frame) seen from `pose`: `ln(1 + Σ pz³)` (nav2

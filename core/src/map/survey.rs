@@ -22,7 +22,8 @@ pub struct Survey {
     origin: [f64; 2],
     hits: Vec<u32>,
     misses: Vec<u32>,
-    /// Scratch: the cells of one ray, in order, without repeats.
+    /// Scratch: the cells of one ray, in order, without repeats (a straight ray meets each cell in one
+    /// stretch, so dropping consecutive repeats is enough).
     ray: Vec<usize>,
 }
 
@@ -78,8 +79,6 @@ impl Survey {
                     ray.push(cell);
                 }
             }
-            ray.sort_unstable();
-            ray.dedup();
             for &cell in &ray {
                 self.misses[cell] += 1;
             }
