@@ -1,14 +1,16 @@
 //! The crate graph points one way (`../shared/ARCHITECTURE.md`): core and drivers depend on nothing
-//! of ours, actors and hil-mocks only on core and drivers, the simulation on those four, the network
-//! link and the recorder on core and actors, the tests
-//! on everything but host, and nothing at all depends on host.
+//! of ours, the message vocabulary (msgs) only on core, actors on core, msgs and drivers, hil-mocks
+//! on core and drivers (never on the actors or their messages), the simulation on those, the
+//! network link and the recorder on core, msgs and actors, the tests on everything but host, and
+//! nothing at all depends on host.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 9] = [
+const OURS: [&str; 10] = [
     "amr-core",
+    "amr-msgs",
     "amr-drivers",
     "amr-actors",
     "hil-mocks",
@@ -45,17 +47,28 @@ fn dependencies_point_one_way() {
     let allowed = |name: &str| -> &[&str] {
         match name {
             "amr-core" | "amr-drivers" => &[],
-            "amr-actors" | "hil-mocks" => &["amr-core", "amr-drivers"],
-            // The simulation wires the actors to the mocks; `amr sim` and the HIL tests share it.
-            "amr-sim" => &["amr-core", "amr-drivers", "amr-actors", "hil-mocks"],
-            // The network link and the recorder carry the actors' messages and ports.
-            "amr-net" | "amr-record" => &["amr-core", "amr-actors"],
-            "hil-tests" => {
-                &["amr-core", "amr-drivers", "amr-actors", "hil-mocks", "amr-sim", "amr-net", "amr-record"]
-            }
+            "amr-msgs" => &["amr-core"],
+            "amr-actors" => &["amr-core", "amr-msgs", "amr-drivers"],
+            "hil-mocks" => &["amr-core", "amr-drivers"],
+            // The simulation wires the actors to the mocks, and runs the evaluation on the server's
+            // core; `amr sim`, `amr eval` and the HIL tests share it.
+            "amr-sim" => &["amr-core", "amr-msgs", "amr-drivers", "amr-actors", "hil-mocks"],
+            // The network link and the recorder carry the fleet's messages and the actors' ports.
+            "amr-net" | "amr-record" => &["amr-core", "amr-msgs", "amr-actors"],
+            "hil-tests" => &[
+                "amr-core",
+                "amr-msgs",
+                "amr-drivers",
+                "amr-actors",
+                "hil-mocks",
+                "amr-sim",
+                "amr-net",
+                "amr-record",
+            ],
             // host is the wiring: it may use every library, and its tests use the fixtures crate.
             "host" => &[
                 "amr-core",
+                "amr-msgs",
                 "amr-drivers",
                 "amr-actors",
                 "hil-mocks",

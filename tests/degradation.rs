@@ -8,9 +8,9 @@
 use std::time::Duration;
 
 use amr_actors::config::{ConfigSource, load};
-use amr_actors::messages::{DisarmReason, SafetyState};
 use amr_actors::server::formation::Phase;
 use amr_actors::server::ports::ServerStats;
+use amr_msgs::{DisarmReason, SafetyState};
 use amr_sim::{Sim, SimCan};
 use hil_mocks::tim551::Fault;
 

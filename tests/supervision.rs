@@ -6,12 +6,12 @@
 use std::time::Duration;
 
 use amr_actors::config::{ConfigSource, load};
-use amr_actors::messages::{Command, Device, Downlink, Health, SafetyState, Uplink};
 use amr_actors::robot::RobotOptions;
 use amr_actors::robot::canbus::CanBusMsg;
 use amr_actors::robot::lidar::LidarMsg;
 use amr_actors::supervisor::{ChildInfo, EventKind, SupervisorMsg};
 use amr_drivers::canopen::cia402::State402;
+use amr_msgs::{Command, Device, Downlink, Health, SafetyState, Uplink};
 use amr_sim::{RobotRig, SimCan};
 use ractor::{ActorCell, ActorRef};
 

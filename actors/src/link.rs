@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use tokio::sync::{mpsc, watch};
 
-use crate::messages::{Downlink, Uplink};
+use amr_msgs::{Downlink, Uplink};
 
 /// Depth of each queue: about one second of scans at 15 Hz with odometry at 50 Hz.
 const DEPTH: usize = 128;
@@ -286,7 +286,7 @@ mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
 
     use super::*;
-    use crate::messages::Command;
+    use amr_msgs::Command;
 
     fn cmd(seq: u64) -> Downlink {
         Downlink::Command(Command { seq, stamp_s: 0.0, v_mps: 0.1, w_radps: 0.0 })
@@ -303,7 +303,7 @@ mod tests {
             robot: "a".into(),
             seq: 1,
             stamp_s: 0.0,
-            state: crate::messages::SafetyState::Armed,
+            state: amr_msgs::SafetyState::Armed,
         });
         assert_eq!(server.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
 
@@ -313,7 +313,7 @@ mod tests {
             robot: "a".into(),
             seq: 2,
             stamp_s: 0.0,
-            state: crate::messages::SafetyState::Armed,
+            state: amr_msgs::SafetyState::Armed,
         });
         // Both messages reach the router and are lost there; b is unaffected.
         tokio::time::timeout(std::time::Duration::from_secs(2), async {
@@ -369,7 +369,7 @@ mod tests {
             robot: "a".into(),
             seq: 1,
             stamp_s: 0.0,
-            state: crate::messages::SafetyState::Armed,
+            state: amr_msgs::SafetyState::Armed,
         });
         assert_eq!(new.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
     }

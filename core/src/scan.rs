@@ -1,5 +1,7 @@
 //! Planar range scans: per-beam angles and validity, conversion to points (spec §2, Eq. 1–2).
 
+use serde::{Deserialize, Serialize};
+
 use crate::se2::Se2;
 
 /// A 2D range scan in its sensor frame. Beam `i` points at `angle_min_rad + i·angle_increment_rad`
@@ -141,6 +143,63 @@ impl Scan {
     #[must_use]
     pub fn valid_count(&self) -> usize {
         self.ranges_m.iter().filter(|r| !r.is_nan()).count()
+    }
+}
+
+/// On the wire and in recordings a scan is its geometry and its ranges, an invalid beam as `null`
+/// (`None`), so JSON can carry it and every valid range comes back bit for bit. Decoding goes
+/// through [`Scan::new`]: a scan from outside obeys the same validity rules as one built here.
+#[derive(Serialize)]
+#[serde(rename = "Scan")]
+struct ScanOut<'a> {
+    angle_min_rad: f64,
+    angle_increment_rad: f64,
+    range_min_m: f64,
+    range_max_m: f64,
+    ranges_m: RangesOut<'a>,
+}
+
+struct RangesOut<'a>(&'a [f64]);
+
+impl Serialize for RangesOut<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.0.iter().map(|r| (!r.is_nan()).then_some(*r)))
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(rename = "Scan", deny_unknown_fields)]
+struct ScanIn {
+    angle_min_rad: f64,
+    angle_increment_rad: f64,
+    range_min_m: f64,
+    range_max_m: f64,
+    ranges_m: Vec<Option<f64>>,
+}
+
+impl Serialize for Scan {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        ScanOut {
+            angle_min_rad: self.angle_min_rad,
+            angle_increment_rad: self.angle_increment_rad,
+            range_min_m: self.range_min_m,
+            range_max_m: self.range_max_m,
+            ranges_m: RangesOut(&self.ranges_m),
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Scan {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = ScanIn::deserialize(d)?;
+        Ok(Scan::new(
+            s.angle_min_rad,
+            s.angle_increment_rad,
+            s.range_min_m,
+            s.range_max_m,
+            s.ranges_m.into_iter().map(|r| r.unwrap_or(f64::NAN)).collect(),
+        ))
     }
 }
 

@@ -35,7 +35,7 @@ pub fn angle_diff(a_rad: f64, b_rad: f64) -> f64 {
 
 /// A planar rigid transform (rotation `theta` then translation `(x, y)`), or equivalently the pose
 /// of frame B expressed in frame A.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct Se2 {
     pub x: f64,
     pub y: f64,

@@ -5,7 +5,6 @@
 //! `amr-drivers`, used from the device's side. The world (`world`) and the mocks (`tim551`,
 //! `teco_drive`, `lpms`) arrive with their issues.
 
-pub mod eval;
 pub mod lpms;
 pub mod teco_drive;
 pub mod tim551;

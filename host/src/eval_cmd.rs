@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use amr_core::config::Config;
 use amr_core::metrics::AxisStats;
+use amr_sim::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
 use anyhow::Context as _;
-use hil_mocks::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
 use hil_mocks::world::{Noise, RobotSpec, paper_site};
 use serde::Serialize;
 
@@ -53,8 +53,8 @@ pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::R
     let body = RobotSpec::from_config(robot).chassis;
     let (x0, y0, x1, y1) = body.bounds();
     let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
-    for r in hil_mocks::eval::reference(sc, 0.1) {
-        for y in hil_mocks::eval::slots(robots, sc.spacing_m.get()) {
+    for r in amr_sim::eval::reference(sc, 0.1) {
+        for y in amr_sim::eval::slots(robots, sc.spacing_m.get()) {
             let c = (r.pose * amr_core::se2::Se2::new(0.0, y, 0.0)).transform_point([0.0, 0.0]);
             let inside = site[0].contains(c) && site.iter().all(|p| p.distance_to_boundary(c) > reach);
             anyhow::ensure!(
@@ -300,7 +300,7 @@ pub(crate) fn sweep(
             })
             .collect();
         bar.finish_and_clear();
-        let t4: Vec<&hil_mocks::eval::Series> = results
+        let t4: Vec<&amr_sim::eval::Series> = results
             .iter()
             .filter_map(|t| {
                 t.series.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4).map(|(_, x)| x)
@@ -369,8 +369,7 @@ fn record_trial(
     file: Option<&Path>,
     live: Option<amr_record::Hub>,
 ) -> anyhow::Result<Trial> {
-    use amr_actors::messages::OdomMsg;
-    use amr_actors::robot::ports::LidarScan;
+    use amr_msgs::OdomMsg;
     use amr_record::encode::Event;
 
     let names: Vec<String> = (0..setup.robots)
@@ -400,15 +399,21 @@ fn record_trial(
         let mut events = Vec::new();
         for (i, name) in names.iter().enumerate() {
             if let Some(scan) = f.scans.get(i) {
-                let s = LidarScan { seq, stamp_s: t, received_s: t, scan: std::sync::Arc::new(scan.clone()) };
-                events.push(Event::Scan(name.clone(), s));
+                events.push(Event::Scan(amr_msgs::ScanMsg {
+                    robot: name.clone(),
+                    seq,
+                    stamp_s: t,
+                    received_s: t,
+                    scan: std::sync::Arc::clone(scan),
+                    odom: None,
+                }));
             }
             if let Some(pose) = f.odom.get(i) {
                 let o = OdomMsg { seq, stamp_s: t, pose: *pose, twist: (0.0, 0.0), gyro: false };
                 events.push(Event::Odom(name.clone(), o));
             }
         }
-        events.push(Event::Truth { stamp_s: t, v: hil_mocks::eval::v_of(f.truth), robots: f.truth.to_vec() });
+        events.push(Event::Truth { stamp_s: t, v: amr_sim::eval::v_of(f.truth), robots: f.truth.to_vec() });
         for (c, est) in f.estimates {
             if let Some(v) = est {
                 events.push(Event::EvalEstimate { stamp_s: t, configuration: *c, v: *v });
@@ -416,14 +421,18 @@ fn record_trial(
         }
         for (c, points) in f.virtual_scans {
             if let Some(points) = points {
-                events.push(Event::EvalVirtualScan { stamp_s: t, configuration: *c, points: points.clone() });
+                events.push(Event::EvalVirtualScan {
+                    stamp_s: t,
+                    configuration: *c,
+                    points: points.to_vec(),
+                });
             }
         }
         // The complete method's particle cloud (the encoder keeps one a second).
         if let Some((c, filter)) = f.filters.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4) {
             let poses: Vec<amr_core::se2::Se2> = filter.particles().iter().map(|p| p.pose).collect();
-            events.push(Event::Particles(amr_actors::server::ports::ParticleCloud {
-                source: amr_actors::server::ports::EstimateSource::Fused(*c),
+            events.push(Event::Particles(amr_msgs::ParticleCloud {
+                source: amr_msgs::EstimateSource::Fused(*c),
                 stamp_s: t,
                 poses: std::sync::Arc::new(poses),
             }));

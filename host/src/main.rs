@@ -182,6 +182,7 @@ enum Command {
     /// Fault-recovery drills against the mock devices in real time: each injects a fault and checks
     /// detection, the safe state, recovery, the event log and the counters. Prints a table; exits
     /// non-zero if a drill failed.
+    #[cfg(feature = "drills")]
     Drill {
         /// A drill name, or `all` (the list: `amr drill list`).
         name: String,
@@ -474,6 +475,7 @@ fn main() -> ExitCode {
         Command::Replay { file, out, configuration, config, scenario, seed } => {
             record_cmd::replay(&file, out.as_deref(), config, scenario, configuration, seed)
         }
+        #[cfg(feature = "drills")]
         Command::Drill { name, .. } if name == "list" => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
             for d in amr_sim::drills::DRILLS {
@@ -481,6 +483,7 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
+        #[cfg(feature = "drills")]
         Command::Drill { name, seed, soak_seconds, json, config } => {
             sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
         }

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use amr_core::geometry::Polygon;
+use amr_sim::eval::Trial;
 use anyhow::Context as _;
-use hil_mocks::eval::Trial;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -138,7 +138,7 @@ fn errors<DB: DrawingBackend>(
 ) -> Result<(), String> {
     area.fill(&WHITE).map_err(|e| e.to_string())?;
     let t_max = trial.times_s.last().copied().unwrap_or(1.0);
-    let e2d = |s: &hil_mocks::eval::Series| -> Vec<(f64, f64)> {
+    let e2d = |s: &amr_sim::eval::Series| -> Vec<(f64, f64)> {
         s.estimates
             .iter()
             .zip(&trial.times_s)

@@ -1,6 +1,6 @@
 //! `amr sim` and `amr drill`: wiring around amr-sim.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use amr_actors::config::load;
@@ -111,11 +111,12 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
 }
 
 /// `amr drill NAME|all`: run drills, print the table (and JSON), fail if any failed.
+#[cfg(feature = "drills")]
 pub(crate) fn drill(
     name: &str,
     seed: u64,
     soak_seconds: u64,
-    json: Option<&Path>,
+    json: Option<&std::path::Path>,
     config: Option<PathBuf>,
 ) -> anyhow::Result<()> {
     let config = load(&crate::config_cmd::source_for(config))?;
@@ -144,7 +145,7 @@ pub(crate) fn drill(
         print!("{}", amr_sim::drills::table(&outcomes));
     }
     match json {
-        Some(path) if path == Path::new("-") => {
+        Some(path) if path == std::path::Path::new("-") => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {
                 println!("{}", serde_json::to_string_pretty(&outcomes)?);

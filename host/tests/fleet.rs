@@ -18,8 +18,9 @@ use std::time::{Duration, Instant};
 
 use amr_actors::config::{ConfigSource, read_files};
 use amr_core::config::ConfigFile;
+use amr_msgs::{SafetyState, ServerStatus, Uplink};
 use amr_net::NetSettings;
-use amr_net::wire::{Body, Envelope, ServerStatus, WireSafety};
+use amr_net::wire::{Body, Envelope};
 
 /// Children killed when dropped (a failed assertion leaves no process behind).
 struct Procs(Vec<(String, Child)>);
@@ -88,7 +89,7 @@ fn write_config(dir: &Path) -> PathBuf {
 #[derive(Debug, Default)]
 struct Seen {
     status: Option<ServerStatus>,
-    safety_a: Vec<(Instant, WireSafety)>,
+    safety_a: Vec<(Instant, SafetyState)>,
 }
 
 fn wait_for(seen: &Mutex<Seen>, what: &str, limit: Duration, f: impl Fn(&Seen) -> bool) -> Duration {
@@ -196,7 +197,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         let health = session
             .declare_subscriber("fleet/robot-a/health")
             .callback(move |sample| {
-                if let Ok(Envelope { body: Body::Safety { state, .. }, .. }) =
+                if let Ok(Envelope { body: Body::Uplink(Uplink::Safety { state, .. }), .. }) =
                     Envelope::decode(&sample.payload().to_bytes())
                 {
                     sink.lock().unwrap().safety_a.push((Instant::now(), state));
@@ -254,7 +255,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         phase(s, "Stopped") || phase(s, "Holding")
     });
     let disarmed = wait_for(&seen, "robot-a disarmed", Duration::from_secs(10), |s| {
-        s.safety_a.iter().any(|(t, st)| *t > killed && *st != WireSafety::Armed)
+        s.safety_a.iter().any(|(t, st)| *t > killed && *st != SafetyState::Armed)
     });
 
     // Restart it: it rejoins, and after the operator's re-arm the scenario completes.
@@ -289,7 +290,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         seen.lock().unwrap().status
     );
     let armed_again =
-        seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == WireSafety::Armed).count();
+        seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == SafetyState::Armed).count();
     assert!(armed_again >= 1, "robot-a was re-armed");
 }
 

@@ -19,8 +19,8 @@ use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
 use amr_actors::link::{DownlinkSender, RobotEnd, ServerEnd, UplinkSender};
-use amr_actors::messages::{Device, Downlink, Health, HealthReport, Uplink};
 use amr_actors::robot::ports::AbortOnDrop;
+use amr_msgs::{Device, Downlink, Health, HealthReport, SCHEMA_VERSION, ServerStatus, Uplink};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 use tokio::sync::{mpsc, watch};
 use zenoh::qos::{CongestionControl, Priority};
@@ -28,8 +28,7 @@ use zenoh::sample::SampleKind;
 
 use crate::settings::{NetError, NetSettings, PREFIX};
 use crate::wire::{
-    Body, Envelope, Freshness, Reject, SCHEMA_VERSION, ServerStatus, from_downlink, from_uplink, to_downlink,
-    to_uplink, uplink_channel,
+    Body, Envelope, Freshness, Reject, from_downlink, from_uplink, to_downlink, to_uplink, uplink_channel,
 };
 
 /// Queue depth between the trees and the bridge (as the in-process link's).

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
 use amr_actors::link::{RobotEnd, ServerEnd};
-use amr_actors::messages::{Command, Device, Downlink, Health, SafetyState, Uplink};
 use amr_core::config::NetworkConfig;
+use amr_msgs::{Command, Device, Downlink, Health, SafetyState, Uplink};
 use amr_net::{NetSettings, ServerBridge, start_robot_bridge, start_server_bridge};
 use tokio::time::timeout;
 
@@ -163,18 +163,28 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
 
     // robot-b forges a command for robot-a, claiming to be the server, and a safety message as a.
     let forged = amr_net::wire::Envelope {
-        version: amr_net::wire::SCHEMA_VERSION,
+        version: amr_msgs::SCHEMA_VERSION,
         session: 1,
         seq: 1,
         origin: "server".into(),
         robot: "robot-a".into(),
         stamp_s: FleetClock::wall().now_s(),
         sent_s: FleetClock::wall().now_s(),
-        body: amr_net::wire::Body::Command { seq: u64::MAX, v_mps: 0.2, w_radps: 0.0 },
+        body: amr_net::wire::Body::Downlink(Downlink::Command(Command {
+            seq: u64::MAX,
+            stamp_s: FleetClock::wall().now_s(),
+            v_mps: 0.2,
+            w_radps: 0.0,
+        })),
     };
     let posing = amr_net::wire::Envelope {
         origin: "robot-a".into(),
-        body: amr_net::wire::Body::Safety { seq: 9, state: amr_net::wire::WireSafety::EStop },
+        body: amr_net::wire::Body::Uplink(Uplink::Safety {
+            robot: "robot-a".into(),
+            seq: 9,
+            stamp_s: FleetClock::wall().now_s(),
+            state: SafetyState::EStop,
+        }),
         ..forged.clone()
     };
     for i in 0..10 {

@@ -24,11 +24,13 @@
 
 use std::collections::BTreeMap;
 
-use amr_actors::messages::{Downlink, Health, HealthReport, SafetyState, Uplink};
-use amr_actors::robot::ports::{ImuReading, LidarScan, WheelTravel};
-use amr_actors::server::ports::{Estimate, EstimateSource, FusionStatus, ParticleCloud};
+use amr_actors::robot::ports::{ImuReading, WheelTravel};
 use amr_core::map::OccupancyGrid;
 use amr_core::se2::Se2;
+use amr_msgs::{
+    Device, Downlink, Estimate, EstimateSource, FusedFrame, FusionStatus, Health, HealthReport,
+    ParticleCloud, SafetyState, ScanMsg, Uplink,
+};
 use serde_json::{Value, json};
 
 use crate::foxglove::{self as fg, Level};
@@ -85,19 +87,19 @@ pub struct LogLine {
 /// Everything the recorder can see.
 #[derive(Debug, Clone)]
 pub enum Event {
-    /// A message the server received.
-    Uplink(Uplink),
-    Fused(FusedRecord),
+    /// A message the server received, and when it came off the link.
+    Uplink(Uplink, f64),
+    Fused(FusedFrame),
     Estimate(Estimate),
     Status(FusionStatus),
     Particles(ParticleCloud),
     /// A message the formation sent to robot `.0` (its formation index).
     Command(usize, Downlink),
     /// Robot side: robot id and what its ports carried.
-    Scan(String, LidarScan),
+    Scan(ScanMsg),
     Imu(String, ImuReading),
     Wheels(String, WheelTravel),
-    Odom(String, amr_actors::messages::OdomMsg),
+    Odom(String, amr_msgs::OdomMsg),
     Health(String, HealthReport),
     Safety(String, SafetyState),
     Downlink(String, Downlink),
@@ -138,7 +140,7 @@ pub struct Encoder {
     last_particles: BTreeMap<String, u64>,
     /// Last health per (robot, device) and safety per robot: `/health` logs changes only (the
     /// robots re-send their whole board now and then; `/amr/uplink` keeps every message).
-    last_health: BTreeMap<(String, &'static str), Health>,
+    last_health: BTreeMap<(String, Device), Health>,
     last_safety: BTreeMap<String, SafetyState>,
 }
 
@@ -204,13 +206,13 @@ impl Encoder {
         };
         let mut v = Vec::new();
         match event {
-            Event::Uplink(u) => {
-                let stamp = match u {
-                    Uplink::Scan(s) => s.stamp_s,
-                    Uplink::Odom { msg, .. } => msg.stamp_s,
-                    Uplink::Health { stamp_s, .. } | Uplink::Safety { stamp_s, .. } => *stamp_s,
-                };
-                v.push(exact("/amr/uplink", wire::UPLINK_SCHEMA, stamp, wire::encode_uplink(now_s, u)?));
+            Event::Uplink(u, rx_s) => {
+                v.push(exact(
+                    "/amr/uplink",
+                    wire::UPLINK_SCHEMA,
+                    u.stamp_s(),
+                    wire::encode_uplink(*rx_s, u)?,
+                ));
                 match u {
                     Uplink::Scan(s) => v.push(out(
                         format!("/{}/scan", s.robot),
@@ -248,7 +250,7 @@ impl Encoder {
                 v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, *stamp_s, fg::transforms(tf)));
             }
             Event::EvalEstimate { stamp_s, configuration, v: vm } => {
-                let c = wire::configuration_name(*configuration);
+                let c = format!("{configuration:?}");
                 v.push(out(
                     format!("/eval/{c}/V"),
                     fg::POSE_IN_FRAME,
@@ -259,7 +261,7 @@ impl Encoder {
                 v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, *stamp_s, fg::transforms(tf)));
             }
             Event::EvalVirtualScan { stamp_s, configuration, points } => {
-                let c = wire::configuration_name(*configuration);
+                let c = format!("{configuration:?}");
                 v.push(out(
                     format!("/eval/{c}/virtual_scan"),
                     fg::LASER_SCAN,
@@ -268,7 +270,8 @@ impl Encoder {
                 ));
             }
             Event::Fused(f) => {
-                v.push(exact("/amr/fused", wire::FUSED_SCHEMA, f.stamp_s, wire::encode_fused(f)?));
+                let record = FusedRecord::of(f);
+                v.push(exact("/amr/fused", wire::FUSED_SCHEMA, f.stamp_s, wire::encode_fused(&record)?));
                 if let Some(points) = &f.points {
                     v.push(out(
                         "/virtual/scan".into(),
@@ -357,11 +360,11 @@ impl Encoder {
             }
             Event::Command(i, d) => v.push(self.command(&out, &self.robot_name(*i), now_s, d)),
             Event::Downlink(robot, d) => v.push(self.command(&out, robot, now_s, d)),
-            Event::Scan(robot, s) => v.push(out(
-                format!("/{robot}/scan"),
+            Event::Scan(s) => v.push(out(
+                format!("/{}/scan", s.robot),
                 fg::LASER_SCAN,
                 s.stamp_s,
-                fg::laser_scan(s.stamp_s, &format!("{robot}/laser"), &s.scan),
+                fg::laser_scan(s.stamp_s, &format!("{}/laser", s.robot), &s.scan),
             )),
             Event::Imu(robot, r) => v.push(out(
                 format!("/{robot}/imu"),
@@ -397,7 +400,7 @@ impl Encoder {
         &self,
         out: &impl Fn(String, &'static str, f64, Value) -> Out,
         robot: &str,
-        m: &amr_actors::messages::OdomMsg,
+        m: &amr_msgs::OdomMsg,
     ) -> [Out; 2] {
         let frame = format!("{robot}/odom");
         [
@@ -437,11 +440,10 @@ impl Encoder {
         stamp_s: f64,
         r: &HealthReport,
     ) -> Option<Out> {
-        let device = wire::device_name(r.device);
-        if self.last_health.insert((robot.to_owned(), device), r.health) == Some(r.health) {
+        if self.last_health.insert((robot.to_owned(), r.device), r.health) == Some(r.health) {
             return None;
         }
-        let text = format!("{robot} {device}: {} {}", wire::health_name(r.health), r.detail);
+        let text = format!("{robot} {}: {} {}", r.device, r.health, r.detail);
         let log = fg::log(stamp_s, health_level(r.health), robot, text.trim_end(), "", 0);
         Some(out("/health".into(), fg::LOG, stamp_s, log))
     }
@@ -456,7 +458,7 @@ impl Encoder {
         if self.last_safety.insert(robot.to_owned(), s) == Some(s) {
             return None;
         }
-        let text = format!("{robot} safety: {}", wire::safety_name(s));
+        let text = format!("{robot} safety: {s}");
         Some(out("/health".into(), fg::LOG, stamp_s, fg::log(stamp_s, safety_level(s), robot, &text, "", 0)))
     }
 }

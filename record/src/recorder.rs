@@ -18,7 +18,6 @@ use ractor::{Actor, ActorProcessingErr, ActorRef, RpcReplyPort};
 use crate::encode::{Encoder, Event, Out};
 use crate::live::Hub;
 use crate::sink::{FlushPolicy, McapFile, SinkError, WriteStats};
-use crate::wire::FusedRecord;
 
 /// What to record.
 #[derive(Debug, Clone)]
@@ -65,10 +64,7 @@ impl RecordSources {
         s.server = Some(Arc::clone(ports));
         s.map = Some(setup.map.clone());
         s.mounts = setup.robots.iter().map(|r| (r.id.as_str().to_owned(), r.lidar_mount.to_se2())).collect();
-        s.metadata.insert(
-            "configuration".into(),
-            crate::wire::configuration_name(setup.server.configuration).to_owned(),
-        );
+        s.metadata.insert("configuration".into(), format!("{:?}", setup.server.configuration));
         s.metadata.insert("seed".into(), setup.seed.to_string());
         s.metadata.insert("robots".into(), ports.robots.join(","));
         s.metadata.insert("record_version".into(), crate::wire::VERSION.to_string());
@@ -164,8 +160,8 @@ impl State {
 
 fn subscribe_server(me: &ActorRef<RecMsg>, p: &ServerPorts) {
     let ev = |e: Event| Some(RecMsg::Event(Box::new(e)));
-    p.uplink.subscribe(me.clone(), move |u| ev(Event::Uplink(u)));
-    p.fused.subscribe(me.clone(), move |f| ev(Event::Fused(FusedRecord::of(&f))));
+    p.uplink.subscribe(me.clone(), move |(u, rx)| ev(Event::Uplink(u, rx)));
+    p.fused.subscribe(me.clone(), move |f| ev(Event::Fused(f)));
     p.estimates.subscribe(me.clone(), move |e| ev(Event::Estimate(e)));
     p.status.subscribe(me.clone(), move |s| ev(Event::Status(s)));
     p.particles.subscribe(me.clone(), move |c| ev(Event::Particles(c)));
@@ -185,8 +181,7 @@ fn subscribe_robot(me: &ActorRef<RecMsg>, p: &RobotPorts, with_server: bool) {
     if with_server {
         return;
     }
-    let r = id.clone();
-    p.scans.subscribe(me.clone(), move |s| ev(Event::Scan(r.clone(), s)));
+    p.scans.subscribe(me.clone(), move |s| ev(Event::Scan(s)));
     let r = id.clone();
     p.odom.subscribe(me.clone(), move |s| ev(Event::Odom(r.clone(), s)));
     let r = id.clone();

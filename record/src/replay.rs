@@ -1,35 +1,15 @@
-//! Replay: the server's fusion and AMCL re-run on a recording's exact uplink (`/amr/uplink`),
+//! Replay: the server's localisation re-run on a recording's exact uplink (`/amr/uplink`),
 //! deterministically, with the recorded configuration or another T1–T4 and other parameters; the
 //! result is a new recording and a comparison with the recorded estimates.
 //!
-//! The engine does what `FusionActor` and `AmclActor` (amr-actors `server::fusion`,
-//! `server::amcl`) do, message by message, in one thread:
-//! - each uplink scan goes first to that robot's own AMCL (its `T_odom^map` correction), then to
-//!   the fusion (scan buffers of 3, pairing by stamp, the Virtual-AMR pipeline with the recorded
-//!   receive time as `t_rx` of the sync gate), and a fused frame at once to AMCL on the virtual scan;
-//! - a recorded `RobotLost` status marks the robot lost at its place in the stream (the fusion's
-//!   100 ms tick is not replayed), and its next scan re-acquires it as the live fusion does;
-//! - the filters are seeded as the live AMCL actor seeds them (`seed + k`: V 0, robot i 1 + i).
+//! The engine is the server's own [`ServerCore`] (amr-actors `server::core`), the one the
+//! localizer actor drives, fed the recorded messages with the receive time the server stamped on
+//! each (`rx_s`, the time its sync gate used). A recorded `RobotLost` status marks the robot lost
+//! at its place in the stream (the localizer's 100 ms tick is not replayed), and its next scan
+//! re-acquires it as the live server does. So a replay reproduces every estimate and fused frame
+//! bit for bit, in virtual and in real time. What it does not model: a server tree restarted
+//! mid-run (a drill) starts its filters and tracks again.
 //!
-//! Exactness. Every AMCL filter owns its generator and sees only its own inputs (robot i's
-//! scans; the fused frames), in uplink order, so its estimates do not depend on how the live
-//! actors interleaved. Two inputs of the live fusion are not on any port:
-//! - the robots' AMCL corrections it reads where the configuration takes a relative pose from
-//!   AMCL (T1–T3; and V itself in T1 from robot 0's correction): the live value depends on
-//!   whether the fusion actor read it before or after the AMCL actor took the same scan. The
-//!   replay takes "after" (what a virtual-time run does: the AMCL actor subscribes first);
-//! - the sync gate's `t_rx`: the fusion actor's clock reading when it took the scan. The replay
-//!   has the recorder's reading of the same moment. Equal in virtual time; in real time they
-//!   differ by the scheduling delay, which matters only if the fusion actor fell so far behind
-//!   that its age test (`max_age_ms`, 100 ms) decided otherwise.
-//!
-//! The tests check: in virtual time, every estimate and fused frame bit for bit in T1, T2, T3
-//! and T4; in real time on two worker threads, T4 bit for bit (with the age test out of the way).
-//! The report counts whatever differs. Both gaps close if the server stamps each uplink message
-//! once (e.g. the uplink pump in `start_server` publishing `(t_rx, Uplink)`, which the fusion uses)
-//! and the fusion publishes the corrections it used with each fused frame; the recorder would then
-//! record those. A server tree restarted mid-run (a drill) starts its filters and tracks again:
-//! the replay does not model restarts.
 //! The live actors consume every message (unbounded mailboxes). A port subscription that lagged
 //! (ractor's output ports skip the oldest of more than 10 messages queued for one subscriber)
 //! would leave the recorder without messages the server had; nothing in the uplink's sequence
@@ -38,25 +18,17 @@
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
-use std::sync::Arc;
 
-use amr_actors::mapping::TIM551_RANGE_M;
-use amr_actors::messages::{ScanMsg, Uplink};
-use amr_actors::server::amcl::{INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD};
-use amr_actors::server::fusion::FusionCore;
-use amr_actors::server::ports::{Anchored, Estimate, EstimateSource, FusionStatus};
-use amr_actors::server::{ServerSetup, fusion_setup};
-use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
-use amr_core::config::{AmclParams, Configuration};
-use amr_core::formation::slots;
-use amr_core::se2::Se2;
+use amr_actors::server::core::ServerCore;
+use amr_actors::server::{ServerSetup, core_setup};
+use amr_core::config::Configuration;
+use amr_msgs::{Estimate, FusedFrame, FusionStatus, Uplink};
 
 use crate::encode::Event;
 use crate::read::{ReadError, metadata, read_bytes};
 use crate::recorder::{FileRecorder, RecordError};
 use crate::wire::{self, FusedRecord, WireError};
 
-/// Scans kept per robot for pairing (as the fusion actor).
 /// Why a replay failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -109,16 +81,11 @@ impl ReplayReport {
     }
 }
 
-/// The server's fusion and AMCL as one deterministic state machine: the fusion actor's own core
-/// ([`FusionCore`]) and the AMCL actor's filters, fed in the recorded order.
+/// The server's localisation as one deterministic state machine, fed in the recorded order.
 pub struct Engine {
+    core: ServerCore,
     robots: Vec<String>,
-    fusion: FusionCore,
     configuration: Configuration,
-    params: AmclParams,
-    robot_filters: Vec<Amcl>,
-    virtual_filter: Amcl,
-    corrections: Vec<Option<Se2>>,
 }
 
 impl std::fmt::Debug for Engine {
@@ -130,7 +97,7 @@ impl std::fmt::Debug for Engine {
 /// What one input produced.
 #[derive(Debug, Default)]
 pub struct Step {
-    pub fused: Option<FusedRecord>,
+    pub fused: Option<FusedFrame>,
     pub estimates: Vec<Estimate>,
 }
 
@@ -139,32 +106,10 @@ impl Engine {
     /// if given, else the setup's.
     #[must_use]
     pub fn new(setup: &ServerSetup, configuration: Option<Configuration>) -> Self {
-        let (members, params) = fusion_setup(setup, configuration);
-        let configuration = params.configuration;
-        let sc = &setup.scenario;
-        let slot_y = slots(setup.robots.len(), sc.spacing_m.get());
-        let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1));
-        let initial_v = setup.amcl.initial_pose.map_or(sc.start_pose(), |p| p.pose());
-        let filter = |k: u64, at: Se2| {
-            let mut f = Amcl::new(setup.amcl.clone(), Arc::clone(&field), setup.seed.wrapping_add(k));
-            f.init_pose(at, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
-            f
-        };
-        let robot_filters = slot_y
-            .iter()
-            .enumerate()
-            .map(|(i, y)| filter(1 + i as u64, initial_v * Se2::new(0.0, *y, 0.0)))
-            .collect();
-        let n = members.len();
-        Engine {
-            robots: setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect(),
-            fusion: FusionCore::new(members, &params),
-            configuration,
-            params: setup.amcl.clone(),
-            robot_filters,
-            virtual_filter: filter(0, initial_v),
-            corrections: vec![None; n],
-        }
+        let configuration = configuration.unwrap_or(setup.server.configuration);
+        let core = ServerCore::new(core_setup(setup, &[configuration]));
+        let robots = core.members().iter().map(|m| m.id.clone()).collect();
+        Engine { core, robots, configuration }
     }
 
     /// Robot ids in formation order.
@@ -176,73 +121,20 @@ impl Engine {
     /// A fusion status change seen in the recording.
     pub fn status(&mut self, s: FusionStatus) {
         if let FusionStatus::RobotLost(i) = s {
-            self.fusion.mark_lost(i);
+            self.core.mark_lost(i);
         }
     }
 
     /// One uplink message received at `rx_s`.
     pub fn uplink(&mut self, rx_s: f64, msg: &Uplink) -> Step {
-        let mut step = Step::default();
-        let Uplink::Scan(s) = msg else { return step };
-        let Some(i) = self.robots.iter().position(|r| *r == s.robot) else { return step };
-        if let Some(e) = self.robot_amcl(i, s) {
-            step.estimates.push(e);
-        }
-        if let Some(f) = self.fusion(i, s, rx_s) {
-            if let Some(e) = self.virtual_amcl(&f) {
-                step.estimates.push(e);
-            }
-            step.fused = Some(f);
-        }
-        step
-    }
-
-    /// `AmclActor`, `AmclMsg::Scan`.
-    fn robot_amcl(&mut self, i: usize, s: &ScanMsg) -> Option<Estimate> {
-        let (filter, mount) = (self.robot_filters.get_mut(i)?, self.fusion.members().get(i)?.lidar_to_base);
-        let points = scan_points(&s.scan, &mount, &self.params);
-        filter.update(s.odom, &points, false);
-        let map = filter.pose_at(&s.odom)?;
-        if let Some(c) = self.corrections.get_mut(i) {
-            *c = Some(map * s.odom.inverse());
-        }
-        let mut robots = vec![None; self.robots.len()];
-        robots[i] = Some(Anchored { map, odom: s.odom, stamp_s: s.stamp_s });
-        Some(Estimate { source: EstimateSource::Robot(i), stamp_s: s.stamp_s, v: None, robots })
-    }
-
-    /// `AmclActor`, `AmclMsg::Fused`.
-    fn virtual_amcl(&mut self, f: &FusedRecord) -> Option<Estimate> {
-        let v = match &f.points {
-            Some(points) => {
-                self.virtual_filter.update(f.v_odom, points, false);
-                self.virtual_filter.pose_at(&f.v_odom)
-            }
-            None => self.corrections.first().copied().flatten().map(|c| c * f.v_odom),
-        }?;
-        let robots = f
-            .robots
-            .iter()
-            .map(|(base_in_v, odom)| Some(Anchored { map: v * *base_in_v, odom: *odom, stamp_s: f.stamp_s }))
-            .collect();
-        Some(Estimate {
-            source: EstimateSource::Fused(f.configuration),
-            stamp_s: f.stamp_s,
-            v: Some(v),
-            robots,
-        })
-    }
-
-    /// `FusionActor`, `FusionMsg::Scan`: the same core, with the recorded receive time (which is
-    /// also the acquisition time's clock reading: only timings, not estimates, depend on it).
-    fn fusion(&mut self, i: usize, s: &ScanMsg, rx_s: f64) -> Option<FusedRecord> {
-        let offered = self.fusion.offer(i, s.clone(), rx_s, &self.corrections, rx_s, &mut |_| {});
-        offered.fused?.ok().map(|f| FusedRecord::of(&f))
+        let step = self.core.offer(msg, rx_s, &mut |_| {});
+        let fused = step.fusions.into_iter().find_map(|f| f.result.ok());
+        Step { fused, estimates: step.estimates }
     }
 }
 
 fn key(e: &Estimate) -> (String, u64) {
-    (wire::source_name(e.source), e.stamp_s.to_bits())
+    (e.source.to_string(), e.stamp_s.to_bits())
 }
 
 /// Replay `input` with `setup` (the server's configuration, parameters, map, robots and seed, as
@@ -269,7 +161,7 @@ pub fn run(
         Some(p) => {
             let mut meta = recorded_meta.clone();
             meta.insert("replay_of".into(), input.display().to_string());
-            meta.insert("configuration".into(), wire::configuration_name(engine.configuration).to_owned());
+            meta.insert("configuration".into(), format!("{:?}", engine.configuration));
             Some(FileRecorder::create(p, engine.robots().to_vec(), meta)?)
         }
         None => None,
@@ -295,10 +187,10 @@ pub fn run(
                     report.scans += 1;
                 }
                 let step = engine.uplink(r.rx_s, &r.msg);
-                write(r.rx_s, Event::Uplink(r.msg), &mut out)?;
+                write(r.rx_s, Event::Uplink(r.msg, r.rx_s), &mut out)?;
                 if let Some(f) = step.fused {
-                    write(r.rx_s, Event::Fused(f.clone()), &mut out)?;
-                    produced_fused.push(f);
+                    produced_fused.push(FusedRecord::of(&f));
+                    write(r.rx_s, Event::Fused(f), &mut out)?;
                 }
                 for e in step.estimates {
                     write(r.rx_s, Event::Estimate(e.clone()), &mut out)?;

@@ -106,12 +106,12 @@ async fn a_client_without_the_subprotocol_is_refused() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_robot_recorder_writes_the_file_and_serves_the_live_view() {
     use amr_actors::clock::FleetClock;
-    use amr_actors::messages::{
-        Command, Device, DisarmReason, Downlink, Health, HealthReport, OdomMsg, SafetyState,
-    };
-    use amr_actors::robot::ports::{ImuReading, LidarScan, RobotPorts, WheelTravel};
+    use amr_actors::robot::ports::{ImuReading, RobotPorts, WheelTravel};
     use amr_core::scan::Scan;
     use amr_core::se2::Se2;
+    use amr_msgs::{
+        Command, Device, DisarmReason, Downlink, Health, HealthReport, OdomMsg, SafetyState, ScanMsg,
+    };
     use amr_record::{RecordOptions, RecordSources, Recorder};
     use std::sync::Arc;
 
@@ -133,7 +133,14 @@ async fn a_robot_recorder_writes_the_file_and_serves_the_live_view() {
             for k in 0u64.. {
                 let t = clock.now_s();
                 let scan = Arc::new(Scan::new(-2.35, 0.0174, 0.05, 10.0, vec![1.0, f64::NAN, 2.5]));
-                ports.scans.send(LidarScan { seq: k, stamp_s: t, received_s: t, scan });
+                ports.scans.send(ScanMsg {
+                    robot: "robot-a".into(),
+                    seq: k,
+                    stamp_s: t,
+                    received_s: t,
+                    scan,
+                    odom: None,
+                });
                 ports.imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.01 });
                 ports.wheels.send(WheelTravel { stamp_s: t, dt_s: 0.02, left_m: 0.004, right_m: 0.004 });
                 let pose = Se2::new(0.01 * k as f64, 0.0, 0.0);

@@ -10,14 +10,14 @@ use std::time::Duration;
 use amr_actors::clock::FleetClock;
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::link::in_process;
-use amr_actors::messages::{Device, Health, HealthReport, OdomMsg, ScanMsg, Uplink};
-use amr_actors::robot::ports::{ImuReading, LidarScan, RobotPorts};
+use amr_actors::robot::ports::{ImuReading, RobotPorts};
 use amr_actors::server::{ServerSetup, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
 use amr_core::config::Configuration;
 use amr_core::formation::slots;
 use amr_core::se2::Se2;
 use amr_core::vamr::synthetic::Site;
+use amr_msgs::{Device, Health, HealthReport, OdomMsg, ScanMsg, Uplink};
 use amr_record::encode::Out;
 use amr_record::read::{read_bytes, read_file};
 use amr_record::sink::McapFile;
@@ -122,13 +122,11 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
                     robot: ids[i].clone(),
                     seq: k as u64,
                     stamp_s: t,
-                    sent_s: t,
+                    received_s: t,
                     scan: Arc::new(site.scan(&poses, i)),
-                    odom,
+                    odom: Some(odom),
                 };
-                let lidar =
-                    LidarScan { seq: k as u64, stamp_s: t, received_s: t, scan: Arc::clone(&scan.scan) };
-                robot_ports[i].scans.send(lidar);
+                robot_ports[i].scans.send(ScanMsg { odom: None, ..scan.clone() });
                 robot_ports[i].imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.0 });
                 assert!(end.up.send(Uplink::Scan(scan)));
                 let msg = OdomMsg { seq: k as u64, stamp_s: t, pose: odom, twist: (0.2, 0.0), gyro: true };

@@ -9,7 +9,9 @@
 //! The world's noise is seeded, but a real-time run depends on the scheduler, so two runs are close,
 //! not identical; `amr eval` is the bit-reproducible one.
 
+#[cfg(feature = "drills")]
 pub mod drills;
+pub mod eval;
 pub mod report;
 pub mod served;
 pub mod truth;
@@ -20,12 +22,10 @@ use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
 use amr_actors::link::{LinkControl, in_process};
-use amr_actors::messages::{Device, Health, HealthReport};
 use amr_actors::robot::canbus::CanLink;
 use amr_actors::robot::ports::{AbortOnDrop, StreamConnector};
 use amr_actors::robot::{DeviceOverrides, RobotOptions, RobotTree, start_robot};
 use amr_actors::server::formation::{FormationStatus, Phase};
-use amr_actors::server::ports::{Estimate, EstimateSource};
 use amr_actors::server::{ServerSetup, ServerTree, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
 use amr_core::config::{Config, Configuration, RobotConfig, ScenarioConfig};
@@ -33,6 +33,8 @@ use amr_core::metrics::ErrorStats;
 use amr_core::se2::{Se2, angle_diff};
 use amr_core::vamr::frame::virtual_frame;
 use amr_drivers::canopen::transport::in_process::InProcessBus;
+use amr_msgs::{Device, Health, HealthReport};
+use amr_msgs::{Estimate, EstimateSource};
 use hil_mocks::lpms::{MockImuHandle, MockImuOptions, start_mock_imu};
 use hil_mocks::teco_drive::{DriveHandle, TecoDrive, TecoDriveConfig, spawn_drive};
 use hil_mocks::tim551::{MockConfig, Tim551Mock};
@@ -126,7 +128,7 @@ struct Observed {
     /// Every formation phase seen, in order (a repeated phase once).
     phases: Vec<Phase>,
     /// The latest fused estimate: V, and each robot's pose with its odometry pose at the stamp.
-    last_fused: Option<(Se2, Vec<Option<amr_actors::server::ports::Anchored>>)>,
+    last_fused: Option<(Se2, Vec<Option<amr_msgs::Anchored>>)>,
     /// Each robot's latest odometry pose.
     odom: BTreeMap<String, Se2>,
 }

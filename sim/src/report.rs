@@ -4,9 +4,9 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use amr_actors::messages::{Device, Health};
-use amr_actors::server::ports::StageTimes;
 use amr_core::metrics::ErrorStats;
+use amr_msgs::StageTimes;
+use amr_msgs::{Device, Health};
 use serde::Serialize;
 
 /// One row of the latency table.

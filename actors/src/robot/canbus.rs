@@ -18,7 +18,7 @@ use tokio::time::Instant;
 
 use super::ports::{AbortOnDrop, BusLink, RobotPorts};
 use super::status::{Counters, HealthCell};
-use crate::messages::{Device, Health};
+use amr_msgs::{Device, Health};
 
 /// Where the CAN frames go.
 #[derive(Debug, Clone)]
@@ -46,6 +46,7 @@ pub enum CanBusMsg {
         retry_in: Duration,
     },
     /// Fail now, as a bug would (drills).
+    #[cfg(feature = "fault-injection")]
     InjectFailure(String),
 }
 
@@ -110,6 +111,7 @@ impl Actor for CanBusActor {
                     format!("{reason}; reconnecting in {retry_in:?}"),
                 );
             }
+            #[cfg(feature = "fault-injection")]
             CanBusMsg::InjectFailure(why) => {
                 self.ports.bus.send_replace(None);
                 return Err(why.into());

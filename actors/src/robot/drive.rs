@@ -17,7 +17,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{AbortOnDrop, BusLink, RobotPorts, WheelCommand, WheelTravel};
 use super::status::{Counters, HealthCell};
-use crate::messages::{Device, Health};
+use amr_msgs::{Device, Health};
 
 /// Time given to the master to send the quick stop before the bus goes down on shutdown.
 pub const SHUTDOWN_FLUSH: std::time::Duration = std::time::Duration::from_millis(60);
@@ -32,6 +32,7 @@ pub enum DriveMsg {
     Master(MasterEvent),
     Wheels(WheelCommand),
     /// Fail now, as a bug would (drills).
+    #[cfg(feature = "fault-injection")]
     InjectFailure(String),
 }
 
@@ -255,6 +256,7 @@ impl Actor for DriveActor {
                 };
                 self.send(state, MasterCommand::SetTargets(targets.to_vec()));
             }
+            #[cfg(feature = "fault-injection")]
             DriveMsg::InjectFailure(why) => return Err(why.into()),
         }
         self.update_health(state);

@@ -9,7 +9,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{AbortOnDrop, ImuReading, RobotPorts, StreamConnector};
 use super::status::{Counters, HealthCell};
-use crate::messages::{Device, Health};
+use amr_msgs::{Device, Health};
 
 /// The LPMS-B2 gyro's largest range, ±2000 °/s (LP-Research data sheet); beyond it a value is junk.
 pub const MAX_YAW_RATE_RADPS: f64 = 2000.0 * std::f64::consts::PI / 180.0;
@@ -20,6 +20,7 @@ pub enum ImuMsg {
     Driver(ImuMessage),
     DriverEnded,
     /// Fail now, as a bug would (drills).
+    #[cfg(feature = "fault-injection")]
     InjectFailure(String),
 }
 
@@ -110,6 +111,7 @@ impl Actor for ImuActor {
                 self.counters.rejected("imu: protocol or device error");
             }
             ImuMsg::DriverEnded => return Err("the LPBUS driver task ended".into()),
+            #[cfg(feature = "fault-injection")]
             ImuMsg::InjectFailure(why) => return Err(why.into()),
         }
         Ok(())

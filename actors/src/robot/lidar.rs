@@ -6,10 +6,10 @@ use std::sync::Arc;
 use amr_drivers::sopas::tcp::{Health as LinkHealth, LidarConfig, LidarMessage, spawn_stream, spawn_tcp};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, LidarScan, RobotPorts, StreamConnector};
+use super::ports::{AbortOnDrop, RobotPorts, StreamConnector};
 use super::status::{Counters, HealthCell};
 use crate::mapping;
-use crate::messages::{Device, Health};
+use amr_msgs::{Device, Health, ScanMsg};
 
 /// Messages of the LiDAR actor.
 #[derive(Debug)]
@@ -19,8 +19,10 @@ pub enum LidarMsg {
     /// The driver task ended (it only ends when its channel closes: a bug).
     DriverEnded,
     /// Fail now, as a bug would (drills).
+    #[cfg(feature = "fault-injection")]
     InjectFailure(String),
     /// Panic now, as a bug would (drills).
+    #[cfg(feature = "fault-injection")]
     InjectPanic(String),
 }
 
@@ -91,7 +93,14 @@ impl Actor for LidarActor {
                 }
                 state.seq += 1;
                 self.counters.count("lidar.scans");
-                ports.scans.send(LidarScan { seq: state.seq, stamp_s, received_s, scan: Arc::new(scan) });
+                ports.scans.send(ScanMsg {
+                    robot: ports.robot.clone(),
+                    seq: state.seq,
+                    stamp_s,
+                    received_s,
+                    scan: Arc::new(scan),
+                    odom: None,
+                });
                 state.health.set(ports, Health::Ok, "scanning");
             }
             LidarMsg::Driver(LidarMessage::Health(h)) => match h {
@@ -110,7 +119,9 @@ impl Actor for LidarActor {
                 self.counters.rejected("lidar: protocol or device error");
             }
             LidarMsg::DriverEnded => return Err("the SOPAS driver task ended".into()),
+            #[cfg(feature = "fault-injection")]
             LidarMsg::InjectFailure(why) => return Err(why.into()),
+            #[cfg(feature = "fault-injection")]
             #[allow(clippy::panic, reason = "the drill hook: a panicking actor, on purpose")]
             LidarMsg::InjectPanic(why) => panic!("{why}"),
         }

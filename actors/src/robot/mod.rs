@@ -37,10 +37,10 @@ use ractor::{Actor, ActorRef};
 use crate::clock::FleetClock;
 use crate::link::{RobotEnd, UplinkSender};
 use crate::mapping;
-use crate::messages::{SafetyState, Uplink};
 use crate::supervisor::{
     ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
 };
+use amr_msgs::{SafetyState, Uplink};
 use canbus::{CanBusActor, CanLink};
 use drive::DriveActor;
 use imu::ImuActor;

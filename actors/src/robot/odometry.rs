@@ -10,7 +10,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{ImuReading, RobotPorts, WheelTravel};
 use super::status::HealthCell;
-use crate::messages::{Device, Health, OdomMsg};
+use amr_msgs::{Device, Health, OdomMsg};
 
 /// A gyro reading older than this is not used for heading.
 pub const GYRO_FRESH_S: f64 = 0.1;

@@ -6,26 +6,13 @@
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-use amr_core::scan::Scan;
 use amr_drivers::canopen::master::MasterEvent;
 use amr_drivers::canopen::shell::MasterCommand;
 use ractor::OutputPort;
 use tokio::sync::{mpsc, watch};
 
 use crate::clock::FleetClock;
-use crate::messages::{Device, Downlink, HealthReport, OdomMsg, SafetyState};
-
-/// One scan as the LiDAR actor publishes it.
-#[derive(Debug, Clone)]
-pub struct LidarScan {
-    /// Per-connection scan counter of the actor.
-    pub seq: u64,
-    /// When the scan was taken (device clock mapped to the fleet clock; the receive time until
-    /// the clock fit has a pair).
-    pub stamp_s: f64,
-    pub received_s: f64,
-    pub scan: Arc<Scan>,
-}
+use amr_msgs::{Device, Downlink, HealthReport, OdomMsg, SafetyState, ScanMsg};
 
 /// One gyro reading.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -67,7 +54,7 @@ pub struct BusLink {
 pub struct RobotPorts {
     pub robot: String,
     pub clock: FleetClock,
-    pub scans: OutputPort<LidarScan>,
+    pub scans: OutputPort<ScanMsg>,
     pub imu: OutputPort<ImuReading>,
     pub wheels: OutputPort<WheelTravel>,
     pub odom: OutputPort<OdomMsg>,

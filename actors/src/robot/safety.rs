@@ -20,7 +20,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{RobotPorts, WheelCommand};
 use super::status::{Counters, HealthCell};
-use crate::messages::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
+use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
 
 /// The limits and timings of the safety layer (from `[limits]` and `[safety]`).
 #[derive(Debug, Clone, Copy, PartialEq)]

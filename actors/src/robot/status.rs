@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use super::ports::RobotPorts;
-use crate::messages::{Device, Health, HealthReport};
+use amr_msgs::{Device, Health, HealthReport};
 
 /// One device's health: published on the health port when it changes, and logged.
 #[derive(Debug)]

@@ -8,9 +8,9 @@ use std::sync::Arc;
 use amr_core::se2::Se2;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{LidarScan, RobotPorts};
+use super::ports::RobotPorts;
 use crate::link::UplinkSender;
-use crate::messages::{HealthReport, OdomMsg, SafetyState, ScanMsg, Uplink};
+use amr_msgs::{HealthReport, OdomMsg, SafetyState, ScanMsg, Uplink};
 
 /// Odometry kept for interpolation, s.
 const HISTORY_S: f64 = 1.0;
@@ -18,7 +18,7 @@ const HISTORY_S: f64 = 1.0;
 /// Messages of the uplink actor.
 #[derive(Debug)]
 pub enum UplinkMsg {
-    Scan(LidarScan),
+    Scan(ScanMsg),
     Odom(OdomMsg),
     Health(HealthReport),
     Safety(SafetyState),
@@ -96,7 +96,7 @@ impl Actor for UplinkActor {
             UplinkMsg::Scan(s) => {
                 // Without odometry yet, the scan is of no use to the server.
                 let Some(odom) = odom_at(&state.history, s.stamp_s) else { return Ok(()) };
-                Uplink::Scan(ScanMsg { robot, seq, stamp_s: s.stamp_s, sent_s: now, scan: s.scan, odom })
+                Uplink::Scan(ScanMsg { robot, seq, odom: Some(odom), ..s })
             }
             UplinkMsg::Odom(o) => {
                 state.history.push_back(o);

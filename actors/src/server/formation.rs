@@ -19,9 +19,10 @@ use amr_core::se2::Se2;
 use amr_core::vamr::frame::virtual_frame;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{Anchored, Estimate, EstimateSource, FusionStatus, ServerPorts};
+use super::ports::ServerPorts;
 use crate::link::DownlinkSender;
-use crate::messages::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
+use amr_msgs::{Anchored, Estimate, EstimateSource, FusionStatus};
+use amr_msgs::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
 
 /// An estimate older than this is not used for control, s.
 pub const ESTIMATE_FRESH_S: f64 = 0.5;
@@ -378,7 +379,7 @@ impl Actor for FormationActor {
         myself: ActorRef<FormationMsg>,
         (): (),
     ) -> Result<FormationState, ActorProcessingErr> {
-        self.ports.uplink.subscribe(myself.clone(), |u| match u {
+        self.ports.uplink.subscribe(myself.clone(), |(u, _)| match u {
             Uplink::Scan(_) => None,
             other => Some(FormationMsg::Uplink(Box::new(other))),
         });

@@ -2,17 +2,17 @@
 //!
 //! ```text
 //! server          one-for-one
-//! ├── amcl        AmclActor       (per-robot AMCL + AMCL on the virtual scan)
-//! ├── fusion      FusionActor     (sync gate, Virtual-AMR pipeline in T1–T4)
+//! ├── localizer   LocalizerActor  (the sans-IO ServerCore: sync gate, Virtual-AMR pipeline in
+//! │                                T1–T4, per-robot AMCL, AMCL on the virtual scan)
 //! └── formation   FormationActor  (reference → per-robot (v, ω), Eq. 20; arming, hold/stop)
 //! ```
 //!
-//! Everything the robots send arrives on [`ServerPorts::uplink`]; commands leave through the
-//! link's [`DownlinkSender`].
+//! Everything the robots send arrives on [`ServerPorts::uplink`], stamped once with the time it
+//! came off the link; commands leave through the link's [`DownlinkSender`].
 
-pub mod amcl;
+pub mod core;
 pub mod formation;
-pub mod fusion;
+pub mod localizer;
 pub mod ports;
 
 use std::sync::Arc;
@@ -23,9 +23,9 @@ use amr_core::config::{AmclParams, Configuration, RobotConfig, ScenarioConfig, S
 use amr_core::formation::{FormationGains, slots};
 use amr_core::map::OccupancyGrid;
 use amr_core::plan::reference;
-use amr_core::se2::Se2;
 use ractor::{Actor, ActorRef, OutputPort};
 
+use self::core::{CoreSetup, Member};
 use crate::clock::FleetClock;
 use crate::link::ServerEnd;
 use crate::mapping::TIM551_RANGE_M;
@@ -33,9 +33,8 @@ use crate::robot::ports::AbortOnDrop;
 use crate::supervisor::{
     ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
 };
-use amcl::AmclActor;
 use formation::{FormationActor, FormationMsg, FormationParams, FormationStatus};
-use fusion::{FusionActor, FusionParams, Member};
+use localizer::{LocalizerActor, LocalizerMsg};
 use ports::ServerPorts;
 
 /// Control period of the formation, s.
@@ -103,10 +102,10 @@ impl ServerTree {
         ractor::call!(f, FormationMsg::Status).ok()
     }
 
-    /// The running AMCL actor, if any.
-    pub async fn amcl_actor(&self) -> Option<ActorRef<amcl::AmclMsg>> {
+    /// The running localizer actor, if any.
+    pub async fn localizer_actor(&self) -> Option<ActorRef<LocalizerMsg>> {
         let children = ractor::call!(self.supervisor, SupervisorMsg::Children).ok()?;
-        children.into_iter().find(|c| c.name == "amcl").and_then(|c| c.cell).map(ActorRef::from)
+        children.into_iter().find(|c| c.name == "localizer").and_then(|c| c.cell).map(ActorRef::from)
     }
 
     /// Crash (a drill): every actor of the tree is killed at once, as if the process died — no
@@ -148,13 +147,10 @@ pub fn formation_robots(server: &ServerConfig, all: &[RobotConfig]) -> Result<Ve
         .collect()
 }
 
-/// The fusion's members and settings for `setup` (in `configuration` if given): what the fusion
-/// actor runs with, and what a replay of its input must run with.
+/// The server core of `setup`, running `configurations` side by side (the server runs its
+/// configured one): what the localizer actor runs, and what a replay of its input must run.
 #[must_use]
-pub fn fusion_setup(
-    setup: &ServerSetup,
-    configuration: Option<Configuration>,
-) -> (Vec<Member>, FusionParams) {
+pub fn core_setup(setup: &ServerSetup, configurations: &[Configuration]) -> CoreSetup {
     let slot_y = slots(setup.robots.len(), setup.scenario.spacing_m.get());
     let members = setup
         .robots
@@ -162,6 +158,7 @@ pub fn fusion_setup(
         .zip(&slot_y)
         .zip(&setup.server.robots)
         .map(|((r, y), m)| Member {
+            id: r.id.as_str().to_owned(),
             lidar_to_base: r.lidar_mount.to_se2(),
             chassis: r.chassis.outline_m.clone(),
             weight: m.weight.get(),
@@ -169,14 +166,17 @@ pub fn fusion_setup(
         })
         .collect();
     let s = &setup.server.sync;
-    let params = FusionParams {
-        configuration: configuration.unwrap_or(setup.server.configuration),
+    CoreSetup {
+        members,
+        configurations: configurations.to_vec(),
         vamr: setup.vamr.clone(),
         max_spread_s: f64::from(s.max_stamp_spread_ms.ms()) / 1000.0,
         max_age_s: f64::from(s.max_age_ms.ms()) / 1000.0,
-        lost_after_s: LOST_AFTER_S,
-    };
-    (members, params)
+        amcl: setup.amcl.clone(),
+        field: Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1)),
+        initial_v: setup.amcl.initial_pose.map_or(setup.scenario.start_pose(), |p| p.pose()),
+        seed: setup.seed,
+    }
 }
 
 /// Start the server tree on `link`.
@@ -191,20 +191,11 @@ pub async fn start_server(
     let formation_status = Arc::new(OutputPort::<FormationStatus>::default());
     let sc = &setup.scenario;
     let slot_y = slots(setup.robots.len(), sc.spacing_m.get());
-    let start_v = sc.start_pose();
-    let (members, fusion_params) = fusion_setup(&setup, None);
-    let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1));
-    let initial_v = setup.amcl.initial_pose.map_or(start_v, |p| p.pose());
-    let amcl = AmclActor {
+    let localizer = LocalizerActor {
         ports: Arc::clone(&ports),
-        params: setup.amcl.clone(),
-        field,
-        mounts: setup.robots.iter().map(|r| r.lidar_mount.to_se2()).collect(),
-        initial_robots: slot_y.iter().map(|y| initial_v * Se2::new(0.0, *y, 0.0)).collect(),
-        initial_v,
-        seed: setup.seed,
+        setup: core_setup(&setup, &[setup.server.configuration]),
+        lost_after_s: LOST_AFTER_S,
     };
-    let fusion = FusionActor { ports: Arc::clone(&ports), members, params: fusion_params };
     let formation = FormationActor {
         ports: Arc::clone(&ports),
         params: FormationParams {
@@ -224,8 +215,7 @@ pub async fn start_server(
         strategy: Strategy::OneForOne,
         policy: setup.policy,
         children: vec![
-            ChildSpec::new("amcl", move || (amcl.clone(), ())),
-            ChildSpec::new("fusion", move || (fusion.clone(), ())),
+            ChildSpec::new("localizer", move || (localizer.clone(), ())),
             ChildSpec::new("formation", move || (formation.clone(), ())),
         ],
         events: events.clone(),
@@ -235,7 +225,7 @@ pub async fn start_server(
     let p = Arc::clone(&ports);
     let pump = tokio::spawn(async move {
         while let Some(msg) = up.recv().await {
-            p.uplink.send(msg);
+            p.uplink.send((msg, p.clock.now_s()));
         }
     });
     let join = tokio::spawn(async move {

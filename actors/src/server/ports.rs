@@ -3,91 +3,12 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use amr_core::config::Configuration;
 use amr_core::se2::Se2;
 use ractor::OutputPort;
 use tokio::sync::watch;
 
 use crate::clock::FleetClock;
-use crate::messages::{Downlink, Uplink};
-
-/// Times of one fused update's stages, seconds (the paper's Table 4 rows).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct StageTimes {
-    /// From the oldest scan's stamp to passing the sync gate.
-    pub acquisition_sync_s: f64,
-    pub preprocess_s: f64,
-    pub tracking_s: f64,
-    pub heading_s: f64,
-    pub virtual_scan_s: f64,
-    /// AMCL's update; `None` when the filter skipped it (moved less than `update_min_d`/`update_min_a`).
-    pub amcl_s: Option<f64>,
-    /// From the oldest scan's stamp to the published estimate.
-    pub end_to_end_s: f64,
-}
-
-/// A fused frame, from the fusion actor to the AMCL actor.
-#[derive(Debug, Clone)]
-pub struct FusedFrame {
-    pub seq: u64,
-    pub configuration: Configuration,
-    /// The reference robot's scan stamp.
-    pub stamp_s: f64,
-    /// The oldest stamp of the set (latency is counted from it).
-    pub oldest_stamp_s: f64,
-    /// V's pose in the reference robot's odometry frame at `stamp_s`.
-    pub v_odom: Se2,
-    /// The virtual scan's points in V's frame (T2–T4); `None` for T1.
-    pub points: Option<Arc<Vec<[f64; 2]>>>,
-    /// Per robot: its base in V, and its odometry pose at its scan.
-    pub robots: Vec<(Se2, Se2)>,
-    pub times: StageTimes,
-}
-
-/// Where one estimate came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EstimateSource {
-    /// AMCL on the virtual scan (T2–T4), or the per-robot midpoint (T1).
-    Fused(Configuration),
-    /// One robot's own AMCL (the per-robot filters; the fallback when fusion is impossible).
-    Robot(usize),
-}
-
-/// A robot's pose in the map with the odometry pose it corresponds to, so it can be carried
-/// forward with odometry.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Anchored {
-    pub map: Se2,
-    pub odom: Se2,
-    pub stamp_s: f64,
-}
-
-/// A localisation result.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Estimate {
-    pub source: EstimateSource,
-    pub stamp_s: f64,
-    /// V in the map (fused estimates only).
-    pub v: Option<Se2>,
-    /// Per robot (formation order), where this estimate places it.
-    pub robots: Vec<Option<Anchored>>,
-}
-
-/// The fusion server's state as seen from outside.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FusionStatus {
-    Fusing,
-    /// Robot `i`'s scans stopped; the others are localised on their own.
-    RobotLost(usize),
-}
-
-/// A filter's particles after an update that ran (for recording and the live view).
-#[derive(Debug, Clone)]
-pub struct ParticleCloud {
-    pub source: EstimateSource,
-    pub stamp_s: f64,
-    pub poses: Arc<Vec<Se2>>,
-}
+use amr_msgs::{Downlink, Estimate, FusedFrame, FusionStatus, ParticleCloud, StageTimes, Uplink};
 
 /// Per-stage latencies of every fused update that produced an estimate.
 #[derive(Debug, Clone, Default)]
@@ -138,8 +59,9 @@ pub struct ServerPorts {
     pub clock: FleetClock,
     /// Robot ids in formation order.
     pub robots: Vec<String>,
-    /// Everything the robots sent.
-    pub uplink: OutputPort<Uplink>,
+    /// Everything the robots sent, with the fleet clock when it came off the link (stamped once,
+    /// here: the localizer's sync gate, the recorder and a replay all see the same time).
+    pub uplink: OutputPort<(Uplink, f64)>,
     pub fused: OutputPort<FusedFrame>,
     pub estimates: OutputPort<Estimate>,
     pub status: OutputPort<FusionStatus>,

@@ -6,7 +6,7 @@ use super::value::{Millis, Positive};
 use super::{ConfigFileType, RobotId, Violation, rule};
 
 /// The four configurations of the paper's ablation (Table 12, spec §9).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize, serde::Serialize)]
 pub enum Configuration {
     /// Each robot's own AMCL; the centre is the midpoint of the two AMCL poses.
     T1,

@@ -15,12 +15,12 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
-use amr_actors::messages::{DisarmReason, SafetyState};
-use amr_actors::server::amcl::AmclMsg;
 use amr_actors::server::formation::Phase;
+use amr_actors::server::localizer::LocalizerMsg;
 use amr_actors::server::ports::ServerStats;
 use amr_actors::supervisor::EventKind;
 use amr_core::config::{Config, ScenarioConfig};
+use amr_msgs::{DisarmReason, SafetyState};
 use hil_mocks::world::Noise;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 use tokio::time::Instant;
@@ -417,7 +417,7 @@ pub(crate) async fn server_restart(config: &Config, seed: u64, c: &mut Check) {
     c.eq(
         "the new server's supervision events",
         sim.server.events.kinds("server"),
-        vec![started("amcl"), started("fusion"), started("formation")],
+        vec![started("localizer"), started("formation")],
     );
     c.events = event_lines(&sim, p0, &marks0, s0);
     keep_counters(&sim, c);
@@ -516,8 +516,8 @@ pub(crate) async fn slow_consumer(config: &Config, seed: u64, c: &mut Check) {
     }
     let base_from = Instant::now();
     tokio::time::sleep(Duration::from_secs(2)).await;
-    let Some(amcl) = sim.server.amcl_actor().await else {
-        c.fail("no AMCL actor");
+    let Some(localizer) = sim.server.localizer_actor().await else {
+        c.fail("no localizer actor");
         return sim.shutdown().await;
     };
     let (p0, marks0, s0) = (sim.phases().len(), marks(&sim), sim.server.events.len());
@@ -525,8 +525,9 @@ pub(crate) async fn slow_consumer(config: &Config, seed: u64, c: &mut Check) {
     let own0 = own(&sim);
     c.inject();
     let stall_from = Instant::now();
-    if amcl.cast(AmclMsg::InjectStall { each: Duration::from_millis(500), during: STALL }).is_err() {
-        c.fail("the AMCL actor is gone");
+    if localizer.cast(LocalizerMsg::InjectStall { each: Duration::from_millis(500), during: STALL }).is_err()
+    {
+        c.fail("the localizer actor is gone");
     }
     sim.link.set_cut(&sim.robots[0].id, true);
     // Robot-a's watchdog fires during the stall; robot-b is stopped by the formation.

@@ -17,10 +17,10 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
-use amr_actors::messages::{Command, Device, Downlink, Health};
 use amr_actors::robot::RobotOptions;
 use amr_actors::supervisor::{ChildInfo, SupervisorMsg};
 use amr_core::config::Config;
+use amr_msgs::{Command, Device, Downlink, Health};
 use ractor::{ActorCell, ActorRef};
 use serde::Serialize;
 use tokio::time::Instant;

@@ -27,12 +27,12 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use amr_actors::messages::{Device, Health, SafetyState};
 use amr_actors::robot::lidar::LidarMsg;
 use amr_actors::supervisor::EventKind;
 use amr_core::config::Config;
 use amr_core::rng::Rng;
 use amr_drivers::canopen::cia402::State402;
+use amr_msgs::{Device, Health, SafetyState};
 use hil_mocks::teco_drive::Fault as DriveFault;
 use hil_mocks::tim551::Fault as LidarFault;
 use ractor::ActorRef;

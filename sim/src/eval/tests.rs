@@ -1,6 +1,6 @@
 use super::*;
-use crate::world::paper_site;
 use amr_core::config::{Config, ConfigFile, value::Count};
+use hil_mocks::world::paper_site;
 
 fn shipped() -> Config {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config");

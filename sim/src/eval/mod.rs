@@ -2,15 +2,19 @@
 //! with T1–T4 run side by side on identical sensor streams.
 //!
 //! The pair follows its plan with the Eq. 20 controller closed on each robot's wheel odometry, never
-//! on the estimates, so every configuration sees exactly the same scans. Per-robot AMCL runs once and
-//! serves T1 (its midpoint is the estimate) and T2/T3 (relative pose sources); T2, T3 and T4 each have
-//! their own pipeline and their own AMCL on the virtual scan. Errors of V's position are taken against
+//! on the estimates, so every configuration sees exactly the same scans. The localisation is the
+//! server's own sans-IO core (`amr_actors::server::core`), the code `amr server` and `amr replay`
+//! run: per-robot AMCL runs once and serves T1 (V from the robots' own poses) and T2/T3 (relative
+//! pose sources); T2, T3 and T4 each have their own pipeline and their own AMCL on the virtual scan.
+//! Errors of V's position are taken against
 //! the true V (from the world) and against the paper's reference (its planned path + encoders, here the
 //! odometry midpoint), each labelled.
 
 use std::sync::Arc;
+use std::time::Instant;
 
-use amr_core::amcl::{Amcl, LikelihoodField, scan_points};
+use amr_actors::server::core::{CoreSetup, Lap, Member, ServerCore};
+use amr_core::amcl::{Amcl, LikelihoodField};
 use amr_core::config::{AmclParams, Configuration, ScenarioConfig, VamrParams};
 use amr_core::formation::{FormationGains, limit_twist, member_command, wheel_odometry_increment};
 use amr_core::geometry::Polygon;
@@ -18,11 +22,11 @@ use amr_core::map::OccupancyGrid;
 use amr_core::metrics::{AxisStats, MeanSd, Sample};
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
-use amr_core::vamr::frame::{PacketTimes, virtual_frame};
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket};
+use amr_core::vamr::frame::virtual_frame;
+use amr_msgs::{EstimateSource, ScanMsg, Uplink};
+use hil_mocks::world::{Noise, RobotSpec, World, tim551_beams};
 use serde::Serialize;
 
-use crate::world::{Noise, RobotSpec, World, tim551_beams};
 pub use amr_core::formation::slots;
 pub use amr_core::plan::{Reference, reference};
 
@@ -123,24 +127,38 @@ pub fn run_trial(setup: &Setup, seed: u64) -> Trial {
     run_trial_observed(setup, seed, &mut |_| {})
 }
 
+/// A virtual scan's points in V, shared with the fused frame that carried them.
+pub type Points = Arc<Vec<[f64; 2]>>;
+
 /// One scan step of a trial, as a recorder sees it (`amr eval --record`).
 #[derive(Debug)]
 pub struct TrialFrame<'a> {
     /// Simulated time, s.
     pub t_s: f64,
     /// Each robot's scan, its true pose and its odometry pose (in the map, from the known start).
-    pub scans: &'a [Scan],
+    pub scans: &'a [Arc<Scan>],
     pub truth: &'a [Se2],
     pub odom: &'a [Se2],
     /// Each configuration's estimate of V at this step (None: none yet).
     pub estimates: &'a [(Configuration, Option<Se2>)],
     /// T2–T4: the virtual scan (points in V) each fused, when it did.
-    pub virtual_scans: &'a [(Configuration, Option<Vec<[f64; 2]>>)],
+    pub virtual_scans: &'a [(Configuration, Option<Points>)],
     /// T2–T4: the AMCL filter on each one's virtual scan (its particles, for a recorder).
     pub filters: &'a [(Configuration, &'a Amcl)],
 }
 
+/// The sync gate of a trial: every robot scans at the same instant and the server receives the
+/// scans 10 ms later.
+const MAX_SPREAD_S: f64 = 0.05;
+const MAX_AGE_S: f64 = 0.1;
+const RX_DELAY_S: f64 = 0.01;
+
 /// [`run_trial`], calling `observe` after every scan step.
+///
+/// The localisation is the server's own [`ServerCore`], running T1–T4 side by side on the same
+/// scans (each configuration's estimates are what the server would give in that configuration
+/// alone): robot `i`'s scans reach it as the uplink of `robot<i>`, with the odometry pose at the
+/// scan, received [`RX_DELAY_S`] after they were taken.
 pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&TrialFrame<'_>)) -> Trial {
     let sc = &setup.scenario;
     let slots = slots(setup.robots, sc.spacing_m.get());
@@ -150,39 +168,29 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         .iter()
         .map(|y| world.add_robot(setup.robot.clone(), start_v * Se2::new(0.0, *y, 0.0)))
         .collect();
+    let ids: Vec<String> = (0..robots.len()).map(|i| format!("robot{i}")).collect();
     let reference = reference(sc, setup.physics_dt_s);
-    let field = Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, tim551_beams().range_max_m));
-    let mut own: Vec<Amcl> = robots
-        .iter()
-        .enumerate()
-        .map(|(i, r)| {
-            let mut f = Amcl::new(
-                setup.amcl.clone(),
-                Arc::clone(&field),
-                seed.wrapping_mul(31).wrapping_add(i as u64),
-            );
-            f.init_pose(world.pose(*r).unwrap_or(start_v), 0.1, 0.05);
-            f
-        })
-        .collect();
-    let mut pipelines: Vec<(Configuration, Pipeline, Amcl)> = CONFIGS[1..]
-        .iter()
-        .enumerate()
-        .map(|(k, c)| {
-            let mut f = Amcl::new(
-                setup.amcl.clone(),
-                Arc::clone(&field),
-                seed.wrapping_mul(37).wrapping_add(10 + k as u64),
-            );
-            f.init_pose(start_v, 0.1, 0.05);
-            let mut p = Pipeline::new(setup.robots, setup.vamr.clone(), *c, 0.05, 0.1);
-            // The formation's slots: where robot 0 should find each of the others.
-            for (i, y) in slots.iter().enumerate().skip(1) {
-                p.set_expected(i, [0.0, y - slots[0]], 0.5);
-            }
-            (*c, p, f)
-        })
-        .collect();
+    let mut core = ServerCore::new(CoreSetup {
+        members: slots
+            .iter()
+            .zip(&ids)
+            .map(|(y, id)| Member {
+                id: id.clone(),
+                lidar_to_base: setup.robot.lidar_mount,
+                chassis: setup.robot.chassis.clone(),
+                weight: 1.0,
+                slot_y_m: *y,
+            })
+            .collect(),
+        configurations: CONFIGS.to_vec(),
+        vamr: setup.vamr.clone(),
+        max_spread_s: MAX_SPREAD_S,
+        max_age_s: MAX_AGE_S,
+        amcl: setup.amcl.clone(),
+        field: Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, tim551_beams().range_max_m)),
+        initial_v: start_v,
+        seed,
+    });
     // Odometry poses in the map frame, starting from the known start poses.
     let mut odom: Vec<Se2> = robots.iter().map(|r| world.pose(*r).unwrap_or(start_v)).collect();
     let mut last_enc: Vec<[f64; 2]> =
@@ -228,8 +236,10 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         }
         scans += 1;
         let t = world.time_s();
-        let scan_list: Vec<_> =
-            robots.iter().map(|rid| world.scan(*rid, &beams).unwrap_or_else(|| beams.clone())).collect();
+        let scan_list: Vec<Arc<Scan>> = robots
+            .iter()
+            .map(|rid| Arc::new(world.scan(*rid, &beams).unwrap_or_else(|| beams.clone())))
+            .collect();
         let truth: Vec<Se2> = robots.iter().map(|rid| world.pose(*rid).unwrap_or(start_v)).collect();
         let v_true = v_of(&truth);
         let v_ref = v_of(&odom);
@@ -238,63 +248,60 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         for (track, p) in truth_robots.iter_mut().zip(&truth) {
             track.push([p.x, p.y]);
         }
-        let mut own_pose = Vec::new();
-        for (i, f) in own.iter_mut().enumerate() {
-            let pts = scan_points(&scan_list[i], &setup.robot.lidar_mount, &setup.amcl);
-            f.update(odom[i], &pts, false);
-            own_pose.push(f.pose_at(&odom[i]));
-        }
-        let t1 = own_pose.iter().copied().collect::<Option<Vec<Se2>>>().map(|p| v_of(&p));
-        record(&mut series, Configuration::T1, t1, &v_true, &v_ref);
-        let mut estimates = vec![(Configuration::T1, t1)];
-        let mut virtual_scans = Vec::with_capacity(pipelines.len());
-        let true_heading = (truth[0].inverse() * truth[1]).theta;
-        for (c, pipeline, vamcl) in &mut pipelines {
-            let packets: Vec<RobotPacket<'_>> = scan_list
-                .iter()
-                .zip(&own_pose)
-                .map(|(s, p)| RobotPacket {
-                    scan: s,
-                    times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
-                    lidar_to_base: setup.robot.lidar_mount,
-                    chassis: &setup.robot.chassis,
-                    weight: 1.0,
-                    amcl_pose: *p,
-                })
-                .collect();
-            let started = std::time::Instant::now();
-            let result = pipeline.update(&packets);
-            let elapsed = started.elapsed().as_secs_f64();
-            if let Some(s) = series.iter_mut().find(|(k, _)| k == c).map(|(_, s)| s) {
+        let true_heading = truth.get(1).map(|b| (truth[0].inverse() * *b).theta);
+        let mut estimates: Vec<(Configuration, Option<Se2>)> = CONFIGS.iter().map(|c| (*c, None)).collect();
+        let mut virtual_scans: Vec<(Configuration, Option<Points>)> =
+            CONFIGS[1..].iter().map(|c| (*c, None)).collect();
+        for (i, scan) in scan_list.iter().enumerate() {
+            let msg = Uplink::Scan(ScanMsg {
+                robot: ids[i].clone(),
+                seq: scans as u64,
+                stamp_s: t,
+                received_s: t,
+                scan: Arc::clone(scan),
+                odom: Some(odom[i]),
+            });
+            let mut last = Instant::now();
+            let mut pipeline_s = [0.0; 4];
+            let out = core.offer(&msg, t + RX_DELAY_S, &mut |lap| {
+                let now = Instant::now();
+                if let Lap::Pipeline(c, _) = lap {
+                    pipeline_s[config_index(c)] += now.duration_since(last).as_secs_f64();
+                }
+                last = now;
+            });
+            for f in &out.fusions {
+                let k = config_index(f.configuration);
+                let Some((_, s)) = series.get_mut(k) else { continue };
+                s.pipeline_s += pipeline_s[k];
+                if f.configuration == Configuration::T1 {
+                    continue;
+                }
                 s.updates += 1;
-                s.pipeline_s += elapsed;
-                match &result {
-                    Ok(u) => {
-                        let failed = u.pairs.first().is_some_and(|p| {
-                            p.heading_source == amr_core::vamr::pipeline::Source::PreviousHeading
-                        });
-                        s.heading_failures += usize::from(failed);
-                        if let Some(rel) = u.relative.get(1) {
-                            s.heading_errors_rad.push(amr_core::se2::angle_diff(rel.theta, true_heading));
-                        }
+                s.heading_failures += usize::from(f.heading_failed);
+                if let Ok(frame) = &f.result {
+                    if let (Some(truth), [(b0, _), (b1, _), ..]) = (true_heading, frame.robots.as_slice()) {
+                        s.heading_errors_rad
+                            .push(amr_core::se2::angle_diff((b0.inverse() * *b1).theta, truth));
                     }
-                    Err(amr_core::vamr::pipeline::UpdateError::NoHeading { .. }) => s.heading_failures += 1,
-                    Err(_) => {}
+                    if let Some(slot) = virtual_scans.iter_mut().find(|(c, _)| *c == f.configuration) {
+                        slot.1.clone_from(&frame.points);
+                    }
                 }
             }
-            let mut fused_points = None;
-            let est = result.ok().and_then(|u| {
-                let points: Vec<[f64; 2]> = u.virtual_scan.as_ref()?.points.iter().map(|(p, _)| *p).collect();
-                let v_odom = odom[0] * u.v_in_reference;
-                vamcl.update(v_odom, &points, false);
-                fused_points = Some(points);
-                vamcl.pose_at(&v_odom)
-            });
-            record(&mut series, *c, est, &v_true, &v_ref);
-            estimates.push((*c, est));
-            virtual_scans.push((*c, fused_points));
+            for e in &out.estimates {
+                if let (EstimateSource::Fused(c), Some(v)) = (e.source, e.v) {
+                    estimates[config_index(c)].1 = Some(v);
+                }
+            }
         }
-        let filters: Vec<(Configuration, &Amcl)> = pipelines.iter().map(|(c, _, f)| (*c, f)).collect();
+        for (c, est) in &estimates {
+            record(&mut series, *c, *est, &v_true, &v_ref);
+        }
+        let filters: Vec<(Configuration, &Amcl)> = CONFIGS[1..]
+            .iter()
+            .filter_map(|c| core.filter(EstimateSource::Fused(*c)).map(|f| (*c, f)))
+            .collect();
         observe(&TrialFrame {
             t_s: t,
             scans: &scan_list,
@@ -305,12 +312,15 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             filters: &filters,
         });
     }
-    let final_particles_t4 = pipelines
-        .iter()
-        .find(|(c, _, _)| *c == Configuration::T4)
-        .map(|(_, _, f)| f.particles().iter().map(|p| [p.pose.x, p.pose.y]).collect())
+    let final_particles_t4 = core
+        .filter(EstimateSource::Fused(Configuration::T4))
+        .map(|f| f.particles().iter().map(|p| [p.pose.x, p.pose.y]).collect())
         .unwrap_or_default();
     Trial { seed, scans, series, times_s, truth_v, truth_robots, final_particles_t4 }
+}
+
+fn config_index(c: Configuration) -> usize {
+    CONFIGS.iter().position(|k| *k == c).unwrap_or(0)
 }
 
 /// Pooled and trial-level statistics of one configuration.

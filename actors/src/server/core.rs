@@ -1,0 +1,399 @@
+//! The server's localisation without its actors, sans-IO: uplink messages in (with the time they
+//! were received), fused frames, estimates and lost robots out. It holds everything that decides an
+//! estimate — the scan buffers and sync gate, one Virtual-AMR pipeline per configuration, every
+//! robot's own AMCL and one AMCL per virtual scan — so the server's localizer actor, `amr replay`
+//! and `amr eval` all run this one code and give the same estimates for the same input.
+//!
+//! Order within one scan, the same everywhere: the robot's own AMCL first (its `T_odom^map`
+//! correction), then the fusion with that correction (T1–T3 take relative poses from AMCL), then,
+//! for each fused frame, AMCL on the virtual scan.
+//!
+//! Several configurations can run side by side on the same scans (`amr eval` compares T1–T4 this
+//! way); the server runs one. Each filter owns its generator: robot `i`'s is seeded `seed + 1 + i`,
+//! every virtual-scan filter `seed`, so a configuration's estimates do not depend on which others
+//! run beside it.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
+use amr_core::config::{AmclParams, Configuration, VamrParams};
+use amr_core::geometry::Polygon;
+use amr_core::se2::Se2;
+use amr_core::vamr::frame::PacketTimes;
+use amr_core::vamr::pipeline::{Pipeline, RobotPacket, Source, Stage, UpdateError};
+use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, ScanMsg, StageTimes, Uplink};
+
+/// Scans kept per robot for pairing.
+const BUFFER: usize = 3;
+
+/// Spread of the initial particle clouds (a pose given by the operator or the scenario).
+pub const INITIAL_STD_XY_M: f64 = 0.1;
+pub const INITIAL_STD_YAW_RAD: f64 = 0.05;
+
+/// One formation member as the fusion sees it.
+#[derive(Debug, Clone)]
+pub struct Member {
+    pub id: String,
+    pub lidar_to_base: Se2,
+    pub chassis: Polygon,
+    pub weight: f64,
+    /// Its slot: lateral offset in V (for the expected search area).
+    pub slot_y_m: f64,
+}
+
+/// Everything the core is built from.
+#[derive(Debug, Clone)]
+pub struct CoreSetup {
+    /// In formation order; robot 0 is the reference.
+    pub members: Vec<Member>,
+    /// Run side by side on the same scans; each gives its own fused frames and estimates.
+    pub configurations: Vec<Configuration>,
+    pub vamr: VamrParams,
+    /// The sync gate (Eq. 15): most spread of a set's stamps, and most age at fusion, s.
+    pub max_spread_s: f64,
+    pub max_age_s: f64,
+    pub amcl: AmclParams,
+    pub field: Arc<LikelihoodField>,
+    /// Where V starts in the map; each robot's own filter starts at its slot.
+    pub initial_v: Se2,
+    pub seed: u64,
+}
+
+/// The end of a piece of work in [`ServerCore::offer`], for timing by the caller (the core has no
+/// clock): the time since the previous lap belongs to it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lap {
+    /// A robot's own AMCL update.
+    RobotAmcl,
+    /// A stage of one configuration's Virtual-AMR pipeline.
+    Pipeline(Configuration, Stage),
+    /// AMCL on that configuration's virtual scan (or V from robot 0's AMCL, in T1).
+    VirtualAmcl(Configuration),
+}
+
+/// One configuration's fusion of a set of scans.
+#[derive(Debug, Clone)]
+pub struct Fusion {
+    pub configuration: Configuration,
+    pub result: Result<FusedFrame, UpdateError>,
+    /// The heading search swept the full circle (first acquisition or a re-acquisition).
+    pub full_search: bool,
+    /// The heading search failed and the previous heading was kept.
+    pub heading_failed: bool,
+}
+
+/// What one uplink message did.
+#[derive(Debug, Default)]
+pub struct Step {
+    /// The formation index of the robot it came from (a scan of a formation member).
+    pub robot: Option<usize>,
+    /// The robot's own estimate, then each fused one.
+    pub estimates: Vec<Estimate>,
+    /// One per configuration, when the scan completed a set.
+    pub fusions: Vec<Fusion>,
+    /// Filters whose particles moved (an update ran).
+    pub updated: Vec<EstimateSource>,
+    /// The robot had been lost and is back (its track is re-acquired with the full heading search);
+    /// the flag: no robot is lost any more.
+    pub back: Option<bool>,
+    /// Why a scan was not used.
+    pub refused: Option<&'static str>,
+}
+
+#[derive(Debug)]
+struct Channel {
+    configuration: Configuration,
+    pipeline: Pipeline,
+    /// AMCL on the virtual scan (T2–T4).
+    filter: Option<Amcl>,
+    seq: u64,
+}
+
+/// A scan as the core keeps it.
+#[derive(Debug, Clone)]
+struct Held {
+    scan: Arc<amr_core::scan::Scan>,
+    stamp_s: f64,
+    rx_s: f64,
+    odom: Se2,
+}
+
+/// The server's localisation (see the module documentation).
+#[derive(Debug)]
+pub struct ServerCore {
+    members: Vec<Member>,
+    amcl: AmclParams,
+    robot_filters: Vec<Amcl>,
+    /// Per robot: map ← odometry from its own AMCL.
+    corrections: Vec<Option<Se2>>,
+    channels: Vec<Channel>,
+    /// Per robot: recent scans.
+    scans: Vec<VecDeque<Held>>,
+    /// Per robot: stamp of its last fused scan.
+    fused_stamp: Vec<f64>,
+    lost: Vec<bool>,
+}
+
+impl ServerCore {
+    #[must_use]
+    pub fn new(setup: CoreSetup) -> Self {
+        let n = setup.members.len();
+        let filter = |seed: u64, at: Se2| {
+            let mut f = Amcl::new(setup.amcl.clone(), Arc::clone(&setup.field), seed);
+            f.init_pose(at, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
+            f
+        };
+        let robot_filters = setup
+            .members
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                filter(
+                    setup.seed.wrapping_add(1 + i as u64),
+                    setup.initial_v * Se2::new(0.0, m.slot_y_m, 0.0),
+                )
+            })
+            .collect();
+        let y0 = setup.members.first().map_or(0.0, |m| m.slot_y_m);
+        let channels = setup
+            .configurations
+            .iter()
+            .map(|c| {
+                let mut pipeline =
+                    Pipeline::new(n, setup.vamr.clone(), *c, setup.max_spread_s, setup.max_age_s);
+                for (i, m) in setup.members.iter().enumerate().skip(1) {
+                    pipeline.set_expected(i, [0.0, m.slot_y_m - y0], 0.5);
+                }
+                let filter = (*c != Configuration::T1).then(|| filter(setup.seed, setup.initial_v));
+                Channel { configuration: *c, pipeline, filter, seq: 0 }
+            })
+            .collect();
+        ServerCore {
+            amcl: setup.amcl,
+            robot_filters,
+            corrections: vec![None; n],
+            channels,
+            scans: vec![VecDeque::new(); n],
+            fused_stamp: vec![f64::NEG_INFINITY; n],
+            lost: vec![false; n],
+            members: setup.members,
+        }
+    }
+
+    #[must_use]
+    pub fn members(&self) -> &[Member] {
+        &self.members
+    }
+
+    /// The formation index of robot `id`.
+    #[must_use]
+    pub fn index(&self, id: &str) -> Option<usize> {
+        self.members.iter().position(|m| m.id == id)
+    }
+
+    /// The configurations that run, in order.
+    pub fn configurations(&self) -> impl Iterator<Item = Configuration> + '_ {
+        self.channels.iter().map(|c| c.configuration)
+    }
+
+    /// The filter behind an estimate source (its particles, for recording and the live view).
+    #[must_use]
+    pub fn filter(&self, source: EstimateSource) -> Option<&Amcl> {
+        match source {
+            EstimateSource::Robot(i) => self.robot_filters.get(i),
+            EstimateSource::Fused(c) => {
+                self.channels.iter().find(|ch| ch.configuration == c).and_then(|ch| ch.filter.as_ref())
+            }
+        }
+    }
+
+    /// Per robot, map ← odometry from its own AMCL.
+    #[must_use]
+    pub fn corrections(&self) -> &[Option<Se2>] {
+        &self.corrections
+    }
+
+    /// One uplink message, received at `rx_s` (also the time of fusion: the sync gate's age
+    /// test and the acquisition latency use it). Only scans of formation members do anything.
+    pub fn offer(&mut self, msg: &Uplink, rx_s: f64, lap: &mut dyn FnMut(Lap)) -> Step {
+        let mut step = Step::default();
+        let Uplink::Scan(s) = msg else { return step };
+        let Some(i) = self.index(&s.robot) else {
+            step.refused = Some("a scan from a robot not in the formation");
+            return step;
+        };
+        step.robot = Some(i);
+        let Some(odom) = s.odom else {
+            step.refused = Some("a scan without odometry");
+            return step;
+        };
+        if self.scans[i].back().is_some_and(|b| b.stamp_s >= s.stamp_s) {
+            step.refused = Some("a scan not newer than the last (duplicate or reordered)");
+            return step;
+        }
+        self.robot_amcl(i, s, odom, &mut step);
+        lap(Lap::RobotAmcl);
+        let buf = &mut self.scans[i];
+        buf.push_back(Held { scan: Arc::clone(&s.scan), stamp_s: s.stamp_s, rx_s, odom });
+        while buf.len() > BUFFER {
+            buf.pop_front();
+        }
+        if self.lost[i] {
+            self.lost[i] = false;
+            for ch in &mut self.channels {
+                if i > 0 {
+                    ch.pipeline.reset_robot(i);
+                } else {
+                    for k in 1..self.members.len() {
+                        ch.pipeline.reset_robot(k);
+                    }
+                }
+            }
+            step.back = Some(!self.lost.iter().any(|l| *l));
+        }
+        if let Some(set) = self.pick(i) {
+            self.fuse(&set, rx_s, lap, &mut step);
+        }
+        step
+    }
+
+    /// Robots whose last scan arrived more than `lost_after_s` before `now_s`: the ones newly lost.
+    pub fn check_lost(&mut self, now_s: f64, lost_after_s: f64) -> Vec<usize> {
+        let mut newly = Vec::new();
+        for i in 0..self.members.len() {
+            let last = self.scans[i].back().map(|h| h.rx_s);
+            if last.is_some_and(|t| now_s - t > lost_after_s) && !self.lost[i] {
+                self.lost[i] = true;
+                newly.push(i);
+            }
+        }
+        newly
+    }
+
+    /// Robot `i` is lost (as a recording says).
+    pub fn mark_lost(&mut self, i: usize) {
+        if let Some(l) = self.lost.get_mut(i) {
+            *l = true;
+        }
+    }
+
+    fn robot_amcl(&mut self, i: usize, s: &ScanMsg, odom: Se2, step: &mut Step) {
+        let (Some(filter), Some(m)) = (self.robot_filters.get_mut(i), self.members.get(i)) else { return };
+        let points = scan_points(&s.scan, &m.lidar_to_base, &self.amcl);
+        if matches!(filter.update(odom, &points, false), UpdateOutcome::Updated { .. }) {
+            step.updated.push(EstimateSource::Robot(i));
+        }
+        let Some(map) = filter.pose_at(&odom) else { return };
+        self.corrections[i] = Some(map * odom.inverse());
+        let mut robots = vec![None; self.members.len()];
+        robots[i] = Some(Anchored { map, odom, stamp_s: s.stamp_s });
+        step.estimates.push(Estimate {
+            source: EstimateSource::Robot(i),
+            stamp_s: s.stamp_s,
+            v: None,
+            robots,
+        });
+    }
+
+    /// Choose one unfused scan per robot, closest in time to robot `from`'s newest.
+    fn pick(&self, from: usize) -> Option<Vec<Held>> {
+        let t = self.scans.get(from)?.back()?.stamp_s;
+        let mut set = Vec::with_capacity(self.members.len());
+        for (i, buf) in self.scans.iter().enumerate() {
+            let best = buf
+                .iter()
+                .filter(|h| h.stamp_s > self.fused_stamp[i])
+                .min_by(|a, b| (a.stamp_s - t).abs().total_cmp(&(b.stamp_s - t).abs()))?;
+            set.push(best.clone());
+        }
+        Some(set)
+    }
+
+    fn fuse(&mut self, set: &[Held], now_s: f64, lap: &mut dyn FnMut(Lap), step: &mut Step) {
+        for (i, h) in set.iter().enumerate() {
+            self.fused_stamp[i] = h.stamp_s;
+        }
+        let oldest = set.iter().map(|h| h.stamp_s).fold(f64::INFINITY, f64::min);
+        let packets: Vec<RobotPacket<'_>> = set
+            .iter()
+            .zip(&self.members)
+            .enumerate()
+            .map(|(i, (h, m))| RobotPacket {
+                scan: &h.scan,
+                times: PacketTimes { stamp_s: h.stamp_s, received_s: h.rx_s },
+                lidar_to_base: m.lidar_to_base,
+                chassis: &m.chassis,
+                weight: m.weight,
+                amcl_pose: self.corrections.get(i).copied().flatten().map(|c| c * h.odom),
+            })
+            .collect();
+        let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |h| (h.stamp_s, h.odom));
+        for ch in &mut self.channels {
+            let c = ch.configuration;
+            let result = ch.pipeline.update_with_laps(&packets, &mut |stage| lap(Lap::Pipeline(c, stage)));
+            let u = match result {
+                Ok(u) => u,
+                Err(e) => {
+                    let heading_failed = matches!(e, UpdateError::NoHeading { .. });
+                    step.fusions.push(Fusion {
+                        configuration: ch.configuration,
+                        result: Err(e),
+                        full_search: false,
+                        heading_failed,
+                    });
+                    continue;
+                }
+            };
+            ch.seq += 1;
+            let full_search = u.pairs.iter().any(|p| p.heading_source == Source::FullSearch);
+            let heading_failed = u.pairs.iter().any(|p| p.heading_source == Source::PreviousHeading);
+            let points = u
+                .virtual_scan
+                .as_ref()
+                .map(|v| Arc::new(v.points.iter().map(|(p, _)| *p).collect::<Vec<[f64; 2]>>()));
+            let frame = FusedFrame {
+                seq: ch.seq,
+                configuration: ch.configuration,
+                stamp_s: first,
+                oldest_stamp_s: oldest,
+                v_odom: first_odom * u.v_in_reference,
+                points,
+                robots: u.bases_in_v.iter().zip(set).map(|(b, h)| (*b, h.odom)).collect(),
+                times: StageTimes { acquisition_sync_s: now_s - oldest, ..StageTimes::default() },
+            };
+            let v = match (&frame.points, ch.filter.as_mut()) {
+                (Some(points), Some(filter)) => {
+                    if matches!(filter.update(frame.v_odom, points, false), UpdateOutcome::Updated { .. }) {
+                        step.updated.push(EstimateSource::Fused(ch.configuration));
+                    }
+                    filter.pose_at(&frame.v_odom)
+                }
+                // T1: V from the reference robot's own AMCL (the relative poses came from AMCL).
+                _ => self.corrections.first().copied().flatten().map(|c| c * frame.v_odom),
+            };
+            lap(Lap::VirtualAmcl(c));
+            if let Some(v) = v {
+                let robots = frame
+                    .robots
+                    .iter()
+                    .map(|(base_in_v, odom)| {
+                        Some(Anchored { map: v * *base_in_v, odom: *odom, stamp_s: first })
+                    })
+                    .collect();
+                step.estimates.push(Estimate {
+                    source: EstimateSource::Fused(ch.configuration),
+                    stamp_s: first,
+                    v: Some(v),
+                    robots,
+                });
+            }
+            step.fusions.push(Fusion {
+                configuration: ch.configuration,
+                result: Ok(frame),
+                full_search,
+                heading_failed,
+            });
+        }
+    }
+}

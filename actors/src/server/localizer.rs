@@ -1,0 +1,198 @@
+//! LocalizerActor: drives the server's [`ServerCore`] with the uplink and its clock. Each scan goes
+//! through the core (the robot's own AMCL, the Virtual-AMR pipeline in the configured T1–T4, AMCL
+//! on the virtual scan); the actor publishes what comes out — estimates, fused frames with their
+//! stage times, particle clouds, each robot's `T_odom^map` — and watches for robots whose scans
+//! stopped (lost) and came back.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use amr_core::vamr::pipeline::{Stage, UpdateError};
+use amr_msgs::{EstimateSource, FusionStatus, ParticleCloud, StageTimes, Uplink};
+use ractor::{Actor, ActorProcessingErr, ActorRef};
+
+use super::core::{CoreSetup, Lap, ServerCore};
+use super::ports::{ServerPorts, ServerStats};
+
+/// Messages of the localizer actor.
+#[derive(Debug)]
+pub enum LocalizerMsg {
+    /// A message the server received, with the clock when it came off the link.
+    Uplink(Box<Uplink>, f64),
+    /// Check for lost robots.
+    Tick,
+    /// A drill: for `during` from now, every scan first blocks the actor's worker thread for
+    /// `each` (a stalled localisation). A deadline rather than an "end" message, which would queue
+    /// behind the backlog the stall builds.
+    #[cfg(feature = "fault-injection")]
+    InjectStall { each: Duration, during: Duration },
+}
+
+/// The localizer actor.
+#[derive(Debug, Clone)]
+pub struct LocalizerActor {
+    pub ports: Arc<ServerPorts>,
+    pub setup: CoreSetup,
+    /// A robot whose last scan is older than this is lost, s.
+    pub lost_after_s: f64,
+}
+
+#[derive(Debug)]
+pub struct LocalizerState {
+    core: ServerCore,
+    /// The drill's stall per scan, and until when.
+    #[cfg(feature = "fault-injection")]
+    stall: Option<(Duration, Instant)>,
+}
+
+impl Actor for LocalizerActor {
+    type Msg = LocalizerMsg;
+    type State = LocalizerState;
+    type Arguments = ();
+
+    async fn pre_start(
+        &self,
+        myself: ActorRef<LocalizerMsg>,
+        (): (),
+    ) -> Result<LocalizerState, ActorProcessingErr> {
+        self.ports.uplink.subscribe(myself.clone(), |(u, rx)| match &u {
+            Uplink::Scan(_) => Some(LocalizerMsg::Uplink(Box::new(u), rx)),
+            _ => None,
+        });
+        myself.send_interval(Duration::from_millis(100), || LocalizerMsg::Tick);
+        self.ports.corrections.send_replace(vec![None; self.setup.members.len()]);
+        Ok(LocalizerState {
+            core: ServerCore::new(self.setup.clone()),
+            #[cfg(feature = "fault-injection")]
+            stall: None,
+        })
+    }
+
+    async fn handle(
+        &self,
+        _myself: ActorRef<LocalizerMsg>,
+        msg: LocalizerMsg,
+        state: &mut LocalizerState,
+    ) -> Result<(), ActorProcessingErr> {
+        match msg {
+            LocalizerMsg::Uplink(u, rx) => {
+                #[cfg(feature = "fault-injection")]
+                let stall = state.stall;
+                let core = &mut state.core;
+                let mut times = StageTimes::default();
+                let mut amcl_s = 0.0;
+                let mut last = Instant::now();
+                let step = super::compute(|| {
+                    #[cfg(feature = "fault-injection")]
+                    if let Some((each, until)) = stall
+                        && Instant::now() < until
+                    {
+                        std::thread::sleep(each);
+                    }
+                    core.offer(&u, rx, &mut |lap| {
+                        let now = Instant::now();
+                        let d = now.duration_since(last).as_secs_f64();
+                        last = now;
+                        match lap {
+                            Lap::RobotAmcl => {}
+                            Lap::Pipeline(_, Stage::Preprocess) => times.preprocess_s += d,
+                            Lap::Pipeline(_, Stage::Tracking) => times.tracking_s += d,
+                            Lap::Pipeline(_, Stage::Heading) => times.heading_s += d,
+                            Lap::Pipeline(_, Stage::VirtualScan) => times.virtual_scan_s += d,
+                            Lap::VirtualAmcl(_) => amcl_s += d,
+                        }
+                    })
+                });
+                if let Some(why) = step.refused {
+                    tracing::debug!(robot = %u.robot(), why, "localizer: scan refused");
+                }
+                self.publish(&state.core, step, times, amcl_s);
+            }
+            LocalizerMsg::Tick => {
+                let now = self.ports.clock.now_s();
+                for i in state.core.check_lost(now, self.lost_after_s) {
+                    tracing::warn!(robot = %self.ports.robots[i], "localizer: scans stopped, robot lost");
+                    ServerStats::add(&self.ports.stats.robots_lost);
+                    self.ports.status.send(FusionStatus::RobotLost(i));
+                }
+            }
+            #[cfg(feature = "fault-injection")]
+            LocalizerMsg::InjectStall { each, during } => {
+                tracing::warn!(
+                    each_ms = each.as_millis(),
+                    during_ms = during.as_millis(),
+                    "localizer: drill stall"
+                );
+                state.stall = Some((each, Instant::now() + during));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl LocalizerActor {
+    fn publish(&self, core: &ServerCore, step: super::core::Step, times: StageTimes, amcl_s: f64) {
+        let ports = &self.ports;
+        if let Some(all_back) = step.back {
+            tracing::info!(robot = ?step.robot, "localizer: robot back, re-acquiring");
+            ServerStats::add(&ports.stats.robots_back);
+            if all_back {
+                ports.status.send(FusionStatus::Fusing);
+            }
+        }
+        ports.corrections.send_if_modified(|c| {
+            let changed = c.as_slice() != core.corrections();
+            if changed {
+                c.clone_from_slice(core.corrections());
+            }
+            changed
+        });
+        for source in &step.updated {
+            if let Some(f) = core.filter(*source) {
+                let stamp_s = step.estimates.first().map_or(0.0, |e| e.stamp_s);
+                let poses = Arc::new(f.particles().iter().map(|p| p.pose).collect());
+                ports.particles.send(ParticleCloud { source: *source, stamp_s, poses });
+            }
+        }
+        let mut fused_at = Vec::new();
+        for fusion in step.fusions {
+            match fusion.result {
+                Ok(mut frame) => {
+                    ServerStats::add(&ports.stats.fused);
+                    if fusion.full_search {
+                        ServerStats::add(&ports.stats.full_searches);
+                    }
+                    let ran = step.updated.contains(&EstimateSource::Fused(frame.configuration));
+                    frame.times = StageTimes {
+                        acquisition_sync_s: frame.times.acquisition_sync_s,
+                        amcl_s: ran.then_some(amcl_s),
+                        ..times
+                    };
+                    fused_at.push((frame.configuration, frame.oldest_stamp_s, frame.times));
+                    ports.fused.send(frame);
+                }
+                Err(UpdateError::Sync(f)) => {
+                    ServerStats::add(&ports.stats.gate_failures);
+                    tracing::debug!(failure = ?f, "localizer: sync gate");
+                }
+                Err(e) => tracing::debug!(error = %e, "localizer: no fused measurement"),
+            }
+        }
+        for e in step.estimates {
+            match e.source {
+                EstimateSource::Robot(i) => {
+                    if let Some(c) = ports.stats.own_estimates.get(i) {
+                        ServerStats::add(c);
+                    }
+                }
+                EstimateSource::Fused(c) => {
+                    if let Some((_, oldest, mut t)) = fused_at.iter().copied().find(|(k, _, _)| *k == c) {
+                        t.end_to_end_s = ports.clock.now_s() - oldest;
+                        ports.latency.push(t);
+                    }
+                }
+            }
+            ports.estimates.send(e);
+        }
+    }
+}
