@@ -145,6 +145,9 @@ pub struct TrialFrame<'a> {
     pub virtual_scans: &'a [(Configuration, Option<Points>)],
     /// T2–T4: the AMCL filter on each one's virtual scan (its particles, for a recorder).
     pub filters: &'a [(Configuration, &'a Amcl)],
+    /// What the server core was given at this step: each robot's scan as its uplink (robot `i`
+    /// is `robot<i>`), with the time it was received. A recording of these replays the trial.
+    pub uplink: &'a [(Uplink, f64)],
 }
 
 /// The sync gate of a trial: every robot scans at the same instant and the server receives the
@@ -252,6 +255,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         let mut estimates: Vec<(Configuration, Option<Se2>)> = CONFIGS.iter().map(|c| (*c, None)).collect();
         let mut virtual_scans: Vec<(Configuration, Option<Points>)> =
             CONFIGS[1..].iter().map(|c| (*c, None)).collect();
+        let mut offered = Vec::with_capacity(scan_list.len());
         for (i, scan) in scan_list.iter().enumerate() {
             let msg = Uplink::Scan(ScanMsg {
                 robot: ids[i].clone(),
@@ -294,6 +298,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
                     estimates[config_index(c)].1 = Some(v);
                 }
             }
+            offered.push((msg, t + RX_DELAY_S));
         }
         for (c, est) in &estimates {
             record(&mut series, *c, *est, &v_true, &v_ref);
@@ -310,6 +315,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             estimates: &estimates,
             virtual_scans: &virtual_scans,
             filters: &filters,
+            uplink: &offered,
         });
     }
     let final_particles_t4 = core
