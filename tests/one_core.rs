@@ -7,7 +7,6 @@
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::server::{ServerSetup, formation_robots};
 use amr_actors::supervisor::RestartPolicy;
-use amr_core::config::Configuration;
 use amr_core::config::value::Count;
 use amr_msgs::{EstimateSource, Uplink};
 use amr_net::wire::{Envelope, from_uplink, to_uplink, uplink_channel};
