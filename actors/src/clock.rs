@@ -49,7 +49,7 @@ impl FleetClock {
 
     /// A std instant (the drivers' stamps) on this clock.
     #[must_use]
-    pub fn seconds_std(&self, at: std::time::Instant) -> f64 {
+    pub(crate) fn seconds_std(&self, at: std::time::Instant) -> f64 {
         self.offset_s + at.saturating_duration_since(self.epoch.into_std()).as_secs_f64()
     }
 }

@@ -16,7 +16,7 @@ use amr_drivers::sopas::session::{DialectChoice, Mode, Profile};
 use amr_drivers::sopas::tcp::LidarConfig;
 
 /// The TiM551's measuring range (devices.md §1: 0.05–10 m).
-pub const TIM551_RANGE_M: (f64, f64) = (0.05, 10.0);
+pub(crate) const TIM551_RANGE_M: (f64, f64) = (0.05, 10.0);
 
 /// `[devices.lidar]` → the SOPAS TCP shell.
 #[must_use]
@@ -66,7 +66,7 @@ pub fn imu(c: &RobotConfig) -> LpmsConfig {
 
 /// `[devices.drives]` + `[kinematics]` → the differential-drive layer.
 #[must_use]
-pub fn diff_drive(c: &RobotConfig) -> DiffDrive {
+pub(crate) fn diff_drive(c: &RobotConfig) -> DiffDrive {
     let d = &c.devices.drives;
     let wheel = |w: &amr_core::config::DriveConfig| WheelDriveConfig {
         node_id: w.node_id.get(),

@@ -52,7 +52,7 @@ pub enum CanBusMsg {
 
 /// The CAN bus actor.
 #[derive(Debug, Clone)]
-pub struct CanBusActor {
+pub(crate) struct CanBusActor {
     pub ports: Arc<RobotPorts>,
     pub link: CanLink,
     pub master: MasterConfig,
@@ -61,7 +61,7 @@ pub struct CanBusActor {
 }
 
 #[derive(Debug)]
-pub struct CanBusState {
+pub(crate) struct CanBusState {
     _bus: AbortOnDrop<()>,
     health: HealthCell,
 }

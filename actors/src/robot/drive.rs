@@ -20,25 +20,22 @@ use super::status::{Counters, HealthCell};
 use amr_msgs::{Device, Health};
 
 /// Time given to the master to send the quick stop before the bus goes down on shutdown.
-pub const SHUTDOWN_FLUSH: std::time::Duration = std::time::Duration::from_millis(60);
+pub(crate) const SHUTDOWN_FLUSH: std::time::Duration = std::time::Duration::from_millis(60);
 
 /// Fault resets tried per drive before its fault is latched (the drive needs attention).
-pub const MAX_FAULT_RESETS: u32 = 3;
+pub(crate) const MAX_FAULT_RESETS: u32 = 3;
 
 /// Messages of the drive actor.
 #[derive(Debug)]
-pub enum DriveMsg {
+pub(crate) enum DriveMsg {
     Bus(Option<BusLink>),
     Master(MasterEvent),
     Wheels(WheelCommand),
-    /// Fail now, as a bug would (drills).
-    #[cfg(feature = "fault-injection")]
-    InjectFailure(String),
 }
 
 /// The drive actor.
 #[derive(Debug, Clone)]
-pub struct DriveActor {
+pub(crate) struct DriveActor {
     pub ports: Arc<RobotPorts>,
     pub drive: DiffDrive,
     pub counters: Counters,
@@ -46,7 +43,7 @@ pub struct DriveActor {
 
 /// Its state. Dropping it (any way the actor ends) stops the wheels.
 #[derive(Debug)]
-pub struct DriveState {
+pub(crate) struct DriveState {
     _watch: AbortOnDrop<()>,
     bus: Option<BusLink>,
     health: HealthCell,
@@ -256,8 +253,6 @@ impl Actor for DriveActor {
                 };
                 self.send(state, MasterCommand::SetTargets(targets.to_vec()));
             }
-            #[cfg(feature = "fault-injection")]
-            DriveMsg::InjectFailure(why) => return Err(why.into()),
         }
         self.update_health(state);
         Ok(())

@@ -12,21 +12,18 @@ use super::status::{Counters, HealthCell};
 use amr_msgs::{Device, Health};
 
 /// The LPMS-B2 gyro's largest range, ±2000 °/s (LP-Research data sheet); beyond it a value is junk.
-pub const MAX_YAW_RATE_RADPS: f64 = 2000.0 * std::f64::consts::PI / 180.0;
+pub(crate) const MAX_YAW_RATE_RADPS: f64 = 2000.0 * std::f64::consts::PI / 180.0;
 
 /// Messages of the IMU actor.
 #[derive(Debug)]
-pub enum ImuMsg {
+pub(crate) enum ImuMsg {
     Driver(ImuMessage),
     DriverEnded,
-    /// Fail now, as a bug would (drills).
-    #[cfg(feature = "fault-injection")]
-    InjectFailure(String),
 }
 
 /// The IMU actor.
 #[derive(Debug, Clone)]
-pub struct ImuActor {
+pub(crate) struct ImuActor {
     pub ports: Arc<RobotPorts>,
     pub config: LpmsConfig,
     pub counters: Counters,
@@ -35,7 +32,7 @@ pub struct ImuActor {
 }
 
 #[derive(Debug)]
-pub struct ImuState {
+pub(crate) struct ImuState {
     _driver: AbortOnDrop<()>,
     _pump: AbortOnDrop<()>,
     health: HealthCell,
@@ -111,8 +108,6 @@ impl Actor for ImuActor {
                 self.counters.rejected("imu: protocol or device error");
             }
             ImuMsg::DriverEnded => return Err("the LPBUS driver task ended".into()),
-            #[cfg(feature = "fault-injection")]
-            ImuMsg::InjectFailure(why) => return Err(why.into()),
         }
         Ok(())
     }

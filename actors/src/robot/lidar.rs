@@ -28,7 +28,7 @@ pub enum LidarMsg {
 
 /// The LiDAR actor.
 #[derive(Debug, Clone)]
-pub struct LidarActor {
+pub(crate) struct LidarActor {
     pub ports: Arc<RobotPorts>,
     pub config: LidarConfig,
     pub counters: Counters,
@@ -38,7 +38,7 @@ pub struct LidarActor {
 
 /// Its state.
 #[derive(Debug)]
-pub struct LidarState {
+pub(crate) struct LidarState {
     _driver: AbortOnDrop<()>,
     _pump: AbortOnDrop<()>,
     health: HealthCell,

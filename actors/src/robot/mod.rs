@@ -138,7 +138,7 @@ impl RobotTree {
 
 /// The safety parameters of a robot configuration.
 #[must_use]
-pub fn safety_params(cfg: &RobotConfig) -> SafetyParams {
+pub(crate) fn safety_params(cfg: &RobotConfig) -> SafetyParams {
     SafetyParams {
         max_speed_mps: cfg.limits.max_speed_mps.get(),
         max_yaw_rate_radps: cfg.limits.max_yaw_rate_radps.get(),

@@ -13,7 +13,7 @@ use super::status::HealthCell;
 use amr_msgs::{Device, Health, OdomMsg};
 
 /// A gyro reading older than this is not used for heading.
-pub const GYRO_FRESH_S: f64 = 0.1;
+pub(crate) const GYRO_FRESH_S: f64 = 0.1;
 /// Weight of each stationary reading in the bias estimate.
 const BIAS_GAIN: f64 = 0.02;
 /// Wheel travel below this per cycle counts as standing still, m.
@@ -21,20 +21,20 @@ const STILL_M: f64 = 1e-5;
 
 /// Messages of the odometry actor.
 #[derive(Debug)]
-pub enum OdomMsgIn {
+pub(crate) enum OdomMsgIn {
     Wheels(WheelTravel),
     Gyro(ImuReading),
 }
 
 /// The odometry actor.
 #[derive(Debug, Clone)]
-pub struct OdometryActor {
+pub(crate) struct OdometryActor {
     pub ports: Arc<RobotPorts>,
     pub track_width_m: f64,
 }
 
 #[derive(Debug)]
-pub struct OdometryState {
+pub(crate) struct OdometryState {
     pose: Se2,
     seq: u64,
     /// Sum and count of gyro rates since the last wheel travel.
@@ -47,7 +47,7 @@ pub struct OdometryState {
 
 /// The motion along an arc of length `ds` turning by `dtheta`, in the start frame.
 #[must_use]
-pub fn arc(ds: f64, dtheta: f64) -> Se2 {
+pub(crate) fn arc(ds: f64, dtheta: f64) -> Se2 {
     if dtheta.abs() < 1e-9 {
         return Se2::new(ds * (0.5 * dtheta).cos(), ds * (0.5 * dtheta).sin(), dtheta);
     }

@@ -101,7 +101,7 @@ impl RobotPorts {
 pub struct StreamConnector(pub std::sync::Arc<dyn Fn() -> ConnectFuture + Send + Sync>);
 
 /// A connection being opened.
-pub type ConnectFuture =
+pub(crate) type ConnectFuture =
     std::pin::Pin<Box<dyn Future<Output = std::io::Result<tokio::io::DuplexStream>> + Send>>;
 
 impl std::fmt::Debug for StreamConnector {

@@ -24,7 +24,7 @@ use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, HealthReport, Sa
 
 /// The limits and timings of the safety layer (from `[limits]` and `[safety]`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SafetyParams {
+pub(crate) struct SafetyParams {
     pub max_speed_mps: f64,
     pub max_yaw_rate_radps: f64,
     pub max_accel_mps2: f64,
@@ -36,7 +36,7 @@ pub struct SafetyParams {
 
 /// Why a command was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refusal {
+pub(crate) enum Refusal {
     NotArmed,
     /// Its sequence number is not above the last accepted one (a replay or reordering), or below
     /// the floor set by the last arm.
@@ -48,7 +48,7 @@ pub enum Refusal {
 
 /// The safety layer's decisions.
 #[derive(Debug, Clone)]
-pub struct SafetyCore {
+pub(crate) struct SafetyCore {
     params: SafetyParams,
     state: SafetyState,
     /// The last accepted command and when it arrived.
@@ -62,7 +62,7 @@ pub struct SafetyCore {
 
 impl SafetyCore {
     #[must_use]
-    pub fn new(params: SafetyParams) -> Self {
+    pub(crate) fn new(params: SafetyParams) -> Self {
         SafetyCore {
             params,
             state: SafetyState::Disarmed(DisarmReason::Startup),
@@ -75,18 +75,19 @@ impl SafetyCore {
     }
 
     #[must_use]
-    pub fn state(&self) -> SafetyState {
+    pub(crate) fn state(&self) -> SafetyState {
         self.state
     }
 
     /// The twist currently output.
+    #[cfg(test)]
     #[must_use]
-    pub fn output(&self) -> (f64, f64) {
+    pub(crate) fn output(&self) -> (f64, f64) {
         self.output
     }
 
     /// Arm: accept commands with `seq >= floor`, starting the watchdog now.
-    pub fn arm(&mut self, floor: u64, now_s: f64) -> bool {
+    pub(crate) fn arm(&mut self, floor: u64, now_s: f64) -> bool {
         match self.state {
             SafetyState::Disarmed(_) => {
                 self.state = SafetyState::Armed;
@@ -106,7 +107,7 @@ impl SafetyCore {
     }
 
     /// Disarm (ramp to zero); kept if already e-stopped or faulted.
-    pub fn disarm(&mut self, reason: DisarmReason) {
+    pub(crate) fn disarm(&mut self, reason: DisarmReason) {
         if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
             self.state = SafetyState::Disarmed(reason);
             self.command = None;
@@ -115,7 +116,7 @@ impl SafetyCore {
 
     /// Disarm and drop the output to zero at once: the drives were lost, so they have stopped
     /// already; ramping on from the old speed would make them move again, disarmed, when they return.
-    pub fn halt(&mut self) {
+    pub(crate) fn halt(&mut self) {
         if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
             self.state = SafetyState::Disarmed(DisarmReason::DeviceLost);
             self.command = None;
@@ -124,7 +125,7 @@ impl SafetyCore {
     }
 
     /// Latch the e-stop (a fault stays a fault).
-    pub fn estop(&mut self) {
+    pub(crate) fn estop(&mut self) {
         if self.state != SafetyState::Fault {
             self.state = SafetyState::EStop;
             self.command = None;
@@ -133,7 +134,7 @@ impl SafetyCore {
     }
 
     /// Clear the e-stop: the robot is disarmed until armed again.
-    pub fn reset_estop(&mut self) -> bool {
+    pub(crate) fn reset_estop(&mut self) -> bool {
         if self.state == SafetyState::EStop {
             self.state = SafetyState::Disarmed(DisarmReason::EStopReset);
             true
@@ -142,15 +143,17 @@ impl SafetyCore {
         }
     }
 
-    /// Latch a fault: stopped until the robot is restarted.
-    pub fn fault(&mut self) {
+    /// Latch a fault: stopped until the robot is restarted. (Only the tests call it: a supervisor's
+    /// escalation latches `Fault` on the robot's ports directly, `robot/mod.rs`.)
+    #[cfg(test)]
+    pub(crate) fn fault(&mut self) {
         self.state = SafetyState::Fault;
         self.command = None;
         self.output = (0.0, 0.0);
     }
 
     /// Offer a command that arrived at `now_s`.
-    pub fn offer(&mut self, c: Command, now_s: f64) -> Result<(), Refusal> {
+    pub(crate) fn offer(&mut self, c: Command, now_s: f64) -> Result<(), Refusal> {
         if self.state != SafetyState::Armed {
             return Err(Refusal::NotArmed);
         }
@@ -169,7 +172,7 @@ impl SafetyCore {
     }
 
     /// One control cycle at `now_s`: the wheel command to apply.
-    pub fn tick(&mut self, now_s: f64) -> WheelCommand {
+    pub(crate) fn tick(&mut self, now_s: f64) -> WheelCommand {
         let p = self.params;
         let dt = self.last_tick_s.map_or(p.period_s, |t| (now_s - t).clamp(0.0, 10.0 * p.period_s));
         self.last_tick_s = Some(now_s);
@@ -209,16 +212,12 @@ fn ramp_wheels(from: (f64, f64), to: (f64, f64), dv: f64, track_m: f64) -> (f64,
 
 /// Messages of the safety actor.
 #[derive(Debug)]
-pub enum SafetyMsg {
+pub(crate) enum SafetyMsg {
     Tick,
     Link(Downlink),
     Health(HealthReport),
     EStop,
     ResetEStop,
-    /// A supervisor escalated.
-    Fault(String),
-    /// The current state (for tests and the CLI).
-    State(ractor::RpcReplyPort<SafetyState>),
 }
 
 /// Operator controls of the safety layer.
@@ -230,7 +229,7 @@ pub enum SafetyControl {
 
 /// The safety actor.
 #[derive(Debug, Clone)]
-pub struct SafetyActor {
+pub(crate) struct SafetyActor {
     pub ports: Arc<RobotPorts>,
     pub params: SafetyParams,
     pub counters: Counters,
@@ -239,7 +238,7 @@ pub struct SafetyActor {
 }
 
 #[derive(Debug)]
-pub struct SafetyActorState {
+pub(crate) struct SafetyActorState {
     core: SafetyCore,
     published: Option<SafetyState>,
     health: HealthCell,
@@ -338,14 +337,6 @@ impl Actor for SafetyActor {
             }
             SafetyMsg::ResetEStop => {
                 s.core.reset_estop();
-            }
-            SafetyMsg::Fault(why) => {
-                tracing::error!(robot = %self.ports.robot, %why, "safety: fault latched");
-                s.core.fault();
-                self.output(s);
-            }
-            SafetyMsg::State(reply) => {
-                let _ = reply.send(s.core.state());
             }
         }
         self.publish(s);

@@ -8,25 +8,25 @@ use amr_msgs::{Device, Health, HealthReport};
 
 /// One device's health: published on the health port when it changes, and logged.
 #[derive(Debug)]
-pub struct HealthCell {
+pub(crate) struct HealthCell {
     device: Device,
     current: Option<Health>,
 }
 
 impl HealthCell {
     #[must_use]
-    pub fn new(device: Device) -> Self {
+    pub(crate) fn new(device: Device) -> Self {
         HealthCell { device, current: None }
     }
 
     /// The last health set.
     #[must_use]
-    pub fn get(&self) -> Option<Health> {
+    pub(crate) fn get(&self) -> Option<Health> {
         self.current
     }
 
     /// Set the health; publish and log only a change.
-    pub fn set(&mut self, ports: &RobotPorts, health: Health, detail: impl Into<String>) {
+    pub(crate) fn set(&mut self, ports: &RobotPorts, health: Health, detail: impl Into<String>) {
         if self.current == Some(health) {
             return;
         }

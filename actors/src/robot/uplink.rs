@@ -17,7 +17,7 @@ const HISTORY_S: f64 = 1.0;
 
 /// Messages of the uplink actor.
 #[derive(Debug)]
-pub enum UplinkMsg {
+pub(crate) enum UplinkMsg {
     Scan(ScanMsg),
     Odom(OdomMsg),
     Health(HealthReport),
@@ -28,11 +28,11 @@ pub enum UplinkMsg {
 
 /// Period of the full health re-send: the server learns the state even of what changed before it
 /// (or this actor) was listening.
-pub const RESEND_PERIOD: std::time::Duration = std::time::Duration::from_secs(1);
+pub(crate) const RESEND_PERIOD: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// The uplink actor.
 #[derive(Debug, Clone)]
-pub struct UplinkActor {
+pub(crate) struct UplinkActor {
     pub ports: Arc<RobotPorts>,
     pub link: UplinkSender,
     /// Send odometry every this many odometry updates (1 = all).
@@ -40,7 +40,7 @@ pub struct UplinkActor {
 }
 
 #[derive(Debug, Default)]
-pub struct UplinkState {
+pub(crate) struct UplinkState {
     history: VecDeque<OdomMsg>,
     seq: u64,
 }
@@ -48,7 +48,7 @@ pub struct UplinkState {
 /// The odometry pose at `t` from a time-ordered history: interpolated between the two updates
 /// around it, or the nearest end.
 #[must_use]
-pub fn odom_at(history: &VecDeque<OdomMsg>, t: f64) -> Option<Se2> {
+pub(crate) fn odom_at(history: &VecDeque<OdomMsg>, t: f64) -> Option<Se2> {
     let after = history.iter().position(|o| o.stamp_s >= t);
     match after {
         None => history.back().map(|o| o.pose),

@@ -28,8 +28,8 @@ use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, ScanMsg, StageTim
 const BUFFER: usize = 3;
 
 /// Spread of the initial particle clouds (a pose given by the operator or the scenario).
-pub const INITIAL_STD_XY_M: f64 = 0.1;
-pub const INITIAL_STD_YAW_RAD: f64 = 0.05;
+pub(crate) const INITIAL_STD_XY_M: f64 = 0.1;
+pub(crate) const INITIAL_STD_YAW_RAD: f64 = 0.05;
 
 /// One formation member as the fusion sees it.
 #[derive(Debug, Clone)]
@@ -259,7 +259,7 @@ impl ServerCore {
     }
 
     /// Robots whose last scan arrived more than `lost_after_s` before `now_s`: the ones newly lost.
-    pub fn check_lost(&mut self, now_s: f64, lost_after_s: f64) -> Vec<usize> {
+    pub(crate) fn check_lost(&mut self, now_s: f64, lost_after_s: f64) -> Vec<usize> {
         let mut newly = Vec::new();
         for i in 0..self.members.len() {
             let last = self.scans[i].back().map(|h| h.rx_s);

@@ -25,7 +25,7 @@ use amr_msgs::{Anchored, Estimate, EstimateSource, FusionStatus};
 use amr_msgs::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
 
 /// An estimate older than this is not used for control, s.
-pub const ESTIMATE_FRESH_S: f64 = 0.5;
+pub(crate) const ESTIMATE_FRESH_S: f64 = 0.5;
 /// Robots that do not confirm an arm within this long are asked again, s.
 const ARM_TIMEOUT_S: f64 = 2.0;
 /// A formation that is first armed with V farther than this from the plan's start (a restarted
@@ -68,7 +68,7 @@ pub struct FormationStatus {
 
 /// Settings of the formation actor.
 #[derive(Debug, Clone)]
-pub struct FormationParams {
+pub(crate) struct FormationParams {
     /// V's reference, sampled every `period_s`.
     pub plan: Arc<Vec<Reference>>,
     pub period_s: f64,
@@ -98,7 +98,7 @@ pub enum FormationMsg {
 
 /// The formation actor.
 #[derive(Debug, Clone)]
-pub struct FormationActor {
+pub(crate) struct FormationActor {
     pub ports: Arc<ServerPorts>,
     pub params: FormationParams,
     pub link: DownlinkSender,
@@ -117,7 +117,7 @@ struct RobotView {
 }
 
 #[derive(Debug)]
-pub struct FormationState {
+pub(crate) struct FormationState {
     phase: Phase,
     robots: Vec<RobotView>,
     plan_s: f64,

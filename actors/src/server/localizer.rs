@@ -30,7 +30,7 @@ pub enum LocalizerMsg {
 
 /// The localizer actor.
 #[derive(Debug, Clone)]
-pub struct LocalizerActor {
+pub(crate) struct LocalizerActor {
     pub ports: Arc<ServerPorts>,
     pub setup: CoreSetup,
     /// A robot whose last scan is older than this is lost, s.
@@ -38,7 +38,7 @@ pub struct LocalizerActor {
 }
 
 #[derive(Debug)]
-pub struct LocalizerState {
+pub(crate) struct LocalizerState {
     core: ServerCore,
     /// The drill's stall per scan, and until when.
     #[cfg(feature = "fault-injection")]

@@ -38,9 +38,9 @@ use localizer::{LocalizerActor, LocalizerMsg};
 use ports::ServerPorts;
 
 /// Control period of the formation, s.
-pub const FORMATION_PERIOD_S: f64 = 0.05;
+pub(crate) const FORMATION_PERIOD_S: f64 = 0.05;
 /// A robot whose scans stop for this long is lost, s (about 7 scan periods at 15 Hz).
-pub const LOST_AFTER_S: f64 = 0.5;
+pub(crate) const LOST_AFTER_S: f64 = 0.5;
 
 /// Run CPU-heavy work (a pipeline update, an AMCL update) without stalling the runtime's other
 /// tasks — in a simulation the robots' safety loops share it: on a multi-thread runtime the worker

@@ -80,11 +80,11 @@ use tokio::time::Instant;
 mod tests;
 
 /// How long the supervisor waits for a child to stop (and then again for it to die once killed).
-pub const STOP_TIMEOUT: Duration = Duration::from_secs(2);
+pub(crate) const STOP_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// What starting a child returns: the new child's cell, or ractor's spawn error (e.g. its
 /// `pre_start` failed).
-pub type StartFuture = Pin<Box<dyn Future<Output = Result<ActorCell, SpawnErr>> + Send>>;
+pub(crate) type StartFuture = Pin<Box<dyn Future<Output = Result<ActorCell, SpawnErr>> + Send>>;
 
 /// How a child is started: given the supervisor's cell, spawn a fresh instance linked to it.
 type StartFn = dyn Fn(ActorCell) -> StartFuture + Send + Sync;
@@ -92,7 +92,7 @@ type StartFn = dyn Fn(ActorCell) -> StartFuture + Send + Sync;
 /// One child: a name (unique within its supervisor) and how to start a fresh instance linked to
 /// the supervisor.
 #[derive(Clone)]
-pub struct ChildSpec {
+pub(crate) struct ChildSpec {
     /// The child's name in the event log and in tracing; not a ractor (global) actor name.
     pub name: String,
     start: Arc<StartFn>,
@@ -102,7 +102,7 @@ impl ChildSpec {
     /// A child of actor type `A`. `make` builds a fresh actor value and its arguments for every
     /// (re)start; the child is spawned unnamed (ractor names are global) with
     /// `A::spawn_linked(None, actor, args, supervisor)`.
-    pub fn new<A, F>(name: impl Into<String>, make: F) -> Self
+    pub(crate) fn new<A, F>(name: impl Into<String>, make: F) -> Self
     where
         A: Actor,
         F: Fn() -> (A, A::Arguments) + Send + Sync + 'static,
@@ -119,7 +119,7 @@ impl ChildSpec {
     /// A child started by a custom function, for the cases [`ChildSpec::new`] does not cover.
     /// `start` gets the supervisor's cell and must link the new actor to it (e.g. spawn it with
     /// `spawn_linked(.., supervisor)`), otherwise the supervisor never hears of its failures.
-    pub fn from_start_fn<F>(name: impl Into<String>, start: F) -> Self
+    pub(crate) fn from_start_fn<F>(name: impl Into<String>, start: F) -> Self
     where
         F: Fn(ActorCell) -> StartFuture + Send + Sync + 'static,
     {
@@ -135,7 +135,7 @@ impl fmt::Debug for ChildSpec {
 
 /// Which children are restarted when one fails.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Strategy {
+pub(crate) enum Strategy {
     /// Restart only the failed child: for independent children (e.g. the sensors).
     OneForOne,
     /// Stop the children listed after the failed one, then restart it and them in order: for
@@ -183,7 +183,7 @@ impl Default for RestartPolicy {
 
 /// Everything a [`Supervisor`] is started with.
 #[derive(Clone, Debug)]
-pub struct SupervisorSpec {
+pub(crate) struct SupervisorSpec {
     /// The supervisor's name in the event log and in tracing (not a ractor actor name).
     pub name: String,
     pub strategy: Strategy,
@@ -198,7 +198,7 @@ pub struct SupervisorSpec {
 /// choice), or as the child of another supervisor: `ChildSpec::new("sensors", move || (Supervisor,
 /// spec.clone()))`.
 #[derive(Debug)]
-pub struct Supervisor;
+pub(crate) struct Supervisor;
 
 /// Messages to a [`Supervisor`].
 #[derive(Debug)]
@@ -383,7 +383,7 @@ struct Child {
 
 /// The state of a running [`Supervisor`] (opaque).
 #[derive(Debug)]
-pub struct SupervisorState {
+pub(crate) struct SupervisorState {
     name: String,
     strategy: Strategy,
     policy: RestartPolicy,
