@@ -27,6 +27,20 @@ use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, ScanMsg, StageTim
 /// Scans kept per robot for pairing.
 const BUFFER: usize = 3;
 
+/// What the server accepts of a scan: limits wide enough for any 2D LiDAR a robot of ours could
+/// carry (the TiM551: 271 beams 1° apart over 270°, 0.05–10 m; the densest common scanners
+/// step about 0.1°), narrow enough that no scan can make the pipeline allocate without bound or
+/// divide by nothing (issue 19 §7).
+pub const MAX_BEAMS: usize = 4096;
+/// Smallest and largest angle between beams, rad (0.03° and 11.5°).
+pub const MIN_ANGLE_STEP_RAD: f64 = 5e-4;
+pub const MAX_ANGLE_STEP_RAD: f64 = 0.2;
+/// Longest measuring range a scan may claim, m.
+pub const MAX_RANGE_M: f64 = 100.0;
+/// A scan stamped later than this after it was received is refused: the robot's clock is ahead
+/// (its stamps would hold back every later scan of that robot), s.
+pub const MAX_FUTURE_S: f64 = 0.5;
+
 /// Spread of the initial particle clouds (a pose given by the operator or the scenario).
 pub(crate) const INITIAL_STD_XY_M: f64 = 0.1;
 pub(crate) const INITIAL_STD_YAW_RAD: f64 = 0.05;
@@ -98,7 +112,79 @@ pub struct Step {
     /// the flag: no robot is lost any more.
     pub back: Option<bool>,
     /// Why a scan was not used.
-    pub refused: Option<&'static str>,
+    pub refused: Option<Refusal>,
+}
+
+/// Why the core did not use a scan.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Refusal {
+    #[error("robot `{0}` is not in the formation")]
+    UnknownRobot(String),
+    #[error("a scan without odometry")]
+    NoOdometry,
+    #[error("{0} beams (1..={MAX_BEAMS})")]
+    BeamCount(usize),
+    #[error(
+        "angle step {0} rad (|step| in {MIN_ANGLE_STEP_RAD}..={MAX_ANGLE_STEP_RAD}, the sweep at most a turn)"
+    )]
+    AngleStep(f64),
+    #[error("first beam angle {0} rad (within ±2π)")]
+    AngleMin(f64),
+    #[error("measuring range {0}..{1} m (0 <= min < max <= {MAX_RANGE_M})")]
+    Range(f64, f64),
+    #[error("stamp {stamp_s} s, received at {rx_s} s (finite, at most {MAX_FUTURE_S} s ahead)")]
+    Stamp { stamp_s: f64, rx_s: f64 },
+    #[error("a non-finite odometry pose")]
+    Odometry,
+    #[error("a scan not newer than the robot's last (duplicate or reordered)")]
+    NotNewer,
+}
+
+impl Refusal {
+    /// A short name for counters.
+    #[must_use]
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Refusal::UnknownRobot(_) => "unknown-robot",
+            Refusal::NoOdometry | Refusal::Odometry => "odometry",
+            Refusal::BeamCount(_) | Refusal::AngleStep(_) | Refusal::AngleMin(_) | Refusal::Range(..) => {
+                "geometry"
+            }
+            Refusal::Stamp { .. } => "stamp",
+            Refusal::NotNewer => "not-newer",
+        }
+    }
+}
+
+/// A scan from the link, checked against what any real sensor can send.
+fn check_scan(s: &ScanMsg, rx_s: f64) -> Result<Se2, Refusal> {
+    let scan = &s.scan;
+    let n = scan.len();
+    if n == 0 || n > MAX_BEAMS {
+        return Err(Refusal::BeamCount(n));
+    }
+    let step = scan.angle_increment_rad;
+    let sweep = step.abs() * (n - 1) as f64;
+    if !(step.is_finite() && (MIN_ANGLE_STEP_RAD..=MAX_ANGLE_STEP_RAD).contains(&step.abs()))
+        || sweep > std::f64::consts::TAU
+    {
+        return Err(Refusal::AngleStep(step));
+    }
+    if !(scan.angle_min_rad.is_finite() && scan.angle_min_rad.abs() <= std::f64::consts::TAU) {
+        return Err(Refusal::AngleMin(scan.angle_min_rad));
+    }
+    let (lo, hi) = (scan.range_min_m, scan.range_max_m);
+    if !(lo.is_finite() && hi.is_finite() && 0.0 <= lo && lo < hi && hi <= MAX_RANGE_M) {
+        return Err(Refusal::Range(lo, hi));
+    }
+    if !(s.stamp_s.is_finite() && rx_s.is_finite() && s.stamp_s <= rx_s + MAX_FUTURE_S) {
+        return Err(Refusal::Stamp { stamp_s: s.stamp_s, rx_s });
+    }
+    let odom = s.odom.ok_or(Refusal::NoOdometry)?;
+    if !(odom.x.is_finite() && odom.y.is_finite() && odom.theta.is_finite()) {
+        return Err(Refusal::Odometry);
+    }
+    Ok(odom)
 }
 
 #[derive(Debug)]
@@ -215,21 +301,26 @@ impl ServerCore {
     }
 
     /// One uplink message, received at `rx_s` (also the time of fusion: the sync gate's age
-    /// test and the acquisition latency use it). Only scans of formation members do anything.
+    /// test and the acquisition latency use it). Only scans of formation members do anything;
+    /// a scan no real sensor could send is refused with the reason (no input can make the core
+    /// panic or allocate without bound: `tests::any_uplink_is_used_or_refused_never_a_panic`).
     pub fn offer(&mut self, msg: &Uplink, rx_s: f64, lap: &mut dyn FnMut(Lap)) -> Step {
         let mut step = Step::default();
         let Uplink::Scan(s) = msg else { return step };
         let Some(i) = self.index(&s.robot) else {
-            step.refused = Some("a scan from a robot not in the formation");
+            step.refused = Some(Refusal::UnknownRobot(s.robot.clone()));
             return step;
         };
         step.robot = Some(i);
-        let Some(odom) = s.odom else {
-            step.refused = Some("a scan without odometry");
-            return step;
+        let odom = match check_scan(s, rx_s) {
+            Ok(odom) => odom,
+            Err(r) => {
+                step.refused = Some(r);
+                return step;
+            }
         };
         if self.scans[i].back().is_some_and(|b| b.stamp_s >= s.stamp_s) {
-            step.refused = Some("a scan not newer than the last (duplicate or reordered)");
+            step.refused = Some(Refusal::NotNewer);
             return step;
         }
         self.robot_amcl(i, s, odom, &mut step);
@@ -397,3 +488,6 @@ impl ServerCore {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -103,8 +103,12 @@ impl Actor for LocalizerActor {
                         }
                     })
                 });
-                if let Some(why) = step.refused {
-                    tracing::debug!(robot = %u.robot(), why, "localizer: scan refused");
+                if let Some(why) = &step.refused {
+                    let n = self.ports.stats.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    // The first few, then every 1000th: a robot sending garbage cannot flood the log.
+                    if n < 10 || n.is_multiple_of(1000) {
+                        tracing::warn!(robot = %u.robot(), kind = why.kind(), %why, refused = n + 1, "localizer: scan refused");
+                    }
                 }
                 self.publish(&state.core, step, times, amcl_s);
             }

@@ -32,6 +32,8 @@ pub struct ServerStats {
     pub fused: AtomicU64,
     /// Sets refused by the sync gate.
     pub gate_failures: AtomicU64,
+    /// Scans the core refused (a robot not in the formation, impossible geometry or stamps).
+    pub refused: AtomicU64,
     /// Heading searches over the full circle (first acquisition and every re-acquisition).
     pub full_searches: AtomicU64,
     /// Robots declared lost, and back.

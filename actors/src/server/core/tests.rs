@@ -1,0 +1,170 @@
+#![allow(clippy::unwrap_used, reason = "tests")]
+
+use std::sync::Arc;
+
+use amr_core::config::value::Count;
+use amr_core::scan::Scan;
+use proptest::prelude::*;
+
+use super::*;
+use crate::config::{ConfigSource, load};
+
+/// The shipped server on the paper site, with few particles (fast in a debug build).
+fn core() -> ServerCore {
+    let config = load(&ConfigSource::Embedded).unwrap();
+    let mut amcl = config.amcl.clone();
+    amcl.min_particles = Count::new(100).unwrap();
+    amcl.max_particles = Count::new(100).unwrap();
+    let map = &config.maps["paper-site"];
+    let members = ["robot-a", "robot-b"]
+        .iter()
+        .zip([0.45, -0.45])
+        .map(|(id, y)| Member {
+            id: (*id).to_owned(),
+            lidar_to_base: Se2::new(0.175, 0.0, 0.0),
+            chassis: config.robots[0].chassis.outline_m.clone(),
+            weight: 1.0,
+            slot_y_m: y,
+        })
+        .collect();
+    ServerCore::new(CoreSetup {
+        members,
+        configurations: vec![Configuration::T4],
+        vamr: config.vamr.clone(),
+        max_spread_s: 0.05,
+        max_age_s: 0.1,
+        field: Arc::new(LikelihoodField::new(map, &amcl, 10.0)),
+        amcl,
+        initial_v: Se2::new(-2.0, 0.0, 0.0),
+        seed: 1,
+    })
+}
+
+fn scan(robot: &str, stamp_s: f64, step: f64, n: usize) -> Uplink {
+    Uplink::Scan(ScanMsg {
+        robot: robot.to_owned(),
+        seq: 1,
+        stamp_s,
+        received_s: stamp_s,
+        scan: Arc::new(Scan::new(-135f64.to_radians(), step, 0.05, 10.0, vec![3.0; n])),
+        odom: Some(Se2::IDENTITY),
+    })
+}
+
+fn tim551(robot: &str, stamp_s: f64) -> Uplink {
+    scan(robot, stamp_s, 1f64.to_radians(), 271)
+}
+
+#[test]
+fn impossible_geometry_is_refused_with_its_reason() {
+    let mut c = core();
+    let refused = |c: &mut ServerCore, u: &Uplink| c.offer(u, 1.0, &mut |_| {}).refused;
+    assert_eq!(refused(&mut c, &scan("robot-a", 1.0, 0.0, 271)), Some(Refusal::AngleStep(0.0)));
+    assert_eq!(refused(&mut c, &scan("robot-a", 1.0, 1e-9, 271)), Some(Refusal::AngleStep(1e-9)));
+    assert_eq!(refused(&mut c, &scan("robot-a", 1.0, f64::NAN, 271)).map(|r| r.kind()), Some("geometry"));
+    // 271 beams 2° apart sweep more than a turn.
+    assert!(matches!(
+        refused(&mut c, &scan("robot-a", 1.0, 2f64.to_radians(), 271)),
+        Some(Refusal::AngleStep(_))
+    ));
+    assert_eq!(refused(&mut c, &scan("robot-a", 1.0, 1e-3, 5000)), Some(Refusal::BeamCount(5000)));
+    assert_eq!(refused(&mut c, &scan("robot-a", 1.0, 1e-3, 0)), Some(Refusal::BeamCount(0)));
+    assert_eq!(refused(&mut c, &tim551("robot-c", 1.0)), Some(Refusal::UnknownRobot("robot-c".into())));
+    assert_eq!(refused(&mut c, &tim551("robot-a", f64::NAN)).map(|r| r.kind()), Some("stamp"));
+    assert_eq!(refused(&mut c, &tim551("robot-a", 1.0)), None, "a TiM551 scan");
+    assert_eq!(refused(&mut c, &tim551("robot-a", 1.0)), Some(Refusal::NotNewer));
+}
+
+#[test]
+fn a_future_stamp_is_refused_and_does_not_hold_back_later_scans() {
+    let mut c = core();
+    let mut fused = 0;
+    // Robot-a's clock jumps an hour ahead once.
+    let step = c.offer(&tim551("robot-a", 3600.0), 0.0, &mut |_| {});
+    assert!(matches!(step.refused, Some(Refusal::Stamp { .. })), "{:?}", step.refused);
+    for k in 0..10 {
+        let t = 0.1 + f64::from(k) / 15.0;
+        for r in ["robot-a", "robot-b"] {
+            let step = c.offer(&tim551(r, t), t + 0.01, &mut |_| {});
+            assert_eq!(step.refused, None, "{r} at {t}");
+            fused += step.fusions.len();
+        }
+    }
+    assert_eq!(fused, 10, "every pair of scans fused");
+}
+
+fn any_f64() -> impl Strategy<Value = f64> {
+    prop_oneof![
+        Just(0.0),
+        Just(-0.0),
+        Just(f64::NAN),
+        Just(f64::INFINITY),
+        Just(f64::NEG_INFINITY),
+        Just(f64::MIN_POSITIVE),
+        Just(1e-300),
+        Just(1f64.to_radians()),
+        -10.0..10.0f64,
+        any::<f64>(),
+    ]
+}
+
+fn any_uplink() -> impl Strategy<Value = (Uplink, f64)> {
+    (
+        prop_oneof![Just("robot-a"), Just("robot-b"), Just("robot-x")],
+        prop_oneof![0usize..400, Just(271), 4090usize..4200],
+        (any_f64(), any_f64(), any_f64(), any_f64()),
+        (any_f64(), 0.0..1e6f64, proptest::option::of((any_f64(), any_f64(), any_f64()))),
+        proptest::collection::vec(any_f64(), 0..16),
+        any::<bool>(),
+    )
+        .prop_map(|(robot, n, (min, step, lo, hi), (stamp, rx, odom), pattern, sane)| {
+            // Half the scans have a TiM551's geometry and a plausible stamp, so the pipeline and
+            // the filters run on whatever ranges and odometry come with them.
+            let (min, step, lo, hi, stamp) = if sane {
+                (-2.356, 1f64.to_radians(), 0.05, 10.0, rx - 0.01)
+            } else {
+                (min, step, lo, hi, stamp)
+            };
+            let ranges =
+                (0..n).map(|i| pattern.get(i % pattern.len().max(1)).copied().unwrap_or(2.0)).collect();
+            let u = Uplink::Scan(ScanMsg {
+                robot: robot.to_owned(),
+                seq: 0,
+                stamp_s: stamp,
+                received_s: stamp,
+                scan: Arc::new(Scan::new(min, step, lo, hi, ranges)),
+                odom: odom.map(|(x, y, t)| Se2 { x, y, theta: t }),
+            });
+            (u, rx)
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+
+    /// The server's whole scan path (the checks, both robots' AMCL, the Virtual-AMR pipeline, AMCL
+    /// on the virtual scan) takes any scan a network peer could send: used or refused, never a
+    /// panic, and the core still fuses good scans afterwards.
+    #[test]
+    fn any_uplink_is_used_or_refused_never_a_panic(inputs in proptest::collection::vec(any_uplink(), 1..6)) {
+        let mut c = core();
+        for (u, rx) in &inputs {
+            let step = c.offer(u, *rx, &mut |_| {});
+            if step.refused.is_none() {
+                let Uplink::Scan(s) = u else { unreachable!() };
+                prop_assert!(check_scan(s, *rx).is_ok());
+            }
+        }
+        // The receive time is the server's own clock (never from the wire): after these, 2e6 s
+        // is later than any stamp the core can have accepted.
+        let late = 2e6;
+        let mut fused = 0;
+        for k in 0..3 {
+            let t = late + f64::from(k) / 15.0;
+            for r in ["robot-a", "robot-b"] {
+                fused += c.offer(&tim551(r, t), t + 0.01, &mut |_| {}).fusions.len();
+            }
+        }
+        prop_assert_eq!(fused, 3);
+    }
+}
