@@ -124,6 +124,8 @@ pub(crate) struct FormationState {
     lost: Option<usize>,
     arm_allowed: bool,
     published: Option<FormationStatus>,
+    /// When it was published, fleet-clock seconds.
+    published_at_s: f64,
 }
 
 impl RobotView {
@@ -358,14 +360,19 @@ impl FormationActor {
             plan_s: state.plan_s,
             plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
         };
-        // Changes at once; progress while running about once a second.
+        // Changes at once; progress while running about once a second; and the status as it is
+        // at least once a second, so an observer that subscribed late (a recorder, a restarted
+        // server's watcher) learns the phase without waiting for the next change.
+        let now = self.ports.clock.now_s();
         let progressed = state.published.as_ref().is_none_or(|p| (s.plan_s - p.plan_s).abs() >= 1.0);
-        if state.published.as_ref().map(|p| &p.phase) != Some(&s.phase) || progressed {
+        let stale = now - state.published_at_s >= 1.0;
+        if state.published.as_ref().map(|p| &p.phase) != Some(&s.phase) || progressed || stale {
             self.status.send(s.clone());
         } else {
             return;
         }
         state.published = Some(s);
+        state.published_at_s = now;
     }
 }
 
@@ -397,6 +404,7 @@ impl Actor for FormationActor {
             lost: None,
             arm_allowed: self.params.auto_arm,
             published: None,
+            published_at_s: f64::NEG_INFINITY,
         })
     }
 
