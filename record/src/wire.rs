@@ -28,6 +28,8 @@ pub enum WireError {
     Json(#[from] serde_json::Error),
     #[error("record version {found}, this build reads {VERSION}")]
     Version { found: u16 },
+    #[error("an uplink record without its receive time `rx_s`")]
+    NoReceiveTime,
 }
 
 /// One message as the server received it: `rx_s` is the server's reading of the fleet clock when
@@ -82,7 +84,7 @@ pub fn encode_uplink(rx_s: f64, msg: &Uplink) -> Result<Vec<u8>, WireError> {
 /// Decode one received uplink message.
 pub fn decode_uplink(bytes: &[u8]) -> Result<Received, WireError> {
     let (rx_s, msg) = decode(bytes)?;
-    Ok(Received { rx_s: rx_s.unwrap_or(f64::NAN), msg })
+    Ok(Received { rx_s: rx_s.ok_or(WireError::NoReceiveTime)?, msg })
 }
 
 /// Encode an estimate.

@@ -1,8 +1,7 @@
 //! LocalizerActor: drives the server's [`ServerCore`] with the uplink and its clock. Each scan goes
 //! through the core (the robot's own AMCL, the Virtual-AMR pipeline in the configured T1–T4, AMCL
 //! on the virtual scan); the actor publishes what comes out — estimates, fused frames with their
-//! stage times, particle clouds, each robot's `T_odom^map` — and watches for robots whose scans
-//! stopped (lost) and came back.
+//! stage times, particle clouds — and watches for robots whose scans stopped (lost) and came back.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -60,7 +59,6 @@ impl Actor for LocalizerActor {
             _ => None,
         });
         myself.send_interval(Duration::from_millis(100), || LocalizerMsg::Tick);
-        self.ports.corrections.send_replace(vec![None; self.setup.members.len()]);
         Ok(LocalizerState {
             core: ServerCore::new(self.setup.clone()),
             #[cfg(feature = "fault-injection")]
@@ -144,16 +142,10 @@ impl LocalizerActor {
                 ports.status.send(FusionStatus::Fusing);
             }
         }
-        ports.corrections.send_if_modified(|c| {
-            let changed = c.as_slice() != core.corrections();
-            if changed {
-                c.clone_from_slice(core.corrections());
-            }
-            changed
-        });
         for source in &step.updated {
             if let Some(f) = core.filter(*source) {
-                let stamp_s = step.estimates.first().map_or(0.0, |e| e.stamp_s);
+                // The stamp of the estimate the update gave.
+                let stamp_s = step.estimates.iter().find(|e| e.source == *source).map_or(0.0, |e| e.stamp_s);
                 let poses = Arc::new(f.particles().iter().map(|p| p.pose).collect());
                 ports.particles.send(ParticleCloud { source: *source, stamp_s, poses });
             }

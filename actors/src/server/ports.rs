@@ -3,9 +3,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use amr_core::se2::Se2;
 use ractor::OutputPort;
-use tokio::sync::watch;
 
 use crate::clock::FleetClock;
 use amr_msgs::{Downlink, Estimate, FusedFrame, FusionStatus, ParticleCloud, StageTimes, Uplink};
@@ -71,8 +69,6 @@ pub struct ServerPorts {
     pub particles: OutputPort<ParticleCloud>,
     /// Every message the formation sent down the link, with the robot's formation index.
     pub commands: OutputPort<(usize, Downlink)>,
-    /// Per robot: `T_odom^map` of its own AMCL (map pose = this · odometry pose).
-    pub corrections: watch::Sender<Vec<Option<Se2>>>,
     pub latency: LatencyLog,
     pub stats: ServerStats,
 }
@@ -90,7 +86,6 @@ impl ServerPorts {
             status: OutputPort::default(),
             particles: OutputPort::default(),
             commands: OutputPort::default(),
-            corrections: watch::Sender::new(vec![None; n]),
             latency: LatencyLog::default(),
             stats: ServerStats {
                 own_estimates: (0..n).map(|_| AtomicU64::new(0)).collect(),
