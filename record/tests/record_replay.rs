@@ -379,9 +379,10 @@ fn a_damaged_recording_never_panics_the_reader() {
 
 #[test]
 fn in_virtual_time_replay_is_exact_in_t1_t2_and_t3_too() {
-    // There the fusion reads the robots' AMCL corrections; in virtual time the AMCL actor has
-    // always taken the scan first, as the replay assumes. 4 s: T2's heading search needs the
-    // robots' AMCL poses within about 2 cm of each other, which the product model reaches after
+    // There the fusion takes relative poses from the robots' own AMCL, which the server core
+    // updates on each scan before fusing it, live and in the replay alike. 4 s: T2's heading
+    // search needs the robots' AMCL poses within about 2 cm of each other, which the product model
+    // reaches after
     // about 1 s from the start's spread (measured: 46 of 60 fused in T2, all 60 in T1 and T3).
     for c in [Configuration::T1, Configuration::T2, Configuration::T3] {
         let r = record(c, Clock::Virtual, 60);

@@ -481,8 +481,8 @@ const MAX_GAP_MS: f64 = 100.0;
 
 /// Drill 10: a stalled localisation (slow consumer) does not delay the robots' safety loops.
 ///
-/// For 5 s every update of the server's AMCL actor blocks its worker thread for 500 ms (a drill
-/// hook; the actor falls behind by a second's worth of scans every second). At the same moment
+/// For 5 s every scan the server's localizer actor takes blocks its worker thread for 500 ms first
+/// (a drill hook; the actor falls behind by a second's worth of scans every second). At the same moment
 /// robot-a's link is cut, so its watchdog must fire during the stall. Each robot's safety loop
 /// publishes a wheel command every 20 ms cycle; a probe actor stamps them. Checked: (a) the stall is
 /// real (the AMCL's per-robot estimates nearly stop) and robot-a's watchdog disarms it within
