@@ -177,9 +177,15 @@ pub(crate) async fn fail_forever(config: &Config, seed: u64, c: &mut Check) {
 /// Drill 3: the CAN bus actor fails; the drives actor is restarted after it.
 pub(crate) async fn can_bus_restart(config: &Config, seed: u64, c: &mut Check) {
     let Some(rig) = rig(config, seed, SimCan::Socketcand, c).await else { return };
-    let Some(drives_cell) = child(&rig.tree.supervisor, "drives").await else { return };
+    let Some(drives_cell) = child(&rig.tree.supervisor, "drives").await else {
+        c.fail("setup: the robot has no running `drives` supervisor");
+        return rig.tree.shutdown().await;
+    };
     let drives_sup: ActorRef<SupervisorMsg> = drives_cell.into();
-    let Some(bus) = child(&drives_sup, "can-bus").await else { return };
+    let Some(bus) = child(&drives_sup, "can-bus").await else {
+        c.fail("setup: the drives supervisor has no running `can-bus` actor");
+        return rig.tree.shutdown().await;
+    };
     let (boots, enables) = (rig.mocks.drives[0].now().boots, rig.mocks.drives[0].now().enables);
     let n0 = rig.tree.events.len();
     c.inject();
@@ -486,7 +492,9 @@ pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
 
 /// Drill 7: the LiDAR is absent when the robot starts.
 pub(crate) async fn absent_at_start(config: &Config, seed: u64, c: &mut Check) {
-    let Some(scenario) = config.scenarios.get("straight").cloned() else { return };
+    let Some(scenario) = config.scenarios.get("straight").cloned() else {
+        return c.fail("setup: the configuration has no `straight` scenario");
+    };
     // A port nobody listens on (yet).
     let port = match std::net::TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()) {
         Ok(a) => a.port(),

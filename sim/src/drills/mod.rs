@@ -298,7 +298,10 @@ pub fn table(outcomes: &[DrillOutcome]) -> String {
 
 /// A robot alone with its mocks, every device Ok.
 pub(crate) async fn rig(config: &Config, seed: u64, can: SimCan, c: &mut Check) -> Option<RobotRig> {
-    let scenario = config.scenarios.get("straight")?.clone();
+    let Some(scenario) = config.scenarios.get("straight").cloned() else {
+        c.fail("setup: the configuration has no `straight` scenario");
+        return None;
+    };
     let rig = match RobotRig::start(config, &scenario, seed, can, RobotOptions::default()).await {
         Ok(r) => r,
         Err(e) => {
