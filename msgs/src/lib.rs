@@ -23,6 +23,10 @@ use serde::{Deserialize, Serialize};
 /// The version of these types' encoding, on the network and in recordings.
 pub const SCHEMA_VERSION: u16 = 2;
 
+/// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
+/// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
+pub const MAX_BEAMS: usize = 4096;
+
 /// Device or service whose health is reported.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -10,13 +10,11 @@
 //!
 //! Decoding never panics: any byte sequence gives an envelope or a [`Reject`] with the reason.
 
-use amr_msgs::{Downlink, SCHEMA_VERSION, ServerStatus, Uplink};
+use amr_msgs::{Downlink, MAX_BEAMS, SCHEMA_VERSION, ServerStatus, Uplink};
 use serde::{Deserialize, Serialize};
 
 /// Largest envelope accepted: a 4 096-beam scan with room to spare.
 pub const MAX_ENVELOPE_BYTES: usize = 64 * 1024;
-/// Most beams in a scan on the wire.
-pub const MAX_BEAMS: usize = 4096;
 /// Longest health detail on the wire, bytes (longer ones are cut on sending).
 pub const MAX_DETAIL_BYTES: usize = 512;
 

@@ -22,7 +22,7 @@ use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::pipeline::{Pipeline, RobotPacket, Source, Stage, UpdateError};
-use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, ScanMsg, StageTimes, Uplink};
+use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, StageTimes, Uplink};
 
 /// Scans kept per robot for pairing.
 const BUFFER: usize = 3;
@@ -30,8 +30,7 @@ const BUFFER: usize = 3;
 /// What the server accepts of a scan: limits wide enough for any 2D LiDAR a robot of ours could
 /// carry (the TiM551: 271 beams 1° apart over 270°, 0.05–10 m; the densest common scanners
 /// step about 0.1°), narrow enough that no scan can make the pipeline allocate without bound or
-/// divide by nothing (issue 19 §7).
-pub const MAX_BEAMS: usize = 4096;
+/// divide by nothing (issue 19 §7). At most [`MAX_BEAMS`] beams.
 /// Smallest and largest angle between beams, rad (0.03° and 11.5°).
 pub const MIN_ANGLE_STEP_RAD: f64 = 5e-4;
 pub const MAX_ANGLE_STEP_RAD: f64 = 0.2;
@@ -278,11 +277,6 @@ impl ServerCore {
         self.members.iter().position(|m| m.id == id)
     }
 
-    /// The configurations that run, in order.
-    pub fn configurations(&self) -> impl Iterator<Item = Configuration> + '_ {
-        self.channels.iter().map(|c| c.configuration)
-    }
-
     /// The filter behind an estimate source (its particles, for recording and the live view).
     #[must_use]
     pub fn filter(&self, source: EstimateSource) -> Option<&Amcl> {
@@ -292,12 +286,6 @@ impl ServerCore {
                 self.channels.iter().find(|ch| ch.configuration == c).and_then(|ch| ch.filter.as_ref())
             }
         }
-    }
-
-    /// Per robot, map ← odometry from its own AMCL.
-    #[must_use]
-    pub fn corrections(&self) -> &[Option<Se2>] {
-        &self.corrections
     }
 
     /// One uplink message, received at `rx_s` (also the time of fusion: the sync gate's age
