@@ -1,8 +1,8 @@
 //! The shipped configuration validates; every bad-config fixture fails with its documented error.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
+use amr_actors::config::Config;
 use amr_actors::config::{ConfigSource, load};
-use amr_core::config::Config;
 use hil_tests::{apply, config_dir, fixtures, without_line};
 
 #[test]

@@ -1,5 +1,6 @@
-//! The crate graph points one way (`../shared/ARCHITECTURE.md`): core and drivers depend on nothing
-//! of ours, the message vocabulary (msgs) only on core, actors on core, msgs and drivers, hil-mocks
+//! The crate graph points one way (`../shared/ARCHITECTURE.md`): the configuration plumbing
+//! (settings) depends on nothing of ours, core and drivers only on it, the message vocabulary
+//! (msgs) only on core, actors on core, msgs and drivers, hil-mocks
 //! on core and drivers (never on the actors or their messages), the simulation on those, the
 //! network link and the recorder on core, msgs and actors, the tests on everything but host, and
 //! nothing at all depends on host.
@@ -8,7 +9,8 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 10] = [
+const OURS: [&str; 11] = [
+    "amr-settings",
     "amr-core",
     "amr-msgs",
     "amr-drivers",
@@ -49,10 +51,12 @@ fn dependencies_point_one_way() {
     let libraries: Vec<&str> = not_host.iter().copied().filter(|n| *n != "hil-tests").collect();
     let allowed = |name: &str| -> &[&str] {
         match name {
-            "amr-core" | "amr-drivers" => &[],
+            "amr-settings" => &[],
+            // Each owns its part of the configuration, written with settings' values and errors.
+            "amr-core" | "amr-drivers" => &["amr-settings"],
             "amr-msgs" => &["amr-core"],
             "amr-actors" => &["amr-core", "amr-msgs", "amr-drivers"],
-            "hil-mocks" => &["amr-core", "amr-drivers"],
+            "hil-mocks" => &["amr-core", "amr-drivers", "amr-settings"],
             // The simulation wires the actors to the mocks, and runs the evaluation on the server's
             // core; `amr sim`, `amr eval` and the HIL tests share it.
             "amr-sim" => &["amr-core", "amr-msgs", "amr-drivers", "amr-actors", "hil-mocks"],

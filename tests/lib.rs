@@ -16,8 +16,8 @@
 
 use std::path::{Path, PathBuf};
 
+use amr_actors::config::ConfigFile;
 use amr_actors::config::{ConfigSource, read_files};
-use amr_core::config::ConfigFile;
 
 /// The repository's `config/` directory.
 #[must_use]

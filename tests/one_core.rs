@@ -13,7 +13,7 @@ use amr_net::wire::{Envelope, from_uplink, to_uplink, uplink_channel};
 use amr_record::replay::Engine;
 use amr_record::wire::{decode_uplink, encode_uplink};
 use amr_sim::eval::{Setup, TrialFrame, run_trial_observed};
-use hil_mocks::world::{Noise, RobotSpec, paper_site};
+use hil_mocks::world::{Noise, paper_site};
 
 const SEED: u64 = 11;
 
@@ -27,7 +27,7 @@ fn setups() -> (Setup, ServerSetup) {
     let eval = Setup {
         site: paper_site().unwrap(),
         map: map.clone(),
-        robot: RobotSpec::from_config(&config.robots[0]),
+        robot: amr_sim::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),
         amcl: amcl.clone(),
         noise: Noise::TYPICAL,

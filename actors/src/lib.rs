@@ -7,7 +7,6 @@
 pub mod clock;
 pub mod config;
 pub mod link;
-pub mod mapping;
 pub mod robot;
 pub mod server;
 pub mod supervisor;

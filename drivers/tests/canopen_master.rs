@@ -8,10 +8,11 @@ mod canopen {
     use std::time::{Duration, Instant};
 
     use amr_drivers::canopen::cia402::{State402, controlword, device_transition};
+    use amr_drivers::canopen::config::BusConfig;
     use amr_drivers::canopen::emcy::Emcy;
     use amr_drivers::canopen::frame::{CanFrame, Cob};
     use amr_drivers::canopen::master::{
-        CanConfig, CommLossReaction, DriveSetup, Master, MasterConfig, MasterEvent, Phase,
+        CommLossReaction, DriveSetup, Master, MasterConfig, MasterEvent, Phase,
     };
     use amr_drivers::canopen::nmt::{NmtCommand, NmtState};
     use amr_drivers::canopen::pdo;
@@ -134,12 +135,13 @@ mod canopen {
         fn new() -> Self {
             let now = Instant::now();
             let config = MasterConfig {
-                can: CanConfig {
+                can: BusConfig {
                     master_node_id: 127,
                     master_heartbeat_ms: 100,
                     sync_period_ms: 20,
                     sdo_timeout_ms: 500,
                     boot_timeout_ms: 2000,
+                    ..BusConfig::default()
                 },
                 drives: vec![DriveSetup {
                     node_id: NODE,

@@ -167,6 +167,9 @@ mod canopen {
                     heartbeat_consumer_ms: 300,
                     master_consumer_ms: 300,
                     comm_loss_reaction: CommLossReaction::QuickStop,
+                    enable_timeout_ms: 1000,
+                    mode_confirm_attempts: 5,
+                    quick_stop_decel_mps2: 0.5,
                 },
                 Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
             );

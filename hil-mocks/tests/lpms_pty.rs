@@ -6,6 +6,8 @@
 mod lpms {
     use std::time::Duration;
 
+    use amr_settings::value::Backoff;
+
     use amr_drivers::lpms::{
         CommandId, DataMode, DeviceError, Health, ImuMessage, LinkError, LpmsConfig, LpmsError, OutputMask,
         ProtocolError, spawn_serial,
@@ -38,8 +40,7 @@ mod lpms {
             reply_timeout: Duration::from_millis(200),
             // Generous: CI machines are busy, and only the silence test needs the watchdog to fire.
             data_timeout: Duration::from_secs(2),
-            backoff_initial: Duration::from_millis(50),
-            backoff_max: Duration::from_millis(200),
+            reconnect: Backoff { initial: Duration::from_millis(50), max: Duration::from_millis(200) },
             ..LpmsConfig::default()
         }
     }

@@ -8,11 +8,12 @@ mod teco {
     use std::time::Duration;
 
     use amr_drivers::canopen::cia402::State402;
+    use amr_drivers::canopen::config::BusConfig;
     use amr_drivers::canopen::diff_drive::{
         DiffDrive, DrivesConfig, Geometry, WheelDriveConfig, WheelOdometry,
     };
     use amr_drivers::canopen::frame::Cob;
-    use amr_drivers::canopen::master::{CanConfig, CommLossReaction, Master, MasterConfig, MasterEvent};
+    use amr_drivers::canopen::master::{CommLossReaction, Master, MasterConfig, MasterEvent};
     use amr_drivers::canopen::pdo;
     use amr_drivers::canopen::sdo::{AbortCode, ObjectAddr, SdoRequest, SdoResult};
     use amr_drivers::canopen::shell::{MasterCommand, MasterHandle, spawn_master};
@@ -36,8 +37,11 @@ mod teco {
                 velocity_units_per_rps: 10_000.0,
                 heartbeat_producer_ms: 100,
                 heartbeat_consumer_ms: DRIVE_CONSUMER_MS,
-                master_consumer_ms: MASTER_CONSUMER_MS,
+                master_consumer_ms: u32::from(MASTER_CONSUMER_MS),
                 comm_loss_reaction: CommLossReaction::QuickStop,
+                enable_timeout_ms: 2000,
+                mode_confirm_attempts: 5,
+                quick_stop_decel_mps2: 2.0,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )
@@ -45,12 +49,13 @@ mod teco {
 
     pub(crate) fn master_config(dd: &DiffDrive) -> MasterConfig {
         MasterConfig {
-            can: CanConfig {
+            can: BusConfig {
                 master_node_id: 127,
                 master_heartbeat_ms: 100,
                 sync_period_ms: 20,
                 sdo_timeout_ms: 500,
                 boot_timeout_ms: 5000,
+                ..BusConfig::default()
             },
             drives: dd.drive_setups(0.5, 1.0),
             enable_timeout_ms: 1000,

@@ -7,11 +7,12 @@ mod teco {
     use std::time::Duration;
 
     use amr_drivers::canopen::cia402::{State402, controlword};
+    use amr_drivers::canopen::config::BusConfig;
     use amr_drivers::canopen::diff_drive::{
         DiffDrive, DrivesConfig, Geometry, WheelDriveConfig, WheelOdometry,
     };
     use amr_drivers::canopen::frame::{CanFrame, Cob};
-    use amr_drivers::canopen::master::{CanConfig, CommLossReaction, Master, MasterConfig, MasterEvent};
+    use amr_drivers::canopen::master::{CommLossReaction, Master, MasterConfig, MasterEvent};
     use amr_drivers::canopen::nmt::{NmtCommand, NmtState, sync_frame};
     use amr_drivers::canopen::pdo::{self, PdoDirection, RPDO1_MAP, TPDO1_MAP, TRANSMISSION_SYNC_EVERY};
     use amr_drivers::canopen::sdo::{self, ObjectAddr, SdoRequest};
@@ -157,12 +158,13 @@ mod teco {
         .unwrap();
         let dd = diff_drive();
         let config = MasterConfig {
-            can: CanConfig {
+            can: BusConfig {
                 master_node_id: 127,
                 master_heartbeat_ms: 50,
                 sync_period_ms: 10,
                 sdo_timeout_ms: 1000,
                 boot_timeout_ms: 2000,
+                ..BusConfig::default()
             },
             drives: dd.drive_setups(1.0, 2.0),
             enable_timeout_ms: 2000,
@@ -259,12 +261,13 @@ mod teco {
             })
             .collect();
         MasterConfig {
-            can: CanConfig {
+            can: BusConfig {
                 master_node_id: 127,
                 master_heartbeat_ms: 50,
                 sync_period_ms: 10,
                 sdo_timeout_ms: 1000,
                 boot_timeout_ms: 2000,
+                ..BusConfig::default()
             },
             drives: setups,
             enable_timeout_ms: 2000,
@@ -304,6 +307,9 @@ mod teco {
                 heartbeat_consumer_ms: 500,
                 master_consumer_ms: 500,
                 comm_loss_reaction: CommLossReaction::QuickStop,
+                enable_timeout_ms: 2000,
+                mode_confirm_attempts: 5,
+                quick_stop_decel_mps2: 2.0,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )

@@ -9,6 +9,7 @@ use amr_drivers::sopas::{
     Dialect, DialectChoice, ErrorCode, FrameError, Health, LidarConfig, LidarMessage, Mode, Profile,
     ProtocolError, SopasError, StampedScan, spawn_tcp,
 };
+use amr_settings::value::Backoff;
 use hil_mocks::tim551::{Fault, MockConfig, RectRoom, Tim551Mock, Variant};
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
@@ -24,13 +25,13 @@ fn lidar(port: u16, profile: Profile, dialect: DialectChoice) -> LidarConfig {
         host: "127.0.0.1".into(),
         port,
         dialect,
-        profile,
+        startup: profile,
         mode: Mode::Streaming,
         reply_timeout: Duration::from_millis(300),
         scan_timeout: Duration::from_millis(500),
-        backoff_initial: Duration::from_millis(50),
-        backoff_max: Duration::from_millis(400),
+        reconnect: Backoff { initial: Duration::from_millis(50), max: Duration::from_millis(400) },
         connect_timeout: Duration::from_secs(1),
+        ..LidarConfig::default()
     }
 }
 

@@ -3,8 +3,12 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use amr_actors::config::{ConfigSource, load};
-use amr_core::config::{CanTransport, Config, DeviceSource, LidarDialect, RobotConfig};
+use amr_actors::config::{Config, ConfigSource, RobotConfig, load};
+use amr_drivers::canopen::config::BusTransport;
+use amr_drivers::lpms::data::DataMode;
+use amr_drivers::sopas::framing::Dialect;
+use amr_drivers::sopas::session::DialectChoice;
+use amr_net::network::NetworkConfig;
 
 /// Without a directory: `./config` if there is one, else the embedded defaults.
 pub(crate) fn source_for(dir: Option<PathBuf>) -> ConfigSource {
@@ -19,18 +23,13 @@ pub(crate) fn check(dir: Option<PathBuf>) -> anyhow::Result<()> {
     let source = source_for(dir);
     tracing::debug!(%source, "loading configuration");
     let config = load(&source)?;
+    // network.toml is the link's file: its own crate parses and checks it.
+    let network = NetworkConfig::from_set(&config)?;
     #[allow(clippy::print_stdout, reason = "the command's report")]
     {
-        print!("{}", summary(&source, &config));
+        print!("{}", summary(&source, &config, network.as_ref()));
     }
     Ok(())
-}
-
-fn source_name(s: DeviceSource) -> &'static str {
-    match s {
-        DeviceSource::Real => "real",
-        DeviceSource::Mock => "mock",
-    }
 }
 
 fn robot_summary(out: &mut String, r: &RobotConfig) -> std::fmt::Result {
@@ -61,14 +60,14 @@ fn robot_summary(out: &mut String, r: &RobotConfig) -> std::fmt::Result {
         r.safety.command_timeout_ms.ms()
     )?;
     let dialect = match d.lidar.dialect {
-        LidarDialect::Auto => "auto",
-        LidarDialect::A => "CoLa-A",
-        LidarDialect::B => "CoLa-B",
+        DialectChoice::Auto => "auto",
+        DialectChoice::Fixed(Dialect::ColaA) => "CoLa-A",
+        DialectChoice::Fixed(Dialect::ColaB) => "CoLa-B",
     };
     writeln!(
         out,
         "  lidar       {} {}:{} dialect {dialect}, start-up {}, mounted at ({}, {}, {}°)",
-        source_name(d.lidar.source),
+        d.lidar.source.name(),
         d.lidar.host,
         d.lidar.port,
         format!("{:?}", d.lidar.startup).to_lowercase(),
@@ -77,49 +76,57 @@ fn robot_summary(out: &mut String, r: &RobotConfig) -> std::fmt::Result {
         mount.theta.to_degrees()
     )?;
     let transport = match &d.can.transport {
-        CanTransport::Socketcan { interface } => format!("socketcan {interface}"),
-        CanTransport::Socketcand { address, channel } => format!("socketcand {address} channel {channel}"),
-        CanTransport::InProcess => "in-process bus".to_owned(),
+        BusTransport::Socketcan { interface } => format!("socketcan {interface}"),
+        BusTransport::Socketcand { address, channel } => format!("socketcand {address} channel {channel}"),
+        BusTransport::InProcess => "in-process bus".to_owned(),
     };
     writeln!(
         out,
         "  can         {} {transport}, master node {}, SYNC every {} ms",
-        source_name(d.can.source),
-        d.can.master_node_id.get(),
-        d.can.sync_period_ms.ms()
+        d.can.source.name(),
+        d.can.master_node_id,
+        d.can.sync_period_ms
     )?;
     let dr = &d.drives;
     writeln!(
         out,
         "  drives      left node {}{}, right node {}{}; {} counts/rev, gear {}:1, heartbeat {}/{} ms",
-        dr.left.node_id.get(),
+        dr.left.node_id,
         if dr.left.inverted { " (inverted)" } else { "" },
-        dr.right.node_id.get(),
+        dr.right.node_id,
         if dr.right.inverted { " (inverted)" } else { "" },
-        dr.encoder_counts_per_rev.get(),
-        dr.gear_ratio.get(),
-        dr.heartbeat_producer_ms.ms(),
-        dr.heartbeat_consumer_ms.ms()
+        dr.encoder_counts_per_rev,
+        dr.gear_ratio,
+        dr.heartbeat_producer_ms,
+        dr.heartbeat_consumer_ms
     )?;
     writeln!(
         out,
         "  imu         {} {} @ {} baud, {} Hz, {} data",
-        source_name(d.imu.source),
+        d.imu.source.name(),
         d.imu.path,
         d.imu.baud,
         d.imu.stream_hz,
-        format!("{:?}", d.imu.data_mode).to_lowercase()
+        match d.imu.data_mode {
+            DataMode::Float32 => "float",
+            DataMode::Int16 => "int16",
+        }
     )
 }
 
 /// What `config check` prints for a valid configuration.
-pub(crate) fn summary(source: &ConfigSource, c: &Config) -> String {
+pub(crate) fn summary(source: &ConfigSource, c: &Config, network: Option<&NetworkConfig>) -> String {
     let mut out = String::new();
-    let _ = write_summary(&mut out, source, c);
+    let _ = write_summary(&mut out, source, c, network);
     out
 }
 
-fn write_summary(out: &mut String, source: &ConfigSource, c: &Config) -> std::fmt::Result {
+fn write_summary(
+    out: &mut String,
+    source: &ConfigSource,
+    c: &Config,
+    network: Option<&NetworkConfig>,
+) -> std::fmt::Result {
     writeln!(out, "configuration: {source}")?;
     for r in &c.robots {
         robot_summary(out, r)?;
@@ -173,6 +180,16 @@ fn write_summary(out: &mut String, source: &ConfigSource, c: &Config) -> std::fm
             m.resolution_m,
             m.width as f64 * m.resolution_m,
             m.height as f64 * m.resolution_m
+        )?;
+    }
+    if let Some(n) = network {
+        writeln!(
+            out,
+            "network: server `{}` listens on {}, robots connect to {}; lease {} ms",
+            n.server.user,
+            n.server.listen.join(", "),
+            n.server.connect.join(", "),
+            n.lease_ms.ms()
         )?;
     }
     writeln!(out, "ok: {} robots, server, vamr, amcl and {} maps are valid", c.robots.len(), c.maps.len())

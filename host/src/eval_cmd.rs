@@ -4,11 +4,11 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use amr_core::config::Config;
+use amr_actors::config::Config;
 use amr_core::metrics::AxisStats;
 use amr_sim::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
 use anyhow::Context as _;
-use hil_mocks::world::{Noise, RobotSpec, paper_site};
+use hil_mocks::world::{Noise, paper_site};
 use serde::Serialize;
 
 #[derive(Debug, Serialize)]
@@ -50,7 +50,7 @@ pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::R
     anyhow::ensure!(robots >= 2, "a formation needs at least 2 robots, not {robots}");
     let site = paper_site()?;
     // The world does not model collisions: refuse a formation whose path leaves the site.
-    let body = RobotSpec::from_config(robot).chassis;
+    let body = amr_sim::robot_spec(robot).chassis;
     let (x0, y0, x1, y1) = body.bounds();
     let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
     for r in amr_sim::eval::reference(sc, 0.1) {
@@ -68,7 +68,7 @@ pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::R
     Ok(Setup {
         site,
         map: config.maps.get(&sc.map).with_context(|| format!("no map `{}`", sc.map))?.clone(),
-        robot: RobotSpec::from_config(robot),
+        robot: amr_sim::robot_spec(robot),
         vamr: config.vamr.clone(),
         amcl: config.amcl.clone(),
         noise: Noise::TYPICAL,

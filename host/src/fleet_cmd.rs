@@ -6,14 +6,15 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
+use amr_actors::config::Config;
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::robot::{DeviceOverrides, RobotOptions, start_robot};
 use amr_actors::server::formation::{FormationMsg, Phase};
 use amr_actors::server::{ServerSetup, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
-use amr_core::config::Config;
 use amr_msgs::ServerStatus;
 use amr_net::NetSettings;
+use amr_net::network::NetworkConfig;
 use amr_sim::served::{WorldManifest, serve_world};
 use anyhow::Context;
 use tokio::io::AsyncBufReadExt as _;
@@ -39,7 +40,8 @@ pub(crate) struct NetArgs {
 
 impl NetArgs {
     fn settings(&self, config: &Config) -> anyhow::Result<NetSettings> {
-        let mut s = NetSettings::new(config.network.as_ref(), self.credentials.as_deref())
+        let network = NetworkConfig::from_set(config)?;
+        let mut s = NetSettings::new(network.as_ref(), self.credentials.as_deref())
             .context("setting up the network link")?;
         if !self.endpoint.is_empty() {
             s.listen = Some(self.endpoint.clone());

@@ -425,12 +425,12 @@ fn main() -> ExitCode {
         }
         Command::Mock(MockCommand::Drives { socketcand, nodes }) => mock_cmd::drives(&socketcand, &nodes),
         Command::Mock(MockCommand::Imu { rate }) => {
-            if amr_core::config::IMU_STREAM_RATES_HZ.contains(&rate) {
+            if amr_drivers::lpms::B2_STREAM_RATES_HZ.contains(&rate) {
                 mock_cmd::imu(rate)
             } else {
                 Err(anyhow::anyhow!(
                     "--rate must be one of {:?}, not {rate}",
-                    amr_core::config::IMU_STREAM_RATES_HZ
+                    amr_drivers::lpms::B2_STREAM_RATES_HZ
                 ))
             }
         }
@@ -541,7 +541,7 @@ fn main() -> ExitCode {
 fn bench<R: serde::Serialize>(
     opts: BenchOptions,
     what: &str,
-    run: impl FnOnce(&amr_core::config::Config, bool) -> anyhow::Result<R>,
+    run: impl FnOnce(&amr_actors::config::Config, bool) -> anyhow::Result<R>,
     markdown: fn(&R) -> String,
 ) -> anyhow::Result<()> {
     let config = amr_actors::config::load(&config_cmd::source_for(opts.config))?;

@@ -16,8 +16,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use amr_actors::config::ConfigFile;
 use amr_actors::config::{ConfigSource, read_files};
-use amr_core::config::ConfigFile;
 use amr_msgs::{SafetyState, ServerStatus, Uplink};
 use amr_net::NetSettings;
 use amr_net::wire::{Body, Envelope};
@@ -169,7 +169,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     let seen = Arc::new(Mutex::new(Seen::default()));
     let _observer = rt.block_on(async {
         let loaded = amr_actors::config::load(&ConfigSource::Dir(config.clone())).unwrap();
-        let mut s = NetSettings::new(loaded.network.as_ref(), Some(&creds)).unwrap();
+        let network = amr_net::network::NetworkConfig::from_set(&loaded).unwrap();
+        let mut s = NetSettings::new(network.as_ref(), Some(&creds)).unwrap();
         s.connect = Some(vec![endpoint.clone()]);
         // The server may not be listening yet: bounded retries.
         let mut session = None;

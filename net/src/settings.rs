@@ -11,7 +11,7 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use amr_core::config::NetworkConfig;
+use crate::network::NetworkConfig;
 use serde_json::json;
 
 /// The key space: `fleet/<robot>/{scan,odom,health,cmd}`, liveliness `fleet/<robot>/alive`, the

@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
 use amr_actors::link::{RobotEnd, ServerEnd};
-use amr_core::config::NetworkConfig;
 use amr_msgs::{Command, Device, Downlink, Health, SafetyState, Uplink};
+use amr_net::network::NetworkConfig;
 use amr_net::{NetSettings, ServerBridge, start_robot_bridge, start_server_bridge};
 use tokio::time::timeout;
 

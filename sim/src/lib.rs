@@ -21,6 +21,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
+use amr_actors::config::{Config, RobotConfig};
 use amr_actors::link::{LinkControl, in_process};
 use amr_actors::robot::canbus::CanLink;
 use amr_actors::robot::ports::{AbortOnDrop, StreamConnector};
@@ -28,7 +29,7 @@ use amr_actors::robot::{DeviceOverrides, RobotOptions, RobotTree, start_robot};
 use amr_actors::server::formation::{FormationStatus, Phase};
 use amr_actors::server::{ServerSetup, ServerTree, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
-use amr_core::config::{Config, Configuration, RobotConfig, ScenarioConfig};
+use amr_core::config::{Configuration, ScenarioConfig};
 use amr_core::metrics::ErrorStats;
 use amr_core::se2::{Se2, angle_diff};
 use amr_core::vamr::frame::virtual_frame;
@@ -157,11 +158,23 @@ pub struct Sim {
 fn drive_config(robot: &RobotConfig, node: u8, noise: &Noise, seed: u64) -> TecoDriveConfig {
     let d = &robot.devices.drives;
     TecoDriveConfig {
-        encoder_counts_per_rev: d.encoder_counts_per_rev.get(),
-        velocity_units_per_rps: d.velocity_units_per_rps.get(),
+        encoder_counts_per_rev: d.encoder_counts_per_rev,
+        velocity_units_per_rps: d.velocity_units_per_rps,
         encoder_noise_counts: noise.encoder_sigma_counts,
         seed: seed.wrapping_mul(1000).wrapping_add(u64::from(node)),
         ..TecoDriveConfig::new(node)
+    }
+}
+
+/// The world's model of robot `c`'s body: chassis, wheels, LiDAR mount and acceleration limit.
+#[must_use]
+pub fn robot_spec(c: &RobotConfig) -> RobotSpec {
+    RobotSpec {
+        chassis: c.chassis.outline_m.clone(),
+        wheel_radius_m: c.kinematics.wheel_radius_m.get(),
+        track_width_m: c.kinematics.track_width_m.get(),
+        lidar_mount: c.lidar_mount.to_se2(),
+        max_accel_mps2: c.limits.max_accel_mps2.get(),
     }
 }
 
@@ -479,9 +492,9 @@ pub fn build_world(
     let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
     let start_v = sc.start_pose();
     for (r, y) in robots.iter().zip(&slots) {
-        let mut spec = RobotSpec::from_config(r);
+        let mut spec = robot_spec(r);
         // The drives ramp (and quick-stop) the wheels; the world only must not be slower.
-        spec.max_accel_mps2 = spec.max_accel_mps2.max(r.devices.drives.quick_stop_decel_mps2.get());
+        spec.max_accel_mps2 = spec.max_accel_mps2.max(r.devices.drives.quick_stop_decel_mps2);
         world.add_robot(spec, start_v * Se2::new(0.0, *y, 0.0));
     }
     Ok(Arc::new(std::sync::Mutex::new(world)))
@@ -528,7 +541,7 @@ pub async fn start_mocks(
     };
     let bus = InProcessBus::default();
     let now = Instant::now().into_std();
-    let drives = [r.devices.drives.left.node_id.get(), r.devices.drives.right.node_id.get()]
+    let drives = [r.devices.drives.left.node_id, r.devices.drives.right.node_id]
         .iter()
         .map(|n| spawn_drive(TecoDrive::new(drive_config(r, *n, noise, seed), now), bus.port()))
         .collect();
@@ -704,7 +717,7 @@ impl ComposeXy for Se2 {
 
 mod watch_drive {
     //! The drives' shaft speeds, read from their snapshots without holding the handles.
-    use amr_core::config::RobotConfig;
+    use amr_actors::config::RobotConfig;
     use hil_mocks::teco_drive::{DriveHandle, DriveSnapshot};
     use tokio::sync::watch;
 
@@ -727,11 +740,9 @@ mod watch_drive {
         let speed = |node: u8, inverted: bool| {
             let cps = drives.iter().find(|h| h.node == node).map_or(0.0, |h| h.rx.borrow().velocity_cps);
             let sign = if inverted { -1.0 } else { 1.0 };
-            sign * cps / f64::from(d.encoder_counts_per_rev.get()) / d.gear_ratio.get()
-                * std::f64::consts::TAU
-                * r
+            sign * cps / f64::from(d.encoder_counts_per_rev) / d.gear_ratio * std::f64::consts::TAU * r
         };
-        (speed(d.left.node_id.get(), d.left.inverted), speed(d.right.node_id.get(), d.right.inverted))
+        (speed(d.left.node_id, d.left.inverted), speed(d.right.node_id, d.right.inverted))
     }
 }
 

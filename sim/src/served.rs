@@ -11,11 +11,12 @@ use std::collections::BTreeMap;
 use std::net::SocketAddr;
 
 use amr_actors::clock::FleetClock;
+use amr_actors::config::Config;
 use amr_actors::robot::DeviceOverrides;
 use amr_actors::robot::canbus::CanLink;
 use amr_actors::robot::ports::AbortOnDrop;
 use amr_actors::server::formation_robots;
-use amr_core::config::{Config, ScenarioConfig};
+use amr_core::config::ScenarioConfig;
 use hil_mocks::world::{Noise, SharedWorld};
 use serde::{Deserialize, Serialize};
 

@@ -48,7 +48,7 @@ impl Actor for ImuActor {
         // cannot happen with a validated robot file.
         let (mut rx, driver) = match &self.stream {
             Some(c) => {
-                self.config.validate()?;
+                self.config.validate("devices.imu")?;
                 let (tx, rx) = tokio::sync::mpsc::channel(64);
                 let c = c.clone();
                 (rx, tokio::spawn(run(self.config.session_config(), move || c.connect(), tx)))

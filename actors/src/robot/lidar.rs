@@ -8,8 +8,26 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{AbortOnDrop, RobotPorts, StreamConnector};
 use super::status::{Counters, HealthCell};
-use crate::mapping;
+use amr_core::scan::Scan;
 use amr_msgs::{Device, Health, ScanMsg};
+
+/// The TiM551's measuring range (devices.md §1: 0.05–10 m).
+pub(crate) const TIM551_RANGE_M: (f64, f64) = (0.05, 10.0);
+
+/// A decoded TiM551 scan in the robot's units: ranges of 0 (no return) or outside the measuring
+/// range become NaN (invalid beam).
+fn robot_scan(s: &amr_drivers::sopas::scan::Scan) -> Scan {
+    let (lo, hi) = TIM551_RANGE_M;
+    let ranges = s
+        .ranges_m
+        .iter()
+        .map(|r| {
+            let r = f64::from(*r);
+            if r.is_finite() && (lo..=hi).contains(&r) { r } else { f64::NAN }
+        })
+        .collect();
+    Scan::new(s.angle_min_rad, s.angle_increment_rad, lo, hi, ranges)
+}
 
 /// Messages of the LiDAR actor.
 #[derive(Debug)]
@@ -86,7 +104,7 @@ impl Actor for LidarActor {
             LidarMsg::Driver(LidarMessage::Scan(s)) => {
                 let received_s = ports.clock.seconds_std(s.received);
                 let stamp_s = s.stamp.map_or(received_s, |t| ports.clock.seconds_std(t));
-                let scan = mapping::scan(&s.scan);
+                let scan = robot_scan(&s.scan);
                 if scan.valid_count() == 0 {
                     self.counters.rejected("lidar: scan without a valid beam");
                     return Ok(());
@@ -126,5 +144,35 @@ impl Actor for LidarActor {
             LidarMsg::InjectPanic(why) => panic!("{why}"),
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zero_and_out_of_range_beams_become_invalid() {
+        let s = amr_drivers::sopas::scan::Scan {
+            serial: 0,
+            device_status: [0; 2],
+            telegram_counter: 0,
+            scan_counter: 0,
+            generation_tick_us: 0,
+            transmission_tick_us: 0,
+            scan_frequency_hz: 15.0,
+            measurement_frequency_hz: 0.0,
+            angle_min_rad: -1.0,
+            angle_increment_rad: 0.5,
+            angles_rad: vec![-1.0, -0.5, 0.0, 0.5],
+            ranges_m: vec![0.0, 2.0, 12.0, f32::NAN],
+            rssi: None,
+        };
+        let out = robot_scan(&s);
+        assert_eq!(out.len(), 4);
+        let r = out.ranges_m();
+        assert!(r[0].is_nan() && r[2].is_nan() && r[3].is_nan());
+        assert_eq!(r[1], 2.0);
+        assert_eq!((out.angle_min_rad, out.angle_increment_rad), (-1.0, 0.5));
     }
 }

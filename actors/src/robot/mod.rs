@@ -31,12 +31,12 @@ pub mod uplink;
 use std::sync::Arc;
 use std::time::Duration;
 
-use amr_core::config::{CanTransport, RobotConfig};
+use crate::config::RobotConfig;
+use amr_drivers::canopen::config::BusTransport;
 use ractor::{Actor, ActorRef};
 
 use crate::clock::FleetClock;
 use crate::link::{RobotEnd, UplinkSender};
-use crate::mapping;
 use crate::supervisor::{
     ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
 };
@@ -45,6 +45,7 @@ use canbus::{CanBusActor, CanLink};
 use drive::DriveActor;
 use imu::ImuActor;
 use lidar::LidarActor;
+pub(crate) use lidar::TIM551_RANGE_M;
 use odometry::OdometryActor;
 use ports::{AbortOnDrop, RobotPorts};
 pub use safety::SafetyControl;
@@ -145,7 +146,7 @@ pub(crate) fn safety_params(cfg: &RobotConfig) -> SafetyParams {
         max_accel_mps2: cfg.limits.max_accel_mps2.get(),
         track_width_m: cfg.kinematics.track_width_m.get(),
         command_timeout_s: f64::from(cfg.safety.command_timeout_ms.ms()) / 1000.0,
-        period_s: f64::from(cfg.devices.can.sync_period_ms.ms()) / 1000.0,
+        period_s: f64::from(cfg.devices.can.sync_period_ms) / 1000.0,
     }
 }
 
@@ -163,21 +164,21 @@ pub async fn start_robot(
     let events = EventLog::default();
     let control = Arc::new(ractor::OutputPort::<SafetyControl>::default());
 
-    let mut lidar_cfg = mapping::lidar(cfg);
+    let mut lidar_cfg = cfg.devices.lidar.clone();
     if let Some((host, port)) = overrides.lidar {
         (lidar_cfg.host, lidar_cfg.port) = (host, port);
     }
-    let mut imu_cfg = mapping::imu(cfg);
+    let mut imu_cfg = cfg.devices.imu.clone();
     if let Some(path) = overrides.imu_path {
         imu_cfg.path = path;
     }
     let can = match (overrides.can, &cfg.devices.can.transport) {
         (Some(c), _) => c,
-        (None, CanTransport::Socketcan { interface }) => CanLink::SocketCan { interface: interface.clone() },
-        (None, CanTransport::Socketcand { address, channel }) => {
+        (None, BusTransport::Socketcan { interface }) => CanLink::SocketCan { interface: interface.clone() },
+        (None, BusTransport::Socketcand { address, channel }) => {
             CanLink::Socketcand { address: address.clone(), channel: channel.clone() }
         }
-        (None, CanTransport::InProcess) => return Err(RobotError::NoInProcessBus),
+        (None, BusTransport::InProcess) => return Err(RobotError::NoInProcessBus),
     };
     let reconnect = &cfg.devices.can.reconnect;
 
@@ -196,12 +197,11 @@ pub async fn start_robot(
     let bus = CanBusActor {
         ports: Arc::clone(&ports),
         link: can,
-        master: mapping::master(cfg),
-        backoff: (reconnect.initial_ms.duration(), reconnect.max_ms.duration()),
+        master: cfg.master(),
+        backoff: (reconnect.initial, reconnect.max),
         counters: counters.clone(),
     };
-    let drive =
-        DriveActor { ports: Arc::clone(&ports), drive: mapping::diff_drive(cfg), counters: counters.clone() };
+    let drive = DriveActor { ports: Arc::clone(&ports), drive: cfg.diff_drive(), counters: counters.clone() };
     let odometry =
         OdometryActor { ports: Arc::clone(&ports), track_width_m: cfg.kinematics.track_width_m.get() };
     let safety = SafetyActor {

@@ -18,8 +18,9 @@ pub mod ports;
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::config::RobotConfig;
 use amr_core::amcl::LikelihoodField;
-use amr_core::config::{AmclParams, Configuration, RobotConfig, ScenarioConfig, ServerConfig, VamrParams};
+use amr_core::config::{AmclParams, Configuration, ScenarioConfig, ServerConfig, VamrParams};
 use amr_core::formation::{FormationGains, slots};
 use amr_core::map::OccupancyGrid;
 use amr_core::plan::reference;
@@ -28,7 +29,7 @@ use ractor::{Actor, ActorRef, OutputPort};
 use self::core::{CoreSetup, Member};
 use crate::clock::FleetClock;
 use crate::link::ServerEnd;
-use crate::mapping::TIM551_RANGE_M;
+use crate::robot::TIM551_RANGE_M;
 use crate::robot::ports::AbortOnDrop;
 use crate::supervisor::{
     ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,

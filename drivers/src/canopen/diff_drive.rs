@@ -4,39 +4,65 @@
 
 use std::f64::consts::TAU;
 
-use super::frame::NodeId;
-use super::master::{CommLossReaction, DriveSetup};
+use serde::Deserialize;
 
-/// One wheel's drive; mirrors `left`/`right` of `[devices.drives]`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+use super::config::BusConfig;
+use super::frame::NodeId;
+use super::master::{CommLossReaction, DriveSetup, MasterConfig};
+
+/// One wheel's drive: `left`/`right` of `[devices.drives]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct WheelDriveConfig {
     /// The drive's node id.
+    #[serde(deserialize_with = "super::config::node_id")]
     pub node_id: NodeId,
     /// The motor is mounted mirrored: positive drive velocity moves this wheel backwards.
     pub inverted: bool,
 }
 
-/// The two drives; mirrors `[devices.drives]` of `config/robot-*.toml`.
-#[derive(Debug, Clone, PartialEq)]
+/// The two TECO wheel drives (CiA 402, profile velocity): `[devices.drives]` of a robot file. The
+/// drive-specific values the research could not pin down are all here, never constants in code.
+/// Cross-field rules: [`DrivesConfig::validate`].
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct DrivesConfig {
     /// Left wheel.
     pub left: WheelDriveConfig,
     /// Right wheel.
     pub right: WheelDriveConfig,
-    /// Encoder counts per motor revolution (0x6064 units).
+    /// Encoder counts per motor revolution, after quadrature (0x6064 units).
+    #[serde(deserialize_with = "amr_settings::value::count")]
     pub encoder_counts_per_rev: u32,
     /// Motor revolutions per wheel revolution.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
     pub gear_ratio: f64,
     /// 0x60FF/0x606C units per motor revolution per second.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
     pub velocity_units_per_rps: f64,
-    /// Each drive's 0x1017.
-    pub heartbeat_producer_ms: u16,
-    /// The master gives up on a drive after this long without its heartbeat.
+    /// Each drive's heartbeat producer period, written to its 0x1017 (16 bits).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub heartbeat_producer_ms: u32,
+    /// The master declares a drive lost after this long without its heartbeat.
+    #[serde(deserialize_with = "amr_settings::value::ms")]
     pub heartbeat_consumer_ms: u32,
-    /// Each drive's 0x1016 consumer time of the master.
-    pub master_consumer_ms: u16,
+    /// Each drive stops (see `comm_loss_reaction`) after this long without the master's heartbeat,
+    /// written to its 0x1016 (16 bits).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub master_consumer_ms: u32,
     /// Each drive's 0x6007.
     pub comm_loss_reaction: CommLossReaction,
+    /// Longest wait for a drive to reach Operation enabled (or to leave Fault after a reset).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub enable_timeout_ms: u32,
+    /// How often 0x6061 is read back to confirm profile velocity mode before giving up
+    /// (python-canopen #131: it may lag).
+    #[serde(deserialize_with = "amr_settings::value::count")]
+    pub mode_confirm_attempts: u32,
+    /// Wheel-surface deceleration of a quick stop (0x6085), m/s²: an emergency stop, so at least the
+    /// robot's normal acceleration limit.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
+    pub quick_stop_decel_mps2: f64,
 }
 
 /// Wheel geometry; mirrors `[kinematics]`.
@@ -104,6 +130,17 @@ impl DiffDrive {
             * self.geometry.wheel_radius_m
     }
 
+    /// The master for these drives on `bus`: profile ramps from the robot's acceleration limit, the
+    /// quick stop from `quick_stop_decel_mps2`.
+    pub fn master_config(&self, bus: &BusConfig, max_accel_mps2: f64) -> MasterConfig {
+        MasterConfig {
+            can: bus.clone(),
+            drives: self.drive_setups(max_accel_mps2, self.drives.quick_stop_decel_mps2),
+            enable_timeout_ms: self.drives.enable_timeout_ms,
+            mode_confirm_attempts: self.drives.mode_confirm_attempts,
+        }
+    }
+
     /// The start-up settings of both drives; profile ramps from the robot's acceleration limit.
     pub fn drive_setups(&self, max_accel_mps2: f64, quick_stop_decel_mps2: f64) -> Vec<DriveSetup> {
         let to_units = |a_mps2: f64| {
@@ -114,9 +151,10 @@ impl DiffDrive {
             .iter()
             .map(|w| DriveSetup {
                 node_id: w.node_id,
-                heartbeat_producer_ms: self.drives.heartbeat_producer_ms,
+                // Both fit 16 bits in a validated file (`DrivesConfig::validate`).
+                heartbeat_producer_ms: u16::try_from(self.drives.heartbeat_producer_ms).unwrap_or(u16::MAX),
                 heartbeat_consumer_ms: self.drives.heartbeat_consumer_ms,
-                master_consumer_ms: self.drives.master_consumer_ms,
+                master_consumer_ms: u16::try_from(self.drives.master_consumer_ms).unwrap_or(u16::MAX),
                 comm_loss_reaction: self.drives.comm_loss_reaction,
                 profile_acceleration: to_units(max_accel_mps2),
                 profile_deceleration: to_units(max_accel_mps2),
@@ -211,6 +249,9 @@ mod tests {
                 heartbeat_consumer_ms: 300,
                 master_consumer_ms: 300,
                 comm_loss_reaction: CommLossReaction::QuickStop,
+                enable_timeout_ms: 1000,
+                mode_confirm_attempts: 5,
+                quick_stop_decel_mps2: 0.5,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )

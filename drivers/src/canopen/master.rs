@@ -9,6 +9,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use super::cia402::{Goal, State402, controlword, next_controlword};
+use super::config::BusConfig;
 use super::emcy::Emcy;
 use super::error::{CanopenError, DeviceError, LinkError};
 use super::frame::{CanFrame, Cob, NodeId};
@@ -25,25 +26,13 @@ const SDO_RETRIES: u32 = 2;
 /// Profile velocity mode (0x6060 value 3, python-canopen `OperationMode`).
 pub const MODE_PROFILE_VELOCITY: i8 = 3;
 
-/// The bus and master settings; mirrors `[devices.can]` of `config/robot-*.toml`.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct CanConfig {
-    /// The master's own node id (for its heartbeat and the drives' 0x1016).
-    pub master_node_id: NodeId,
-    /// Period of the master's heartbeat.
-    pub master_heartbeat_ms: u32,
-    /// SYNC period; both RPDOs are sent just before each SYNC.
-    pub sync_period_ms: u32,
-    /// Per-request (and per-segment) SDO timeout (ros2_canopen #194: make it configurable).
-    pub sdo_timeout_ms: u32,
-    /// Wait for a boot-up after a reset before trying again.
-    pub boot_timeout_ms: u32,
-}
-
-/// Reaction of a drive to a communication loss, object 0x6007 (CiA 402).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+/// Reaction of a drive to a communication loss, object 0x6007 (CiA 402). A robot file spells it
+/// `fault | disable-voltage | quick-stop`; "no action" is not offered there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum CommLossReaction {
     /// 0: no action.
+    #[serde(skip)]
     None,
     /// 1: fault signal.
     Fault,
@@ -62,17 +51,6 @@ impl CommLossReaction {
             CommLossReaction::DisableVoltage => 2,
             CommLossReaction::QuickStop => 3,
         }
-    }
-
-    /// From the config spelling `fault | disable-voltage | quick-stop | none`.
-    pub fn from_name(name: &str) -> Option<Self> {
-        Some(match name {
-            "none" => CommLossReaction::None,
-            "fault" => CommLossReaction::Fault,
-            "disable-voltage" => CommLossReaction::DisableVoltage,
-            "quick-stop" => CommLossReaction::QuickStop,
-            _ => return None,
-        })
     }
 }
 
@@ -100,8 +78,8 @@ pub struct DriveSetup {
 /// Everything the master needs.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct MasterConfig {
-    /// Bus settings.
-    pub can: CanConfig,
+    /// Bus settings (`[devices.can]`); the master uses its node id and periods.
+    pub can: BusConfig,
     /// The drives.
     pub drives: Vec<DriveSetup>,
     /// Time for a drive to reach Operation enabled, and for a fault reset to be confirmed.

@@ -5,6 +5,8 @@
 //! - [`nmt`], [`sdo`], [`pdo`], [`emcy`], [`heartbeat`]: the CiA 301 services, sans-IO.
 //! - [`cia402`]: statusword states, controlword commands, the transition table.
 //! - [`master`]: the sans-IO master (NMT, SYNC, heartbeats, SDO, PDO remap, 402 enable/recover).
+//! - [`config`]: `[devices.can]` ([`config::BusConfig`]); `[devices.drives]` is
+//!   [`diff_drive::DrivesConfig`].
 //! - [`diff_drive`]: (v, ω) → wheel targets in drive units, wheel odometry by arc integration.
 //! - [`transport`]: the frame transport trait and its three implementations.
 //! - [`shell`]: the tokio task running the master over a transport.
@@ -12,6 +14,7 @@
 //! Protocol facts: `shared/spec/devices.md` §2 and `shared/research/lpms-and-canopen.md` Part B.
 
 pub mod cia402;
+pub mod config;
 pub mod diff_drive;
 pub mod emcy;
 pub mod error;

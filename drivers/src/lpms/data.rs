@@ -73,10 +73,12 @@ impl std::ops::BitOr for OutputMask {
 /// LPBUS data mode (SET_LPBUS_DATA_MODE 75: 0 float, 1 int16; config bit 22).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 pub enum DataMode {
-    /// Every value an f32 (LE).
+    /// Every value an f32 (LE). A robot file spells it `float`.
     #[default]
+    #[serde(rename = "float")]
     Float32,
-    /// Every value an i16 (LE) with a per-field scale.
+    /// Every value an i16 (LE) with a per-field scale; `int16` in a robot file.
+    #[serde(rename = "int16")]
     Int16,
 }
 

@@ -9,7 +9,7 @@
 //! Protocol facts: `shared/spec/devices.md` §3 and `shared/research/lpms-and-canopen.md` Part A.
 //!
 //! ```no_run
-//! # async fn imu() -> Result<(), amr_drivers::lpms::ConfigError> {
+//! # async fn imu() -> Result<(), amr_settings::Violation> {
 //! use amr_drivers::lpms::{ImuMessage, LpmsConfig, spawn_serial};
 //! let config = LpmsConfig { path: "/dev/rfcomm0".into(), stream_hz: 100, ..LpmsConfig::default() };
 //! let (mut rx, _task) = spawn_serial(config, 256)?;
@@ -36,6 +36,7 @@ pub use data::{ConfigRegister, DataMode, OutputMask, SensorData};
 pub use error::{DeviceError, LinkError, LpmsError, ProtocolError};
 pub use frame::{Frame, FrameDecoder, FrameError};
 pub use serial::{
-    ConfigError, Health, ImuMessage, ImuSample, LpmsConfig, open_serial, run, run_serial, spawn_serial,
+    B2_STREAM_RATES_HZ, BAUD_RATES, Health, ImuMessage, ImuSample, LpmsConfig, open_serial, run, run_serial,
+    spawn_serial,
 };
 pub use session::{DeviceInfo, Event, Session, SessionConfig};

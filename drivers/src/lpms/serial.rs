@@ -7,6 +7,8 @@
 use std::future::Future;
 use std::time::{Duration, Instant};
 
+use amr_settings::value::Backoff;
+use amr_settings::{DeviceSource, Violation, join, rule};
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc;
@@ -18,35 +20,51 @@ use super::session::{DeviceInfo, Event, Session, SessionConfig};
 /// Default UART rate (notes A0).
 pub const DEFAULT_BAUD: u32 = 115_200;
 
-/// Configuration of the LPMS driver.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// UART rates the LP sensors support (LpSensor `LpmsRS232.cpp`).
+pub const BAUD_RATES: [u32; 7] = [19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 921_600];
+
+/// Stream rates the LPMS-B2 delivers (notes A3): the config register has a code for 800 Hz too,
+/// but the B2's timestamp counts 400 Hz ticks.
+pub const B2_STREAM_RATES_HZ: [u32; 7] = [5, 10, 25, 50, 100, 200, 400];
+
+/// The LPMS driver: `[devices.imu]` of a robot file (devices.md §3), deserialised straight into
+/// this type; [`LpmsConfig::validate`] checks what the sensor and the session can do.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LpmsConfig {
-    /// Serial device, e.g. `/dev/rfcomm0` (or a udev symlink to it).
+    pub source: DeviceSource,
+    /// Serial device: a UART, an RFCOMM tty (`/dev/rfcomm0`, or a udev symlink to it) or a pty.
     pub path: String,
     /// UART baud rate (ignored by RFCOMM ttys).
     pub baud: u32,
-    /// Stream rate, Hz (5, 10, 25, 50, 100, 200, 400).
+    /// Stream rate, Hz ([`B2_STREAM_RATES_HZ`]).
     pub stream_hz: u32,
-    /// Id requests are addressed to.
+    /// The sensor's LPBUS id (replies carry it; commands are sent to it).
     pub imu_id: u16,
-    /// Outputs to stream.
+    /// Outputs to stream: what the robot's actors use, not a file setting.
+    #[serde(skip, default = "default_outputs")]
     pub outputs: OutputMask,
-    /// Float or 16-bit data.
+    /// Float or 16-bit data (`float | int16`).
     pub data_mode: DataMode,
     /// Time to wait for each reply.
+    #[serde(rename = "reply_timeout_ms", deserialize_with = "amr_settings::value::millis")]
     pub reply_timeout: Duration,
-    /// No data for this long reopens the port.
+    /// No data packet for this long while streaming reopens the port.
+    #[serde(rename = "data_timeout_ms", deserialize_with = "amr_settings::value::millis")]
     pub data_timeout: Duration,
-    /// First reopen delay.
-    pub backoff_initial: Duration,
-    /// Longest reopen delay.
-    pub backoff_max: Duration,
+    /// Reopening the port after it fails.
+    pub reconnect: Backoff,
+}
+
+fn default_outputs() -> OutputMask {
+    SessionConfig::default().outputs
 }
 
 impl Default for LpmsConfig {
     fn default() -> Self {
         let s = SessionConfig::default();
         Self {
+            source: DeviceSource::Real,
             path: "/dev/rfcomm0".into(),
             baud: DEFAULT_BAUD,
             stream_hz: s.stream_hz,
@@ -55,62 +73,41 @@ impl Default for LpmsConfig {
             data_mode: s.data_mode,
             reply_timeout: s.reply_timeout,
             data_timeout: s.data_timeout,
-            backoff_initial: s.backoff_initial,
-            backoff_max: s.backoff_max,
+            reconnect: Backoff { initial: s.backoff_initial, max: s.backoff_max },
         }
     }
 }
 
-/// A configuration value the driver cannot work with.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum ConfigError {
-    /// The path is empty.
-    #[error("lpms.path is empty")]
-    EmptyPath,
-    /// The rate is not one the B2 streams at (notes A3: 5, 10, 25, 50, 100, 200, 400 Hz).
-    #[error("lpms.stream_hz = {0}: the LPMS-B2 streams at 5, 10, 25, 50, 100, 200 or 400 Hz")]
-    StreamRate(u32),
-    /// A timeout or delay is zero.
-    #[error("lpms.{0} must be positive")]
-    ZeroDuration(&'static str),
-    /// The data timeout does not cover two sample periods, so the watchdog would fire on jitter.
-    #[error("lpms.data_timeout must exceed two sample periods ({min:?})")]
-    DataTimeoutTooShort {
-        /// Two sample periods.
-        min: Duration,
-    },
-    /// The first backoff delay exceeds the cap.
-    #[error("lpms.backoff_initial must not exceed lpms.backoff_max")]
-    BackoffOrder,
-}
-
 impl LpmsConfig {
-    /// Checks the values against what the sensor and the session can do.
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        if self.path.is_empty() {
-            return Err(ConfigError::EmptyPath);
+    /// What the sensor and the session can work with; `path` is where the section stands
+    /// (`devices.imu` in a robot file).
+    pub fn validate(&self, path: &str) -> Result<(), Violation> {
+        rule(!self.path.trim().is_empty(), join(path, "path"), "must not be empty")?;
+        rule(
+            BAUD_RATES.contains(&self.baud),
+            join(path, "baud"),
+            format!("must be one of {BAUD_RATES:?} (got {})", self.baud),
+        )?;
+        rule(
+            B2_STREAM_RATES_HZ.contains(&self.stream_hz),
+            join(path, "stream_hz"),
+            format!("must be one of {B2_STREAM_RATES_HZ:?} (got {})", self.stream_hz),
+        )?;
+        for (key, d) in [("reply_timeout_ms", self.reply_timeout), ("data_timeout_ms", self.data_timeout)] {
+            rule(!d.is_zero(), join(path, key), "must be a whole number of milliseconds > 0 (got 0)")?;
         }
-        if !super::data::STREAM_RATES_HZ[..7].contains(&self.stream_hz) {
-            return Err(ConfigError::StreamRate(self.stream_hz));
-        }
-        for (name, d) in [
-            ("reply_timeout", self.reply_timeout),
-            ("data_timeout", self.data_timeout),
-            ("backoff_initial", self.backoff_initial),
-            ("backoff_max", self.backoff_max),
-        ] {
-            if d.is_zero() {
-                return Err(ConfigError::ZeroDuration(name));
-            }
-        }
-        let min = Duration::from_secs_f64(2.0 / f64::from(self.stream_hz));
-        if self.data_timeout <= min {
-            return Err(ConfigError::DataTimeoutTooShort { min });
-        }
-        if self.backoff_initial > self.backoff_max {
-            return Err(ConfigError::BackoffOrder);
-        }
-        Ok(())
+        // Three sample periods, so the watchdog does not fire on jitter.
+        let min_ms = 3000u64.div_ceil(u64::from(self.stream_hz));
+        rule(
+            self.data_timeout >= Duration::from_millis(min_ms),
+            join(path, "data_timeout_ms"),
+            format!(
+                "must cover at least three stream periods at {} Hz ({min_ms} ms) (got {} ms)",
+                self.stream_hz,
+                self.data_timeout.as_millis()
+            ),
+        )?;
+        self.reconnect.check(&join(path, "reconnect"))
     }
 
     /// The session part of this configuration.
@@ -122,8 +119,8 @@ impl LpmsConfig {
             data_mode: self.data_mode,
             reply_timeout: self.reply_timeout,
             data_timeout: self.data_timeout,
-            backoff_initial: self.backoff_initial,
-            backoff_max: self.backoff_max,
+            backoff_initial: self.reconnect.initial,
+            backoff_max: self.reconnect.max,
             ..SessionConfig::default()
         }
     }
@@ -308,8 +305,8 @@ pub async fn run_serial(config: LpmsConfig, tx: mpsc::Sender<ImuMessage>) {
 pub fn spawn_serial(
     config: LpmsConfig,
     capacity: usize,
-) -> Result<(mpsc::Receiver<ImuMessage>, tokio::task::JoinHandle<()>), ConfigError> {
-    config.validate()?;
+) -> Result<(mpsc::Receiver<ImuMessage>, tokio::task::JoinHandle<()>), Violation> {
+    config.validate("lpms")?;
     let (tx, rx) = mpsc::channel(capacity.max(1));
     Ok((rx, tokio::spawn(run_serial(config, tx))))
 }
@@ -320,23 +317,40 @@ mod tests {
 
     #[test]
     fn validation_names_the_broken_value() {
-        assert_eq!(LpmsConfig::default().validate(), Ok(()));
+        assert_eq!(LpmsConfig::default().validate("imu"), Ok(()));
         let bad = |f: fn(&mut LpmsConfig)| {
             let mut c = LpmsConfig::default();
             f(&mut c);
-            c.validate().unwrap_err()
+            let v = c.validate("imu").unwrap_err();
+            format!("{}: {}", v.key, v.rule)
         };
-        assert_eq!(bad(|c| c.path.clear()), ConfigError::EmptyPath);
-        assert_eq!(bad(|c| c.stream_hz = 800), ConfigError::StreamRate(800));
-        assert_eq!(bad(|c| c.stream_hz = 99), ConfigError::StreamRate(99));
-        assert_eq!(bad(|c| c.reply_timeout = Duration::ZERO), ConfigError::ZeroDuration("reply_timeout"));
-        assert!(matches!(
+        assert_eq!(bad(|c| c.path.clear()), "imu.path: must not be empty");
+        assert_eq!(
+            bad(|c| c.stream_hz = 800),
+            "imu.stream_hz: must be one of [5, 10, 25, 50, 100, 200, 400] (got 800)"
+        );
+        assert_eq!(
+            bad(|c| c.stream_hz = 99),
+            "imu.stream_hz: must be one of [5, 10, 25, 50, 100, 200, 400] (got 99)"
+        );
+        assert_eq!(
+            bad(|c| c.baud = 9600),
+            "imu.baud: must be one of [19200, 38400, 57600, 115200, 230400, 460800, 921600] (got 9600)"
+        );
+        assert_eq!(
+            bad(|c| c.reply_timeout = Duration::ZERO),
+            "imu.reply_timeout_ms: must be a whole number of milliseconds > 0 (got 0)"
+        );
+        assert_eq!(
             bad(|c| {
                 c.stream_hz = 5;
                 c.data_timeout = Duration::from_millis(400);
             }),
-            ConfigError::DataTimeoutTooShort { .. }
-        ));
-        assert_eq!(bad(|c| c.backoff_initial = Duration::from_secs(9)), ConfigError::BackoffOrder);
+            "imu.data_timeout_ms: must cover at least three stream periods at 5 Hz (600 ms) (got 400 ms)"
+        );
+        assert_eq!(
+            bad(|c| c.reconnect.initial = Duration::from_secs(9)),
+            "imu.reconnect.initial_ms: must not exceed imu.reconnect.max_ms (9000 ms > 500 ms)"
+        );
     }
 }

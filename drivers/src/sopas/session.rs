@@ -24,8 +24,9 @@ use super::error::{DeviceError, LinkError, ProtocolError, SopasError};
 use super::framing::{Dialect, Framer, encode_frame};
 use super::scan::Scan;
 
-/// Which start-up sequence to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+/// Which start-up sequence to run (a robot file spells it `minimal` or `full`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all(deserialize = "kebab-case"))]
 pub enum Profile {
     /// sick_tim: `sRI 0`, SerialNumber, FirmwareVersion, SCdevicestate, `sEN LMDscandata 1`.
     Minimal,
@@ -42,6 +43,20 @@ pub enum DialectChoice {
     /// Probe this dialect first (then the other) and switch the device to it with
     /// `sWN EIHstCola` if it answered in the other.
     Fixed(Dialect),
+}
+
+impl<'de> serde::Deserialize<'de> for DialectChoice {
+    /// A robot file's spelling: `auto`, `A` (CoLa-A) or `B` (CoLa-B).
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        const NAMES: &[&str] = &["auto", "A", "B"];
+        let name = String::deserialize(deserializer)?;
+        match name.as_str() {
+            "auto" => Ok(DialectChoice::Auto),
+            "A" => Ok(DialectChoice::Fixed(Dialect::ColaA)),
+            "B" => Ok(DialectChoice::Fixed(Dialect::ColaB)),
+            other => Err(serde::de::Error::unknown_variant(other, NAMES)),
+        }
+    }
 }
 
 /// How scans are obtained.

@@ -12,55 +12,92 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
+use amr_settings::value::Backoff;
+use amr_settings::{DeviceSource, Violation, join, rule};
+use serde::Deserialize;
+
 use super::error::{LinkError, SopasError};
 use super::session::{DeviceInfo, DialectChoice, Event, Mode, Profile, Session, SessionConfig, StampedScan};
 
-/// Settings of one LiDAR connection (this crate does not depend on amr-core; the actors map their
-/// config onto this).
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// One LiDAR connection: `[devices.lidar]` of a robot file (devices.md §1), deserialised straight
+/// into this type; [`LidarConfig::validate`] checks the rules across its fields.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct LidarConfig {
+    pub source: DeviceSource,
     pub host: String,
     /// 2112 on a TiM5xx (notes §1.3).
     pub port: u16,
+    /// `auto`, `A` (CoLa-A, ASCII) or `B` (CoLa-B, binary).
     pub dialect: DialectChoice,
-    pub profile: Profile,
+    /// The start-up sequence: `minimal` (the ROS `sick_tim` driver's) or `full` (`sick_scan_xd`'s).
+    pub startup: Profile,
+    /// Streaming on a robot; polling is for tests and diagnostics, not a file setting.
+    #[serde(skip, default = "streaming")]
     pub mode: Mode,
+    /// How long to wait for the reply to one command.
+    #[serde(rename = "reply_timeout_ms", deserialize_with = "amr_settings::value::millis")]
     pub reply_timeout: Duration,
+    /// No scan for this long while streaming → reconnect and run the start-up again.
+    #[serde(rename = "scan_timeout_ms", deserialize_with = "amr_settings::value::millis")]
     pub scan_timeout: Duration,
-    pub backoff_initial: Duration,
-    pub backoff_max: Duration,
-    /// sick_tim and sick_scan_xd both give a connect 5 s.
+    pub reconnect: Backoff,
+    /// sick_tim and sick_scan_xd both give a connect 5 s; not a file setting.
+    #[serde(skip, default = "connect_timeout")]
     pub connect_timeout: Duration,
+}
+
+fn streaming() -> Mode {
+    Mode::Streaming
+}
+
+fn connect_timeout() -> Duration {
+    Duration::from_secs(5)
 }
 
 impl Default for LidarConfig {
     fn default() -> Self {
         let s = SessionConfig::default();
         Self {
+            source: DeviceSource::Real,
             host: "192.168.0.1".into(),
             port: 2112,
             dialect: s.dialect,
-            profile: s.profile,
+            startup: s.profile,
             mode: s.mode,
             reply_timeout: s.reply_timeout,
             scan_timeout: s.scan_timeout,
-            backoff_initial: s.backoff_initial,
-            backoff_max: s.backoff_max,
-            connect_timeout: Duration::from_secs(5),
+            reconnect: Backoff { initial: s.backoff_initial, max: s.backoff_max },
+            connect_timeout: connect_timeout(),
         }
     }
 }
 
 impl LidarConfig {
+    /// The section's rules; `path` is where it stands (`devices.lidar`).
+    pub fn validate(&self, path: &str) -> Result<(), Violation> {
+        rule(!self.host.trim().is_empty(), join(path, "host"), "must not be empty")?;
+        rule(self.port != 0, join(path, "port"), "must be a TCP port in 1..=65535 (got 0)")?;
+        rule(
+            self.scan_timeout >= Duration::from_millis(200),
+            join(path, "scan_timeout_ms"),
+            format!(
+                "must be at least 200 ms (three scan periods at 15 Hz) (got {} ms)",
+                self.scan_timeout.as_millis()
+            ),
+        )?;
+        self.reconnect.check(&join(path, "reconnect"))
+    }
+
     fn session_config(&self) -> SessionConfig {
         SessionConfig {
-            profile: self.profile,
+            profile: self.startup,
             dialect: self.dialect,
             mode: self.mode,
             reply_timeout: self.reply_timeout,
             scan_timeout: self.scan_timeout,
-            backoff_initial: self.backoff_initial,
-            backoff_max: self.backoff_max,
+            backoff_initial: self.reconnect.initial,
+            backoff_max: self.reconnect.max,
             ..SessionConfig::default()
         }
     }

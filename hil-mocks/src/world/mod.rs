@@ -11,7 +11,6 @@ mod site;
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use amr_core::config::RobotConfig;
 use amr_core::geometry::{Polygon, cast_ray};
 use amr_core::rng::Rng;
 use amr_core::scan::Scan;
@@ -28,19 +27,6 @@ pub struct RobotSpec {
     pub lidar_mount: Se2,
     /// Largest wheel-surface acceleration the drives deliver, m/s².
     pub max_accel_mps2: f64,
-}
-
-impl RobotSpec {
-    #[must_use]
-    pub fn from_config(c: &RobotConfig) -> Self {
-        RobotSpec {
-            chassis: c.chassis.outline_m.clone(),
-            wheel_radius_m: c.kinematics.wheel_radius_m.get(),
-            track_width_m: c.kinematics.track_width_m.get(),
-            lidar_mount: c.lidar_mount.to_se2(),
-            max_accel_mps2: c.limits.max_accel_mps2.get(),
-        }
-    }
 }
 
 /// Sensor and actuator imperfections.

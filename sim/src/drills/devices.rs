@@ -2,10 +2,10 @@
 
 use std::time::Duration;
 
+use amr_actors::config::Config;
 use amr_actors::robot::canbus::CanBusMsg;
 use amr_actors::robot::lidar::LidarMsg;
 use amr_actors::supervisor::{EventKind, SupervisorMsg};
-use amr_core::config::Config;
 use amr_drivers::canopen::cia402::State402;
 use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, SafetyState, Uplink};
 use hil_mocks::teco_drive::Fault as DriveFault;

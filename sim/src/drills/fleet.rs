@@ -15,11 +15,12 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
+use amr_actors::config::Config;
 use amr_actors::server::formation::Phase;
 use amr_actors::server::localizer::LocalizerMsg;
 use amr_actors::server::ports::ServerStats;
 use amr_actors::supervisor::EventKind;
-use amr_core::config::{Config, ScenarioConfig};
+use amr_core::config::ScenarioConfig;
 use amr_msgs::{DisarmReason, SafetyState};
 use hil_mocks::world::Noise;
 use ractor::{Actor, ActorProcessingErr, ActorRef};

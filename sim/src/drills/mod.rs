@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
+use amr_actors::config::Config;
 use amr_actors::robot::RobotOptions;
 use amr_actors::supervisor::{ChildInfo, SupervisorMsg};
-use amr_core::config::Config;
 use amr_msgs::{Command, Device, Downlink, Health};
 use ractor::{ActorCell, ActorRef};
 use serde::Serialize;

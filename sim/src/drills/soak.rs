@@ -27,9 +27,9 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use amr_actors::config::Config;
 use amr_actors::robot::lidar::LidarMsg;
 use amr_actors::supervisor::EventKind;
-use amr_core::config::Config;
 use amr_core::rng::Rng;
 use amr_drivers::canopen::cia402::State402;
 use amr_msgs::{Device, Health, SafetyState};

@@ -1,5 +1,6 @@
 use super::*;
-use amr_core::config::{Config, ConfigFile, value::Count};
+use amr_actors::config::{Config, ConfigFile};
+use amr_core::config::value::Count;
 use hil_mocks::world::paper_site;
 
 fn shipped() -> Config {
@@ -41,7 +42,7 @@ fn short_setup() -> Setup {
     Setup {
         site: paper_site().unwrap(),
         map: config.maps["paper-site"].clone(),
-        robot: RobotSpec::from_config(&config.robots[0]),
+        robot: crate::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),
         amcl,
         noise: Noise::TYPICAL,

@@ -149,22 +149,65 @@ impl Count {
     }
 }
 
-/// Capped exponential backoff between reconnection attempts.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+// Deserialisers for fields that keep a plain type (a driver's sans-IO settings are plain
+// numbers and durations) but take the same checks and words as the types above:
+// `#[serde(deserialize_with = "amr_settings::value::ms")] pub sync_period_ms: u32`.
+
+/// Whole milliseconds > 0, as a [`Duration`] (`reply_timeout_ms = 300`; rename the field).
+pub fn millis<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<Duration, D::Error> {
+    Millis::deserialize(deserializer).map(Millis::duration)
+}
+
+/// Whole milliseconds > 0, as a number of milliseconds.
+pub fn ms<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<u32, D::Error> {
+    Millis::deserialize(deserializer).map(Millis::ms)
+}
+
+/// A whole count >= 1.
+pub fn count<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<u32, D::Error> {
+    Count::deserialize(deserializer).map(Count::get)
+}
+
+/// A finite number > 0.
+pub fn positive<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Positive::deserialize(deserializer).map(Positive::get)
+}
+
+/// Capped exponential backoff between reconnection attempts: `{ initial_ms = 100, max_ms = 5000 }`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(from = "BackoffMs")]
 pub struct Backoff {
     /// Wait before the first retry.
-    pub initial_ms: Millis,
+    pub initial: Duration,
     /// The cap: the wait doubles after each failure up to this.
-    pub max_ms: Millis,
+    pub max: Duration,
+}
+
+/// The file's spelling of a [`Backoff`].
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BackoffMs {
+    initial_ms: Millis,
+    max_ms: Millis,
+}
+
+impl From<BackoffMs> for Backoff {
+    fn from(b: BackoffMs) -> Self {
+        Backoff { initial: b.initial_ms.duration(), max: b.max_ms.duration() }
+    }
 }
 
 impl Backoff {
-    pub(crate) fn check(&self, key: &str) -> Result<(), super::Violation> {
+    /// The wait may not start above its cap. `key` is the backoff's own key path.
+    pub fn check(&self, key: &str) -> Result<(), super::Violation> {
         super::rule(
-            self.initial_ms <= self.max_ms,
+            self.initial <= self.max,
             format!("{key}.initial_ms"),
-            format!("must not exceed {key}.max_ms ({} ms > {} ms)", self.initial_ms.ms(), self.max_ms.ms()),
+            format!(
+                "must not exceed {key}.max_ms ({} ms > {} ms)",
+                self.initial.as_millis(),
+                self.max.as_millis()
+            ),
         )
     }
 }

@@ -1,11 +1,17 @@
-//! Loading a configuration set from a directory or from the copy embedded at build time.
-//!
-//! Parsing and validation are `amr_core::config`'s; this module only finds and reads the files.
+//! The robot's configuration: a set of files from a directory or from the copy embedded at build
+//! time ([`load`]), each parsed into the types of the crate that owns it ([`set`]); the robot file
+//! ([`robot`]) puts a body from amr-core and devices from amr-drivers together.
 
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use amr_core::config::{Config, ConfigError, ConfigFile};
+pub use amr_core::config::ConfigError;
+
+mod robot;
+mod set;
+
+pub use robot::{Devices, RobotConfig};
+pub use set::{Config, ConfigFile, FileKind};
 
 mod embedded {
     include!(concat!(env!("OUT_DIR"), "/embedded_config.rs"));

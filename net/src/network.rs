@@ -8,8 +8,9 @@
 
 use serde::Deserialize;
 
-use super::value::Millis;
-use super::{ConfigFileType, RobotId, Violation, rule};
+use amr_actors::config::{Config, ConfigError};
+use amr_core::config::value::Millis;
+use amr_core::config::{ConfigFileType, RobotId, Violation, parse_file, rule};
 
 /// The link's settings.
 #[derive(Debug, Clone, Deserialize)]
@@ -69,6 +70,13 @@ impl ConfigFileType for NetworkConfig {
     }
 }
 
+impl NetworkConfig {
+    /// The set's `network.toml`, parsed and checked; `None` when the set has none.
+    pub fn from_set(config: &Config) -> Result<Option<NetworkConfig>, ConfigError> {
+        config.network.as_ref().map(|f| parse_file::<NetworkConfig>(&f.path, f.text()?)).transpose()
+    }
+}
+
 /// `tcp/<host>:<port>` with a port number.
 fn tcp_endpoint(e: &str) -> bool {
     e.strip_prefix("tcp/")
@@ -79,7 +87,6 @@ fn tcp_endpoint(e: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::parse_file;
 
     const GOOD: &str = r#"
 lease_ms = 2000
