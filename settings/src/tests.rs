@@ -71,10 +71,7 @@ fn a_file_parses_into_its_types() {
 #[test]
 fn each_kind_of_error_names_file_line_key_and_rule() {
     let err = |text: &str| parse_file::<Outer>("o.toml", text).unwrap_err().to_string();
-    assert_eq!(
-        err("period_ms = [\n"),
-        "o.toml:1: not valid TOML: unclosed array, expected `]`"
-    );
+    assert_eq!(err("period_ms = [\n"), "o.toml:1: not valid TOML: unclosed array, expected `]`");
     assert_eq!(
         err(&GOOD.replace("gain = 1.5", "gain = -1.5")),
         "o.toml:3: inner.gain: must be > 0 (got -1.5)"

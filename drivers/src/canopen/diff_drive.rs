@@ -65,7 +65,7 @@ pub struct DrivesConfig {
     pub quick_stop_decel_mps2: f64,
 }
 
-/// Wheel geometry; mirrors `[kinematics]`.
+/// Wheel geometry, from a robot file's `[kinematics]` (amr-core's type; this crate takes plain numbers).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Geometry {
     /// Wheel radius.
