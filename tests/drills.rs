@@ -42,6 +42,8 @@ drills! {
     drive_bus_off => "drive-bus-off",
     drive_heartbeat => "drive-heartbeat",
     drive_reboot => "drive-reboot",
+    drive_fault_moving => "drive-fault-moving",
+    drive_reboot_moving => "drive-reboot-moving",
     bad_data => "bad-data",
     absent_at_start => "absent-at-start",
     link_lost => "link-lost",

@@ -57,7 +57,7 @@ mod teco {
                 boot_timeout_ms: 5000,
                 ..BusConfig::default()
             },
-            drives: dd.drive_setups(0.5, 1.0),
+            drives: dd.drive_setups(0.5, 0.5, 1.0),
             enable_timeout_ms: 1000,
             mode_confirm_attempts: 5,
         }

@@ -166,7 +166,7 @@ mod teco {
                 boot_timeout_ms: 2000,
                 ..BusConfig::default()
             },
-            drives: dd.drive_setups(1.0, 2.0),
+            drives: dd.drive_setups(1.0, 1.0, 2.0),
             enable_timeout_ms: 2000,
             mode_confirm_attempts: 5,
         };

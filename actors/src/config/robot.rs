@@ -58,6 +58,27 @@ impl ConfigFileType for RobotConfig {
                 self.limits.max_accel_mps2.get()
             ),
         )?;
+        if let Some(stop) = self.safety.stop_decel_mps2 {
+            rule(
+                stop >= self.limits.max_accel_mps2,
+                "safety.stop_decel_mps2",
+                format!(
+                    "must be at least limits.max_accel_mps2: a stop must not brake more gently than normal driving \
+                     ({} < {} m/s²)",
+                    stop.get(),
+                    self.limits.max_accel_mps2.get()
+                ),
+            )?;
+            rule(
+                stop.get() <= d.drives.quick_stop_decel_mps2,
+                "safety.stop_decel_mps2",
+                format!(
+                    "must not exceed devices.drives.quick_stop_decel_mps2: the e-stop brakes hardest ({} > {} m/s²)",
+                    stop.get(),
+                    d.drives.quick_stop_decel_mps2
+                ),
+            )?;
+        }
         d.imu.validate("devices.imu")?;
         self.safety.validate("safety")
     }
@@ -76,11 +97,24 @@ impl RobotConfig {
         )
     }
 
+    /// The deceleration of the safety layer's stops: `safety.stop_decel_mps2`, else the drives'
+    /// quick stop.
+    #[must_use]
+    pub fn stop_decel_mps2(&self) -> f64 {
+        self.safety.stop_decel_mps2.map_or(self.devices.drives.quick_stop_decel_mps2, |d| d.get())
+    }
+
     /// The CANopen master's settings: the bus from `[devices.can]`, each drive's start-up from
-    /// `[devices.drives]`, its profile ramps from the robot's acceleration limit.
+    /// `[devices.drives]`; the drives' profile acceleration is the robot's acceleration limit, their
+    /// profile deceleration the stop deceleration, so that they can follow the safety layer's stops
+    /// (it ramps ordinary slowing-down at the acceleration limit itself).
     #[must_use]
     pub fn master(&self) -> MasterConfig {
-        self.diff_drive().master_config(&self.devices.can, self.limits.max_accel_mps2.get())
+        self.diff_drive().master_config(
+            &self.devices.can,
+            self.limits.max_accel_mps2.get(),
+            self.stop_decel_mps2(),
+        )
     }
 }
 

@@ -144,6 +144,7 @@ pub(crate) fn safety_params(cfg: &RobotConfig) -> SafetyParams {
         max_speed_mps: cfg.limits.max_speed_mps.get(),
         max_yaw_rate_radps: cfg.limits.max_yaw_rate_radps.get(),
         max_accel_mps2: cfg.limits.max_accel_mps2.get(),
+        stop_decel_mps2: cfg.stop_decel_mps2(),
         track_width_m: cfg.kinematics.track_width_m.get(),
         command_timeout_s: f64::from(cfg.safety.command_timeout_ms.ms()) / 1000.0,
         period_s: f64::from(cfg.devices.can.sync_period_ms) / 1000.0,

@@ -4,9 +4,11 @@
 //!   number) and not older than the command timeout (stamp); anything else is refused and counted.
 //! - Velocity limits clamp every command; each wheel's speed changes by at most
 //!   `max_accel · dt` per cycle, so turning obeys the acceleration limit as well as driving.
-//! - Command watchdog: no fresh command for `command_timeout_ms` → disarm and ramp to zero at the
-//!   acceleration limit. Only an explicit arm (with a new sequence floor) lets commands through
-//!   again, so nothing queued during an outage is ever applied.
+//! - Command watchdog: no fresh command for `command_timeout_ms` → disarm and stop. Only an
+//!   explicit arm (with a new sequence floor) lets commands through again, so nothing queued during
+//!   an outage is ever applied.
+//! - Every stop the layer makes (watchdog, disarm, lost drives) brakes at the stop deceleration,
+//!   not at the acceleration limit, which only shapes driving while armed.
 //! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed).
 //! - A supervisor escalation or a lost drive latches or disarms likewise.
 //!
@@ -28,6 +30,8 @@ pub(crate) struct SafetyParams {
     pub max_speed_mps: f64,
     pub max_yaw_rate_radps: f64,
     pub max_accel_mps2: f64,
+    /// Wheel-surface deceleration of a stop (any state but armed).
+    pub stop_decel_mps2: f64,
     pub track_width_m: f64,
     pub command_timeout_s: f64,
     /// Control cycle (the CAN SYNC period).
@@ -193,7 +197,9 @@ impl SafetyCore {
             ),
             _ => (0.0, 0.0),
         };
-        self.output = ramp_wheels(self.output, target, p.max_accel_mps2 * dt, p.track_width_m);
+        // Driving (armed) is shaped by the comfort limit; a stop brakes at the stop deceleration.
+        let rate = if self.state == SafetyState::Armed { p.max_accel_mps2 } else { p.stop_decel_mps2 };
+        self.output = ramp_wheels(self.output, target, rate * dt, p.track_width_m);
         WheelCommand { v_mps: self.output.0, w_radps: self.output.1, quick_stop: false }
     }
 }
@@ -208,6 +214,18 @@ fn ramp_wheels(from: (f64, f64), to: (f64, f64), dv: f64, track_m: f64) -> (f64,
     let out = (0.5 * (l + r), (r - l) / track_m);
     // Snap exact zeros so a stopped robot outputs exactly zero.
     (if out.0.abs() < 1e-12 { 0.0 } else { out.0 }, if out.1.abs() < 1e-12 { 0.0 } else { out.1 })
+}
+
+/// Whether a health report stops the robot until it is armed again: without working drives
+/// commands cannot be followed. A drive that faulted or rebooted (drives `Degraded`: one left
+/// Operation enabled) is reset and enabled again by the drive actor; the halt makes its output zero
+/// by then, so it never comes back into motion by itself.
+fn halts(h: &HealthReport) -> bool {
+    match h.device {
+        Device::Drives => matches!(h.health, Health::Lost | Health::Fault | Health::Degraded),
+        Device::CanBus => matches!(h.health, Health::Lost | Health::Fault),
+        _ => false,
+    }
 }
 
 /// Messages of the safety actor.
@@ -322,11 +340,7 @@ impl Actor for SafetyActor {
             }
             SafetyMsg::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested),
             SafetyMsg::Health(h) => {
-                // Without working drives commands cannot be followed: disarm, so motion needs a
-                // fresh arm once they are back.
-                if matches!(h.device, Device::Drives | Device::CanBus)
-                    && matches!(h.health, Health::Lost | Health::Fault)
-                {
+                if halts(&h) {
                     s.core.halt();
                 }
             }
@@ -352,6 +366,7 @@ mod tests {
         max_speed_mps: 0.22,
         max_yaw_rate_radps: 0.2,
         max_accel_mps2: 0.05,
+        stop_decel_mps2: 0.5,
         track_width_m: 0.33,
         command_timeout_s: 0.2,
         period_s: 0.02,
@@ -421,14 +436,19 @@ mod tests {
         // Commands stop at t = 5.98; the watchdog fires once 200 ms have passed.
         let after = run(&mut c, 6.0, 400, None);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Watchdog));
-        // It ramped: never faster than the limit, and reached zero exactly.
+        // It braked at the stop deceleration (0.5 m/s²: 10 mm/s per cycle), not at the motion
+        // limit, and reached zero exactly.
         for w in after.windows(2) {
-            assert!(w[0].v_mps - w[1].v_mps <= 0.001 + 1e-12);
+            assert!(w[0].v_mps - w[1].v_mps <= 0.010 + 1e-12);
         }
         assert_eq!(after.last().map(|o| o.v_mps), Some(0.0));
-        // Full speed for the first 10 cycles (the timeout), then down.
+        // Full speed for the first 10 cycles (the timeout), then down: zero 0.2 s / 0.5 m/s² = 0.4 s
+        // (20 cycles) after the watchdog.
         assert!((after[8].v_mps - v0).abs() < 1e-12);
-        assert!(after[12].v_mps < v0);
+        assert!(after[12].v_mps < v0 - 0.015);
+        let first_down = after.iter().position(|o| o.v_mps < v0).unwrap_or(usize::MAX);
+        let zero = after.iter().position(|o| o.v_mps == 0.0).unwrap_or(usize::MAX);
+        assert!(zero.saturating_sub(first_down) <= 20, "braking from cycle {first_down}, zero at {zero}");
         // A command that was queued during the outage (older seq, or stamped long ago) is refused
         // even after the re-arm.
         assert_eq!(c.offer(cmd(seq + 1, 6.0, 0.2, 0.0), 14.0), Err(Refusal::NotArmed));
@@ -440,6 +460,25 @@ mod tests {
         assert_eq!(c.offer(cmd(seq + 11, 14.0, 0.2, 0.0), 14.0), Err(Refusal::Stale));
         assert_eq!(c.offer(cmd(seq + 10, 14.0, 0.2, 0.0), 14.0), Err(Refusal::Stale));
         assert_eq!(c.offer(cmd(seq + 12, 14.0, f64::NAN, 0.0), 14.0), Err(Refusal::NotFinite));
+    }
+
+    #[test]
+    fn slowing_down_while_armed_keeps_the_comfort_limit_a_disarm_brakes_at_the_stop_rate() {
+        let mut c = SafetyCore::new(P);
+        c.arm(0, 0.0);
+        let mut seq = 0;
+        let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
+        let v0 = out.last().map_or(0.0, |o| o.v_mps);
+        // Commanded down to 0.1 m/s: 1 mm/s per cycle.
+        let down = run(&mut c, 6.0, 10, Some((&mut seq, 0.1, 0.0)));
+        assert!((down[9].v_mps - (v0 - 0.010)).abs() < 1e-9, "{} {v0}", down[9].v_mps);
+        // A disarm: 10 mm/s per cycle to zero.
+        c.disarm(DisarmReason::Requested);
+        let stop = run(&mut c, 6.2, 30, None);
+        let v1 = down[9].v_mps;
+        assert!((stop[0].v_mps - (v1 - 0.010)).abs() < 1e-9, "{} {v1}", stop[0].v_mps);
+        let zero_at = stop.iter().position(|o| o.v_mps == 0.0).unwrap_or(usize::MAX);
+        assert_eq!(zero_at + 1, (v1 / 0.010).round() as usize, "{v1}");
     }
 
     #[test]
@@ -472,6 +511,20 @@ mod tests {
     }
 
     #[test]
+    fn a_faulted_or_rebooted_drive_halts_other_devices_do_not() {
+        let report = |device, health| HealthReport { device, health, detail: String::new() };
+        assert!(halts(&report(Device::Drives, Health::Degraded)));
+        assert!(halts(&report(Device::Drives, Health::Lost)));
+        assert!(halts(&report(Device::Drives, Health::Fault)));
+        assert!(halts(&report(Device::CanBus, Health::Lost)));
+        assert!(!halts(&report(Device::Drives, Health::Ok)));
+        assert!(!halts(&report(Device::Drives, Health::Starting)));
+        assert!(!halts(&report(Device::CanBus, Health::Degraded)));
+        assert!(!halts(&report(Device::Lidar, Health::Lost)));
+        assert!(!halts(&report(Device::Imu, Health::Fault)));
+    }
+
+    #[test]
     fn estop_latches_until_reset_and_a_fault_never_clears() {
         let mut c = SafetyCore::new(P);
         c.arm(0, 0.0);
@@ -492,5 +545,146 @@ mod tests {
         c.estop();
         assert_eq!(c.state(), SafetyState::Fault);
         assert!(c.tick(3.0).quick_stop);
+    }
+
+    /// One input to the safety layer, as the state-machine property test draws them.
+    #[derive(Debug, Clone)]
+    enum Op {
+        /// A command `ahead` numbers after the last one sent (0: a replay), stamped `age_s` ago.
+        Command {
+            ahead: u64,
+            age_s: f64,
+            v: f64,
+            w: f64,
+        },
+        /// An arm whose floor is `ahead` numbers after the last command sent.
+        Arm {
+            ahead: u64,
+        },
+        Disarm,
+        /// The drives lost or faulted.
+        Halt,
+        EStop,
+        ResetEStop,
+        Fault,
+        /// The safety actor restarted: a new core.
+        Restart,
+        Tick {
+            dt_s: f64,
+        },
+    }
+
+    fn op() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            6 => (0u64..3, 0.0..0.4f64, -1.0..1.0f64, -1.0..1.0f64)
+                .prop_map(|(ahead, age_s, v, w)| Op::Command { ahead, age_s, v, w }),
+            2 => (0u64..3).prop_map(|ahead| Op::Arm { ahead }),
+            1 => Just(Op::Disarm),
+            1 => Just(Op::Halt),
+            1 => Just(Op::EStop),
+            1 => Just(Op::ResetEStop),
+            1 => Just(Op::Fault),
+            1 => Just(Op::Restart),
+            12 => (0.0..0.1f64).prop_map(|dt_s| Op::Tick { dt_s }),
+        ]
+    }
+
+    fn wheels((v, w): (f64, f64)) -> [f64; 2] {
+        [v - w * P.track_width_m / 2.0, v + w * P.track_width_m / 2.0]
+    }
+
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 500, ..ProptestConfig::default() })]
+
+        /// Issue 19 §6: whatever the sequence of commands, arms, e-stops, faults, restarts and
+        /// time steps, the output stays within the limits, changes no faster than the ramp of the
+        /// state it is in, never grows while the robot is not armed, is zero in e-stop and fault,
+        /// and is zero once the watchdog and a stop have had their time after the last fresh
+        /// command.
+        #[test]
+        fn safety_core_invariants_hold_for_any_input_sequence(ops in proptest::collection::vec(op(), 1..200)) {
+            let mut core = SafetyCore::new(P);
+            let mut now = 0.0f64;
+            let mut sent = 0u64;
+            // When the robot last had something that lets it move: an accepted arm or command.
+            let mut fresh_at = f64::NEG_INFINITY;
+            let mut prev = (0.0f64, 0.0f64);
+            // Whether the output may jump this cycle (a quick stop or dropped drives set it to zero).
+            let mut jumped = false;
+            for op in ops {
+                let armed_before = core.state() == SafetyState::Armed;
+                match op {
+                    Op::Command { ahead, age_s, v, w } => {
+                        sent += ahead;
+                        let c = cmd(sent, now - age_s, v, w);
+                        if core.offer(c, now).is_ok() {
+                            prop_assert!(armed_before, "a command was accepted while not armed");
+                            fresh_at = now;
+                        }
+                    }
+                    Op::Arm { ahead } => {
+                        let was = core.state();
+                        let ok = core.arm(sent + ahead, now);
+                        prop_assert_eq!(ok, matches!(was, SafetyState::Armed | SafetyState::Disarmed(_)));
+                        if ok && was != SafetyState::Armed {
+                            fresh_at = now;
+                        }
+                    }
+                    Op::Disarm => core.disarm(DisarmReason::Requested),
+                    Op::Halt => {
+                        core.halt();
+                        jumped = true;
+                    }
+                    Op::EStop => {
+                        core.estop();
+                        jumped = true;
+                    }
+                    Op::ResetEStop => {
+                        core.reset_estop();
+                    }
+                    Op::Fault => {
+                        core.fault();
+                        jumped = true;
+                    }
+                    Op::Restart => {
+                        core = SafetyCore::new(P);
+                        jumped = true;
+                    }
+                    Op::Tick { dt_s } => {
+                        now += dt_s;
+                        let state_before = core.state();
+                        let out = core.tick(now);
+                        let (v, w) = (out.v_mps, out.w_radps);
+                        prop_assert!(v.abs() <= P.max_speed_mps + 1e-9 && w.abs() <= P.max_yaw_rate_radps + 1e-9, "{v} {w}");
+                        if matches!(core.state(), SafetyState::EStop | SafetyState::Fault) {
+                            prop_assert!(out.quick_stop && v == 0.0 && w == 0.0);
+                        }
+                        let (a, b) = (wheels(prev), wheels((v, w)));
+                        if !jumped {
+                            // The tick clamps dt to ten periods.
+                            let dt = dt_s.min(10.0 * P.period_s);
+                            let rate = if core.state() == SafetyState::Armed { P.max_accel_mps2 } else { P.stop_decel_mps2 };
+                            for k in 0..2 {
+                                prop_assert!((b[k] - a[k]).abs() <= rate * dt + 1e-9, "wheel {k}: {} -> {} in {dt} s", a[k], b[k]);
+                            }
+                        }
+                        if state_before != SafetyState::Armed && core.state() != SafetyState::Armed {
+                            for k in 0..2 {
+                                prop_assert!(b[k].abs() <= a[k].abs() + 1e-9, "wheel {k} sped up while not armed: {} -> {}", a[k], b[k]);
+                            }
+                        }
+                        // Watchdog, then a stop from at most the top wheel speed, then one cycle.
+                        let top_wheel = P.max_speed_mps + P.max_yaw_rate_radps * P.track_width_m / 2.0;
+                        if now - fresh_at > P.command_timeout_s + top_wheel / P.stop_decel_mps2 + 11.0 * P.period_s {
+                            prop_assert!(v == 0.0 && w == 0.0, "still moving {v} {w} {} s after the last fresh command", now - fresh_at);
+                        }
+                        prev = (v, w);
+                        jumped = false;
+                    }
+                }
+            }
+        }
     }
 }

@@ -89,8 +89,13 @@ pub struct MotionLimits {
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SafetyConfig {
-    /// No fresh velocity command for this long → ramp to zero at the acceleration limit.
+    /// No fresh velocity command for this long → stop (at `stop_decel_mps2`).
     pub command_timeout_ms: Millis,
+    /// Wheel-surface deceleration of every stop the safety layer makes (watchdog, link loss,
+    /// disarm, lost drives), m/s²: separate from the motion limit, which is a comfort limit for
+    /// driving. Without it, the drives' quick-stop deceleration (`devices.drives.quick_stop_decel_mps2`).
+    #[serde(default)]
+    pub stop_decel_mps2: Option<Positive>,
 }
 
 impl SafetyConfig {

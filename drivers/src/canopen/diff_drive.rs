@@ -130,19 +130,25 @@ impl DiffDrive {
             * self.geometry.wheel_radius_m
     }
 
-    /// The master for these drives on `bus`: profile ramps from the robot's acceleration limit, the
-    /// quick stop from `quick_stop_decel_mps2`.
-    pub fn master_config(&self, bus: &BusConfig, max_accel_mps2: f64) -> MasterConfig {
+    /// The master for these drives on `bus`: profile acceleration `accel_mps2` (0x6083), profile
+    /// deceleration `decel_mps2` (0x6084), the quick stop from `quick_stop_decel_mps2` (0x6085).
+    pub fn master_config(&self, bus: &BusConfig, accel_mps2: f64, decel_mps2: f64) -> MasterConfig {
         MasterConfig {
             can: bus.clone(),
-            drives: self.drive_setups(max_accel_mps2, self.drives.quick_stop_decel_mps2),
+            drives: self.drive_setups(accel_mps2, decel_mps2, self.drives.quick_stop_decel_mps2),
             enable_timeout_ms: self.drives.enable_timeout_ms,
             mode_confirm_attempts: self.drives.mode_confirm_attempts,
         }
     }
 
-    /// The start-up settings of both drives; profile ramps from the robot's acceleration limit.
-    pub fn drive_setups(&self, max_accel_mps2: f64, quick_stop_decel_mps2: f64) -> Vec<DriveSetup> {
+    /// The start-up settings of both drives: profile acceleration, profile deceleration and quick-stop
+    /// deceleration as wheel-surface m/s².
+    pub fn drive_setups(
+        &self,
+        accel_mps2: f64,
+        decel_mps2: f64,
+        quick_stop_decel_mps2: f64,
+    ) -> Vec<DriveSetup> {
         let to_units = |a_mps2: f64| {
             let motor_rps2 = a_mps2 / self.geometry.wheel_radius_m / TAU * self.drives.gear_ratio;
             (motor_rps2 * self.drives.velocity_units_per_rps).round().clamp(1.0, f64::from(u32::MAX)) as u32
@@ -156,8 +162,8 @@ impl DiffDrive {
                 heartbeat_consumer_ms: self.drives.heartbeat_consumer_ms,
                 master_consumer_ms: u16::try_from(self.drives.master_consumer_ms).unwrap_or(u16::MAX),
                 comm_loss_reaction: self.drives.comm_loss_reaction,
-                profile_acceleration: to_units(max_accel_mps2),
-                profile_deceleration: to_units(max_accel_mps2),
+                profile_acceleration: to_units(accel_mps2),
+                profile_deceleration: to_units(decel_mps2),
                 quick_stop_deceleration: to_units(quick_stop_decel_mps2),
             })
             .collect()

@@ -13,7 +13,8 @@ use hil_mocks::tim551::Fault as LidarFault;
 use ractor::ActorRef;
 
 use super::{
-    Check, all_ok, child, drive, events_from, health, keep_counters, rig, wheels_still, wheels_turning,
+    Check, all_ok, child, drive, drive_from, events_from, health, keep_counters, rig, wheels_still,
+    wheels_turning,
 };
 use crate::{RobotRig, SimCan};
 
@@ -420,6 +421,60 @@ pub(crate) async fn drive_reboot(config: &Config, seed: u64, c: &mut Check) {
     c.eq("enables without configuration", after.enables_unconfigured, 0);
     c.eq("0x1016 written again", after.master_consumer != 0, true);
     end_without_restarts(rig, c, n0).await;
+}
+
+/// A drive faults or reboots while the robot drives and the server goes on commanding (issue 19
+/// §1): the robot halts (disarmed, every target zero at once); the drive actor resets the drive
+/// and enables it again, at zero; nothing moves, however long the commands go on, until an explicit
+/// arm newer than the event; then the robot drives again.
+async fn drive_fault_while_moving(config: &Config, seed: u64, c: &mut Check, fault: DriveFault) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
+    let before = rig.mocks.drives[0].now();
+    let n0 = rig.tree.events.len();
+    c.inject();
+    rig.mocks.drives[0].inject(fault);
+    c.detection = c
+        .within("the robot halted: Disarmed(DeviceLost)", Duration::from_millis(500), || {
+            *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::DeviceLost))
+        })
+        .await;
+    c.safe_state = c.within("every target zero", Duration::from_millis(600), || targets_zero(&rig)).await;
+    c.within("the drive enabled again", Duration::from_secs(10), || {
+        let d = rig.mocks.drives[0].now();
+        d.enables > before.enables
+            && d.state == State402::OperationEnabled
+            && health(&rig, Device::Drives) == Some(Health::Ok)
+    })
+    .await;
+    let refused_before = rig.tree.counters.get("safety.refused.not_armed");
+    c.throughout(
+        "enabled again and still commanded: every target zero, the robot not armed",
+        Duration::from_secs(2),
+        || targets_zero(&rig) && *rig.tree.ports.safety_now.borrow() != Some(SafetyState::Armed),
+    )
+    .await;
+    c.that(
+        rig.tree.counters.get("safety.refused.not_armed") > refused_before,
+        "the commands that went on were refused (not armed)",
+    );
+    drop(feed);
+    let _feed = drive_from(&rig, 0.15, 100_000);
+    c.recovery = c
+        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await;
+    c.eq("enables without configuration", rig.mocks.drives[0].now().enables_unconfigured, 0);
+    end_without_restarts(rig, c, n0).await;
+}
+
+/// A drive faults (EMCY 0x2310, overcurrent) while the robot drives.
+pub(crate) async fn drive_fault_moving(config: &Config, seed: u64, c: &mut Check) {
+    drive_fault_while_moving(config, seed, c, DriveFault::DriveFault { code: 0x2310 }).await;
+}
+
+/// A drive reboots while the robot drives.
+pub(crate) async fn drive_reboot_moving(config: &Config, seed: u64, c: &mut Check) {
+    drive_fault_while_moving(config, seed, c, DriveFault::Reboot).await;
 }
 
 /// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.

@@ -71,6 +71,14 @@ pub const DRILLS: &[Drill] = &[
     },
     Drill { name: "drive-reboot", about: "a drive reboots: reconfigured before it is enabled again" },
     Drill {
+        name: "drive-fault-moving",
+        about: "a drive faults while the robot drives: halted, the drive reset and enabled at zero, no motion until a new arm",
+    },
+    Drill {
+        name: "drive-reboot-moving",
+        about: "a drive reboots while the robot drives: halted, reconfigured and enabled at zero, no motion until a new arm",
+    },
+    Drill {
         name: "bad-data",
         about: "garbage, truncated frames, bad checksums, NaN: rejected and counted, nothing panics",
     },
@@ -247,6 +255,8 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "drive-bus-off" => devices::drive_bus_off(config, seed, &mut c).await,
         "drive-heartbeat" => devices::drive_heartbeat(config, seed, &mut c).await,
         "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
+        "drive-fault-moving" => devices::drive_fault_moving(config, seed, &mut c).await,
+        "drive-reboot-moving" => devices::drive_reboot_moving(config, seed, &mut c).await,
         "bad-data" => devices::bad_data(config, seed, &mut c).await,
         "absent-at-start" => devices::absent_at_start(config, seed, &mut c).await,
         "link-lost" => fleet::link_lost(config, seed, &mut c).await,
@@ -338,13 +348,18 @@ pub(crate) fn events_from(rig: &RobotRig, from: usize) -> Vec<String> {
 
 /// Arm the robot and feed it `v` at 20 Hz until the returned guard is dropped.
 pub(crate) fn drive(rig: &RobotRig, v_mps: f64) -> crate::AbortOnDrop<()> {
+    drive_from(rig, v_mps, 1)
+}
+
+/// [`drive`] with an arm and commands numbered from `first_seq` (a re-arm after an earlier feed).
+pub(crate) fn drive_from(rig: &RobotRig, v_mps: f64, first_seq: u64) -> crate::AbortOnDrop<()> {
     let id = rig.tree.id.clone();
     let down = rig.server.down.clone();
     let clock = rig.clock;
-    down.send(&id, Downlink::Arm { seq: 1 });
+    down.send(&id, Downlink::Arm { seq: first_seq });
     crate::AbortOnDrop(tokio::spawn(async move {
         // Bounded: at most 10 minutes of commands.
-        for seq in 1..=12_000u64 {
+        for seq in first_seq..first_seq + 12_000 {
             down.send(&id, Downlink::Command(Command { seq, stamp_s: clock.now_s(), v_mps, w_radps: 0.0 }));
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
