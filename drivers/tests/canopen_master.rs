@@ -132,7 +132,12 @@ mod canopen {
     }
 
     impl Sim {
+        /// Targets hold for a minute: longer than any test here runs without setting one.
         fn new() -> Self {
+            Self::with_hold(60_000)
+        }
+
+        fn with_hold(target_hold_ms: u32) -> Self {
             let now = Instant::now();
             let config = MasterConfig {
                 can: BusConfig {
@@ -155,6 +160,7 @@ mod canopen {
                 }],
                 enable_timeout_ms: 1000,
                 mode_confirm_attempts: 3,
+                target_hold_ms,
             };
             Self {
                 now,
@@ -325,12 +331,50 @@ mod canopen {
     }
 
     #[test]
+    fn canopen_master_sends_zero_once_a_target_is_older_than_its_hold_time() {
+        let mut sim = Sim::with_hold(200);
+        sim.master.enable(sim.now);
+        sim.run(500);
+        let target_of = |f: &CanFrame| pdo::unpack(&pdo::RPDO1_MAP, f.data()).unwrap()[1] as u32 as i32;
+        // Refreshed every 20 ms for a second: the target holds.
+        let mut last_set = sim.now;
+        for _ in 0..50 {
+            last_set = sim.now;
+            sim.master.set_targets(sim.now, &[(NODE, 5000)]);
+            sim.run(20);
+        }
+        let from = sim.sent.len();
+        assert!(!sim.events.contains(&MasterEvent::TargetsExpired));
+        // Then nobody sets a target (a stalled controller): 5000 until 200 ms after the last set,
+        // then zero from the next SYNC cycle (20 ms).
+        let mut zero_at = None;
+        for _ in 0..400 {
+            sim.run(1);
+            if let Some(f) = sim.sent[from..].iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE))
+                && target_of(f) == 0
+            {
+                zero_at = Some(sim.now);
+                break;
+            }
+        }
+        let after = zero_at.unwrap() - last_set;
+        assert!(after >= Duration::from_millis(200) && after <= Duration::from_millis(200 + 20), "{after:?}");
+        assert!(sim.events.contains(&MasterEvent::TargetsExpired));
+        assert_eq!(sim.master.drive_status(NODE).unwrap().target_velocity, 0);
+        // A fresh target moves again.
+        sim.master.set_targets(sim.now, &[(NODE, 3000)]);
+        sim.run(40);
+        let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
+        assert_eq!(target_of(f), 3000);
+    }
+
+    #[test]
     fn canopen_master_reports_lost_drive_within_consumer_time_and_sends_zero() {
         let mut sim = Sim::new();
         sim.master.enable(sim.now);
         sim.run(500);
         // Targets are set once enabled (a boot-up clears them).
-        sim.master.set_targets(&[(NODE, 5000)]);
+        sim.master.set_targets(sim.now, &[(NODE, 5000)]);
         sim.run(40);
         let last_target = |sim: &Sim| {
             let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
@@ -369,7 +413,7 @@ mod canopen {
         assert!(first_enabled > 0, "walked the state machine again: {targets:?}");
         assert!(targets.iter().all(|(_, v)| *v == 0), "the loss cleared the target: {targets:?}");
         assert_eq!(sim.master.drive_status(NODE).unwrap().target_velocity, 0);
-        sim.master.set_targets(&[(NODE, 4000)]);
+        sim.master.set_targets(sim.now, &[(NODE, 4000)]);
         sim.run(40);
         let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
         assert_eq!(pdo::unpack(&pdo::RPDO1_MAP, f.data()).unwrap()[1], 4000, "a fresh command moves again");

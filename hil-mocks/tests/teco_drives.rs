@@ -60,6 +60,7 @@ mod teco {
             drives: dd.drive_setups(0.5, 0.5, 1.0),
             enable_timeout_ms: 1000,
             mode_confirm_attempts: 5,
+            target_hold_ms: 60_000,
         }
     }
 

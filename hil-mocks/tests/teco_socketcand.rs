@@ -169,6 +169,7 @@ mod teco {
             drives: dd.drive_setups(1.0, 1.0, 2.0),
             enable_timeout_ms: 2000,
             mode_confirm_attempts: 5,
+            target_hold_ms: 60_000,
         };
         let client = SocketcandClient::connect(&mock.address.to_string(), "can0", STEP).await.unwrap();
         let mut m = spawn_master(Master::new(config, tokio::time::Instant::now().into_std()), client);
@@ -272,6 +273,7 @@ mod teco {
             drives: setups,
             enable_timeout_ms: 2000,
             mode_confirm_attempts: 5,
+            target_hold_ms: 60_000,
         }
     }
 

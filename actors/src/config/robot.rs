@@ -107,13 +107,16 @@ impl RobotConfig {
     /// The CANopen master's settings: the bus from `[devices.can]`, each drive's start-up from
     /// `[devices.drives]`; the drives' profile acceleration is the robot's acceleration limit, their
     /// profile deceleration the stop deceleration, so that they can follow the safety layer's stops
-    /// (it ramps ordinary slowing-down at the acceleration limit itself).
+    /// (it ramps ordinary slowing-down at the acceleration limit itself). A target holds for the
+    /// command timeout: if the safety layer stops sending (stalled, restarting), the master sends
+    /// zero by itself.
     #[must_use]
     pub fn master(&self) -> MasterConfig {
         self.diff_drive().master_config(
             &self.devices.can,
             self.limits.max_accel_mps2.get(),
             self.stop_decel_mps2(),
+            self.safety.command_timeout_ms.ms(),
         )
     }
 }

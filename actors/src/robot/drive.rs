@@ -234,6 +234,7 @@ impl Actor for DriveActor {
                     self.counters.count("drives.error");
                     tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
                 }
+                MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
                 MasterEvent::Configured { .. }
                 | MasterEvent::EmcyReset { .. }
                 | MasterEvent::SdoDone { .. } => {}

@@ -132,12 +132,20 @@ impl DiffDrive {
 
     /// The master for these drives on `bus`: profile acceleration `accel_mps2` (0x6083), profile
     /// deceleration `decel_mps2` (0x6084), the quick stop from `quick_stop_decel_mps2` (0x6085).
-    pub fn master_config(&self, bus: &BusConfig, accel_mps2: f64, decel_mps2: f64) -> MasterConfig {
+    /// Each target set holds for `target_hold_ms`.
+    pub fn master_config(
+        &self,
+        bus: &BusConfig,
+        accel_mps2: f64,
+        decel_mps2: f64,
+        target_hold_ms: u32,
+    ) -> MasterConfig {
         MasterConfig {
             can: bus.clone(),
             drives: self.drive_setups(accel_mps2, decel_mps2, self.drives.quick_stop_decel_mps2),
             enable_timeout_ms: self.drives.enable_timeout_ms,
             mode_confirm_attempts: self.drives.mode_confirm_attempts,
+            target_hold_ms,
         }
     }
 

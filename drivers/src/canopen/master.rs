@@ -86,6 +86,11 @@ pub struct MasterConfig {
     pub enable_timeout_ms: u32,
     /// Reads of 0x6061 before giving up on the mode (python-canopen #131: it may lag).
     pub mode_confirm_attempts: u32,
+    /// A target applies for this long after it was set ([`Master::set_targets`]); then every
+    /// target goes out as zero until the next set ([`MasterEvent::TargetsExpired`]). Defence below
+    /// the robot's safety layer: a controller that stalls or restarts cannot leave the wheels
+    /// turning. On a robot: its command timeout.
+    pub target_hold_ms: u32,
 }
 
 /// Where a drive is in its life cycle, as the master sees it.
@@ -161,6 +166,9 @@ pub enum MasterEvent {
         /// (node, position actual) of each drive whose TPDO2 arrived.
         positions: Vec<(NodeId, i32)>,
     },
+    /// No target was set for [`MasterConfig::target_hold_ms`]: every target is zero from this
+    /// cycle on, until the next [`Master::set_targets`].
+    TargetsExpired,
     /// A user SDO request finished.
     SdoDone {
         /// The id returned when it was queued.
@@ -243,6 +251,8 @@ pub struct Master {
     next_sync: Instant,
     goal: Goal,
     halt: bool,
+    /// When the targets last set stop applying.
+    targets_until: Option<Instant>,
     next_user_id: u64,
 }
 
@@ -290,6 +300,7 @@ impl Master {
             goal: Goal::Disabled,
             halt: false,
             next_user_id: 0,
+            targets_until: None,
         };
         for i in 0..m.drives.len() {
             m.reset_drive(i, now);
@@ -355,10 +366,12 @@ impl Master {
         self.halt = halt;
     }
 
-    /// Target velocities in drive units; they go out together in the next cycle, before one SYNC,
-    /// while every drive is enabled. A fault, a lost heartbeat or a boot-up of any drive sets every
-    /// target to zero: motion needs a fresh command afterwards.
-    pub fn set_targets(&mut self, targets: &[(NodeId, i32)]) {
+    /// Target velocities in drive units, set at `now`; they go out together in the next cycle,
+    /// before one SYNC, while every drive is enabled, and for at most
+    /// [`MasterConfig::target_hold_ms`]. A fault, a lost heartbeat or a boot-up of any drive sets
+    /// every target to zero: motion needs a fresh command afterwards.
+    pub fn set_targets(&mut self, now: Instant, targets: &[(NodeId, i32)]) {
+        self.targets_until = Some(now + ms(self.config.target_hold_ms));
         for (node, v) in targets {
             if let Some(d) = self.drives.iter_mut().find(|d| d.setup.node_id == *node) {
                 d.target = *v;
@@ -471,6 +484,17 @@ impl Master {
 
     /// One SYNC cycle: both RPDO1s (controlword + target), then one SYNC so both apply together.
     fn cycle(&mut self, now: Instant) {
+        if self.targets_until.is_some_and(|t| now >= t) {
+            self.targets_until = None;
+            if self.drives.iter().any(|d| d.target != 0) {
+                tracing::warn!(
+                    hold_ms = self.config.target_hold_ms,
+                    "no target set within the hold time: zero"
+                );
+                self.zero_targets();
+                self.events.push_back(MasterEvent::TargetsExpired);
+            }
+        }
         let positions: Vec<(NodeId, i32)> = self
             .drives
             .iter_mut()

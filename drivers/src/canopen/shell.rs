@@ -93,7 +93,7 @@ fn apply(master: &mut Master, cmd: MasterCommand) {
         MasterCommand::Disable => master.disable(),
         MasterCommand::QuickStop => master.quick_stop(),
         MasterCommand::Halt(h) => master.set_halt(h),
-        MasterCommand::SetTargets(t) => master.set_targets(&t),
+        MasterCommand::SetTargets(t) => master.set_targets(now(), &t),
         MasterCommand::Recover(n) => master.recover(n),
         MasterCommand::Sdo(n, req) => {
             let _ = master.sdo(now(), n, req);
