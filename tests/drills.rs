@@ -43,6 +43,7 @@ drills! {
     drive_heartbeat => "drive-heartbeat",
     drive_reboot => "drive-reboot",
     drive_fault_moving => "drive-fault-moving",
+    estop_during_restart => "estop-during-restart",
     drive_reboot_moving => "drive-reboot-moving",
     bad_data => "bad-data",
     absent_at_start => "absent-at-start",

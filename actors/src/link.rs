@@ -82,6 +82,11 @@ impl DownlinkSender {
     pub fn send(&self, robot: &str, msg: Downlink) -> bool {
         self.robots.get(robot).is_some_and(|tx| tx.try_send(msg).is_ok())
     }
+
+    /// The robots it routes to.
+    pub fn robots(&self) -> impl Iterator<Item = &str> {
+        self.robots.keys().map(String::as_str)
+    }
 }
 
 /// Drill control of the in-process link: cut and restore one robot's link, hold it (a stalled

@@ -105,13 +105,36 @@ pub(crate) fn robot(
         let tree = start_robot(&robot, overrides, end, clock, RobotOptions::default())
             .await
             .context("starting the robot")?;
-        tracing::info!(robot = %id, mock = mock.is_some(), "robot running; Ctrl-C stops it (the drives quick-stop)");
+        tracing::info!(
+            robot = %id,
+            mock = mock.is_some(),
+            "robot running; SIGUSR1 e-stops it, SIGUSR2 resets the e-stop; Ctrl-C stops it (the drives quick-stop)"
+        );
         let mut sources = amr_record::RecordSources::new(clock);
         sources.robots = vec![std::sync::Arc::clone(&tree.ports)];
         sources.mounts = vec![(id.clone(), robot.lidar_mount.to_se2())];
         sources.metadata.insert("robots".into(), id.clone());
         let recording = rec.start(sources).await?;
-        stop_signal().await?;
+        // The local e-stop: a signal any process on the robot's computer (a button's handler, an
+        // operator's shell) can send, whatever the network does.
+        use tokio::signal::unix::{SignalKind, signal};
+        let mut estop = signal(SignalKind::user_defined1()).context("listening for SIGUSR1")?;
+        let mut reset = signal(SignalKind::user_defined2()).context("listening for SIGUSR2")?;
+        let stop = stop_signal();
+        tokio::pin!(stop);
+        loop {
+            tokio::select! {
+                r = &mut stop => { r?; break; }
+                _ = estop.recv() => {
+                    tracing::warn!(robot = %id, "SIGUSR1: e-stop");
+                    tree.estop();
+                }
+                _ = reset.recv() => {
+                    tracing::warn!(robot = %id, "SIGUSR2: e-stop reset (the robot stays disarmed until armed)");
+                    tree.reset_estop();
+                }
+            }
+        }
         if let Some(r) = recording {
             r.stop().await?;
         }
@@ -144,7 +167,8 @@ fn phase_text(p: &Phase) -> String {
 }
 
 /// `amr server --config FILE`: the fusion server's tree on the network link, until Ctrl-C or
-/// SIGTERM. Reads operator commands on standard input: `rearm`, `stop`.
+/// SIGTERM. Reads operator commands on standard input: `rearm`, `stop`, `estop` (every robot),
+/// `reset-estop`.
 pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
     let (config, _) = config_around(&args.config)?;
     let robots = formation_robots(&config.server, &config.robots)?;
@@ -174,7 +198,10 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         let mut sources = amr_record::RecordSources::server(&tree.ports, &setup);
         sources.metadata.insert("scenario".into(), args.scenario.clone());
         let recording = args.rec.start(sources).await?;
-        tracing::info!(auto_arm = args.auto_arm, "server running; commands on stdin: rearm, stop; Ctrl-C stops it");
+        tracing::info!(
+            auto_arm = args.auto_arm,
+            "server running; commands on stdin: rearm, stop, estop, reset-estop; Ctrl-C stops it"
+        );
         let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
         let mut stdin_open = true;
         let mut tick = tokio::time::interval(Duration::from_millis(250));
@@ -190,8 +217,20 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
                         "stop" => {
                             if let Some(f) = tree.formation_actor().await { let _ = f.cast(FormationMsg::Stop); }
                         }
+                        "estop" => {
+                            let refused = tree.estop_all().await;
+                            if refused.is_empty() {
+                                tracing::warn!("e-stop sent to every robot");
+                            } else {
+                                tracing::error!(?refused, "e-stop NOT queued for these robots (link full or closed): stop them locally");
+                            }
+                        }
+                        "reset-estop" => {
+                            let refused = tree.reset_estop_all();
+                            tracing::info!(?refused, "e-stop reset sent (robots stay disarmed until rearm)");
+                        }
                         "" => {}
-                        other => tracing::warn!(command = other, "unknown command (have: rearm, stop)"),
+                        other => tracing::warn!(command = other, "unknown command (have: rearm, stop, estop, reset-estop)"),
                     },
                     _ => stdin_open = false,
                 },

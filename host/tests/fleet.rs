@@ -282,6 +282,49 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     stdin.flush().unwrap();
     wait_for(&seen, "formation running again", Duration::from_secs(60), |s| phase(s, "Running"));
     wait_for(&seen, "scenario finished", Duration::from_secs(90), |s| phase(s, "Finished"));
+
+    // The e-stops of the deployed system (issue 19 §5): `estop` on the server's stdin reaches
+    // every robot over the network, SIGUSR1 is the robot's local one; each latches until reset.
+    let latched = |since: Instant, want: SafetyState| {
+        move |s: &Seen| s.safety_a.iter().any(|(t, st)| *t >= since && *st == want)
+    };
+    let reset_state = SafetyState::Disarmed(amr_msgs::DisarmReason::EStopReset);
+    let at = Instant::now();
+    let stdin = procs.child("server").stdin.as_mut().unwrap();
+    stdin.write_all(b"estop\n").unwrap();
+    stdin.flush().unwrap();
+    let net_estop = wait_for(
+        &seen,
+        "robot-a e-stopped from the server",
+        Duration::from_secs(5),
+        latched(at, SafetyState::EStop),
+    );
+    let at = Instant::now();
+    stdin.write_all(b"reset-estop\n").unwrap();
+    stdin.flush().unwrap();
+    wait_for(
+        &seen,
+        "robot-a's e-stop reset from the server",
+        Duration::from_secs(5),
+        latched(at, reset_state),
+    );
+    let signal = |sig: &str, pid: u32| {
+        let ok = std::process::Command::new("kill").args([sig, &pid.to_string()]).status().unwrap().success();
+        assert!(ok, "kill {sig} {pid}");
+    };
+    let robot_a = procs.child("robot-a").id();
+    let at = Instant::now();
+    signal("-USR1", robot_a);
+    let local_estop = wait_for(
+        &seen,
+        "robot-a e-stopped by SIGUSR1",
+        Duration::from_secs(5),
+        latched(at, SafetyState::EStop),
+    );
+    let at = Instant::now();
+    signal("-USR2", robot_a);
+    wait_for(&seen, "robot-a's e-stop reset by SIGUSR2", Duration::from_secs(5), latched(at, reset_state));
+    eprintln!("e-stop seen from the server's stdin after {net_estop:?}, from SIGUSR1 after {local_estop:?}");
     eprintln!(
         "server killed: robot-a's watchdog stopped it within {watchdog:?}; the new server ran the \
          formation after {restarted:?}; robot-b killed: seen gone after {seen_gone:?}, formation \

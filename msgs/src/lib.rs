@@ -21,7 +21,7 @@ use amr_core::se2::Se2;
 use serde::{Deserialize, Serialize};
 
 /// The version of these types' encoding, on the network and in recordings.
-pub const SCHEMA_VERSION: u16 = 2;
+pub const SCHEMA_VERSION: u16 = 3;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
@@ -163,6 +163,11 @@ pub enum Downlink {
     },
     /// Stop and refuse commands until armed again.
     Disarm,
+    /// Emergency stop: the drives quick-stop at once and the robot latches `EStop` (it survives a
+    /// restart of the safety layer) until a [`Downlink::ResetEStop`] or a local reset.
+    EStop,
+    /// Clear a latched e-stop: the robot is disarmed until armed again.
+    ResetEStop,
 }
 
 /// The robot's safety layer state.

@@ -614,7 +614,8 @@ pub async fn start_server_bridge(
                 let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
                 let r = match d {
                     Downlink::Command(_) => cmd_pub.put(bytes).await,
-                    Downlink::Arm { .. } | Downlink::Disarm => {
+                    // The safety messages go at the highest priority and are never dropped.
+                    Downlink::Arm { .. } | Downlink::Disarm | Downlink::EStop | Downlink::ResetEStop => {
                         session
                             .put(key.as_str(), bytes)
                             .priority(Priority::RealTime)

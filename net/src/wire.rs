@@ -179,7 +179,7 @@ pub fn to_uplink(env: Envelope, key_robot: &str, channel: &str) -> Result<Uplink
 pub fn from_downlink(d: &Downlink, sent_s: f64) -> (f64, Body) {
     let stamp = match d {
         Downlink::Command(c) => c.stamp_s,
-        Downlink::Arm { .. } | Downlink::Disarm => sent_s,
+        Downlink::Arm { .. } | Downlink::Disarm | Downlink::EStop | Downlink::ResetEStop => sent_s,
     };
     (stamp, Body::Downlink(*d))
 }
@@ -211,6 +211,8 @@ fn kind_of(b: &Body) -> &'static str {
             Downlink::Command(_) => "command",
             Downlink::Arm { .. } => "arm",
             Downlink::Disarm => "disarm",
+            Downlink::EStop => "estop",
+            Downlink::ResetEStop => "reset_estop",
         },
         Body::Status(_) => "status",
     }

@@ -169,6 +169,8 @@ fn command(robot: &str, d: &Downlink) -> Value {
         }),
         Downlink::Arm { seq } => json!({ "robot": robot, "kind": "arm", "seq": seq }),
         Downlink::Disarm => json!({ "robot": robot, "kind": "disarm" }),
+        Downlink::EStop => json!({ "robot": robot, "kind": "estop" }),
+        Downlink::ResetEStop => json!({ "robot": robot, "kind": "reset_estop" }),
     }
 }
 

@@ -113,8 +113,9 @@ pub struct RobotTree {
 }
 
 impl RobotTree {
-    /// Latch the e-stop.
+    /// Latch the e-stop (also when no safety actor runs at this moment: the next one starts in it).
     pub fn estop(&self) {
+        self.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
         self.control.send(SafetyControl::EStop);
     }
 
@@ -248,6 +249,10 @@ pub async fn start_robot(
     let p = Arc::clone(&ports);
     let pump = tokio::spawn(async move {
         while let Some(msg) = down.recv().await {
+            if msg == amr_msgs::Downlink::EStop {
+                // Latched before anything else, so that it holds even if no safety actor runs now.
+                p.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+            }
             p.downlink.send(msg);
         }
     });

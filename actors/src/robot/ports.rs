@@ -71,6 +71,10 @@ pub struct RobotPorts {
     /// The current bus, set by the CAN bus actor (`None` while disconnected).
     pub bus: watch::Sender<Option<BusLink>>,
     pub bus_events: OutputPort<MasterEvent>,
+    /// The e-stop latch. It lives here, not in the safety actor, so that it survives the actor's
+    /// restart and an e-stop that arrives while no safety actor runs is not lost: the next one
+    /// starts in `EStop`. Set by every e-stop source; cleared only by the safety actor's reset.
+    pub estop_latch: std::sync::atomic::AtomicBool,
 }
 
 impl RobotPorts {
@@ -91,6 +95,7 @@ impl RobotPorts {
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),
             bus_events: OutputPort::default(),
+            estop_latch: std::sync::atomic::AtomicBool::new(false),
         })
     }
 }

@@ -9,13 +9,16 @@
 //!   an outage is ever applied.
 //! - Every stop the layer makes (watchdog, disarm, lost drives) brakes at the stop deceleration,
 //!   not at the acceleration limit, which only shapes driving while armed.
-//! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed).
+//! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed). It comes
+//!   from the operator's control port (a signal to `amr robot`) or the link (`Downlink::EStop`,
+//!   e.g. `estop` on `amr server`'s stdin), and it survives a restart of this actor.
 //! - A supervisor escalation or a lost drive latches or disarms likewise.
 //!
 //! The decisions live in [`SafetyCore`] (no IO, time passed in); the actor ticks it every cycle and
 //! publishes the wheel command.
 
 use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use ractor::{Actor, ActorProcessingErr, ActorRef};
@@ -310,6 +313,11 @@ impl Actor for SafetyActor {
             published: None,
             health: HealthCell::new(Device::Safety),
         };
+        if self.ports.estop_latch.load(Ordering::SeqCst) {
+            tracing::warn!(robot = %self.ports.robot, "safety restarted with the e-stop latched");
+            s.core.estop();
+            self.output(&mut s);
+        }
         self.publish(&mut s);
         Ok(s)
     }
@@ -339,18 +347,21 @@ impl Actor for SafetyActor {
                 }
             }
             SafetyMsg::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested),
+            SafetyMsg::Link(Downlink::EStop) | SafetyMsg::EStop => {
+                s.core.estop();
+                self.ports.estop_latch.store(true, Ordering::SeqCst);
+                // Not waiting for the next cycle.
+                self.output(s);
+            }
+            SafetyMsg::Link(Downlink::ResetEStop) | SafetyMsg::ResetEStop => {
+                if s.core.reset_estop() {
+                    self.ports.estop_latch.store(false, Ordering::SeqCst);
+                }
+            }
             SafetyMsg::Health(h) => {
                 if halts(&h) {
                     s.core.halt();
                 }
-            }
-            SafetyMsg::EStop => {
-                s.core.estop();
-                // Not waiting for the next cycle.
-                self.output(s);
-            }
-            SafetyMsg::ResetEStop => {
-                s.core.reset_estop();
             }
         }
         self.publish(s);

@@ -28,12 +28,13 @@ use ractor::{Actor, ActorRef, OutputPort};
 
 use self::core::{CoreSetup, Member};
 use crate::clock::FleetClock;
-use crate::link::ServerEnd;
+use crate::link::{DownlinkSender, ServerEnd};
 use crate::robot::TIM551_RANGE_M;
 use crate::robot::ports::AbortOnDrop;
 use crate::supervisor::{
     ChildSpec, EventLog, RestartPolicy, Strategy, Supervisor, SupervisorMsg, SupervisorSpec,
 };
+use amr_msgs::Downlink;
 use formation::{FormationActor, FormationMsg, FormationParams, FormationStatus};
 use localizer::{LocalizerActor, LocalizerMsg};
 use ports::ServerPorts;
@@ -86,6 +87,8 @@ pub struct ServerTree {
     pub ports: Arc<ServerPorts>,
     pub events: EventLog,
     pub formation: Arc<OutputPort<FormationStatus>>,
+    /// The link to the robots, for the operator's e-stop (which does not go through the actors).
+    down: DownlinkSender,
     join: tokio::task::JoinHandle<()>,
     _pump: AbortOnDrop<()>,
 }
@@ -125,6 +128,28 @@ impl ServerTree {
     /// Allow the formation to (re)start.
     pub async fn rearm(&self) -> bool {
         self.formation_actor().await.is_some_and(|f| f.cast(FormationMsg::Rearm).is_ok())
+    }
+
+    /// The operator's e-stop: [`Downlink::EStop`] to every robot straight onto the link (not through
+    /// the formation actor, which may be busy or restarting), then the formation stopped. Returns
+    /// the robots whose queue refused it (full or closed): the caller must say so.
+    pub async fn estop_all(&self) -> Vec<String> {
+        let refused = self.to_all(Downlink::EStop);
+        if let Some(f) = self.formation_actor().await {
+            let _ = f.cast(FormationMsg::Stop);
+        }
+        refused
+    }
+
+    /// Clear every robot's e-stop latch ([`Downlink::ResetEStop`]); they stay disarmed until a
+    /// re-arm. Returns the robots whose queue refused it.
+    #[must_use]
+    pub fn reset_estop_all(&self) -> Vec<String> {
+        self.to_all(Downlink::ResetEStop)
+    }
+
+    fn to_all(&self, msg: Downlink) -> Vec<String> {
+        self.down.robots().filter(|r| !self.down.send(r, msg)).map(str::to_owned).collect()
     }
 
     /// Orderly shutdown, bounded in time.
@@ -232,5 +257,13 @@ pub async fn start_server(
     let join = tokio::spawn(async move {
         let _ = join.await;
     });
-    Ok(ServerTree { supervisor, ports, events, formation: formation_status, join, _pump: AbortOnDrop(pump) })
+    Ok(ServerTree {
+        supervisor,
+        ports,
+        events,
+        formation: formation_status,
+        down: link.down.clone(),
+        join,
+        _pump: AbortOnDrop(pump),
+    })
 }

@@ -477,6 +477,58 @@ pub(crate) async fn drive_reboot_moving(config: &Config, seed: u64, c: &mut Chec
     drive_fault_while_moving(config, seed, c, DriveFault::Reboot).await;
 }
 
+/// An e-stop comes over the link while the safety actor is down (issue 19 §5): the robot's latch
+/// keeps it, the master's target hold zeroes the drives meanwhile, and the restarted safety actor
+/// comes back in `EStop`, quick-stopping; an arm does not clear it; a reset and then an arm newer
+/// than the reset do.
+pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let Some(feed) = drive_until_turning(&rig, 0.2, c).await else { return };
+    let n0 = rig.tree.events.len();
+    let id = rig.tree.id.clone();
+    let Some(safety) = child(&rig.tree.supervisor, "safety").await else {
+        return c.fail("no safety actor");
+    };
+    c.inject();
+    safety.kill();
+    c.that(rig.server.down.send(&id, Downlink::EStop), "the e-stop queued on the link");
+    // The dead actor sends no targets: the master's hold (the 200 ms command timeout) zeroes them.
+    c.safe_state = c
+        .within("every target zero without a safety actor", Duration::from_millis(400), || targets_zero(&rig))
+        .await;
+    c.detection = c
+        .within("the safety actor back, in EStop", Duration::from_secs(2), || {
+            started(&rig, &id, "safety", n0)
+                && *rig.tree.ports.safety_now.borrow() == Some(SafetyState::EStop)
+        })
+        .await;
+    c.within("the drives quick-stopping", Duration::from_millis(200), || {
+        rig.mocks
+            .drives
+            .iter()
+            .all(|d| matches!(d.now().state, State402::QuickStopActive | State402::SwitchOnDisabled))
+    })
+    .await;
+    drop(feed);
+    let _feed = drive_from(&rig, 0.2, 50_000);
+    c.throughout(
+        "an arm does not clear the latch: still EStop, wheels still",
+        Duration::from_secs(1),
+        || *rig.tree.ports.safety_now.borrow() == Some(SafetyState::EStop) && targets_zero(&rig),
+    )
+    .await;
+    c.that(rig.server.down.send(&id, Downlink::ResetEStop), "the reset queued on the link");
+    c.within("reset over the link: disarmed", Duration::from_millis(500), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
+    })
+    .await;
+    let _feed = drive_from(&rig, 0.2, 100_000);
+    c.recovery = c
+        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await;
+    wrap_up(rig, c, n0).await;
+}
+
 /// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.
 pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
     use hil_mocks::lpms::Fault as ImuFault;

@@ -71,6 +71,10 @@ pub const DRILLS: &[Drill] = &[
     },
     Drill { name: "drive-reboot", about: "a drive reboots: reconfigured before it is enabled again" },
     Drill {
+        name: "estop-during-restart",
+        about: "an e-stop over the link while the safety actor restarts: latched, drives zeroed by the master's hold, back in EStop",
+    },
+    Drill {
         name: "drive-fault-moving",
         about: "a drive faults while the robot drives: halted, the drive reset and enabled at zero, no motion until a new arm",
     },
@@ -256,6 +260,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "drive-heartbeat" => devices::drive_heartbeat(config, seed, &mut c).await,
         "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
         "drive-fault-moving" => devices::drive_fault_moving(config, seed, &mut c).await,
+        "estop-during-restart" => devices::estop_during_restart(config, seed, &mut c).await,
         "drive-reboot-moving" => devices::drive_reboot_moving(config, seed, &mut c).await,
         "bad-data" => devices::bad_data(config, seed, &mut c).await,
         "absent-at-start" => devices::absent_at_start(config, seed, &mut c).await,
