@@ -406,10 +406,11 @@ fn record_trial(
                     received_s: t,
                     scan: std::sync::Arc::clone(scan),
                     odom: None,
+                    odom_frame: 0,
                 }));
             }
             if let Some(pose) = f.odom.get(i) {
-                let o = OdomMsg { seq, stamp_s: t, pose: *pose, twist: (0.0, 0.0), gyro: false };
+                let o = OdomMsg { seq, frame: 1, stamp_s: t, pose: *pose, twist: (0.0, 0.0), gyro: false };
                 events.push(Event::Odom(name.clone(), o));
             }
         }

@@ -80,12 +80,18 @@ pub struct ScanMsg {
     /// The robot's wheel/gyro odometry pose at `stamp_s`, in its odometry frame: filled in by the
     /// uplink (a scan goes up only with it); `None` on the robot before that.
     pub odom: Option<Se2>,
+    /// Which odometry frame `odom` is in ([`OdomMsg::frame`]; 0 while `odom` is `None`).
+    pub odom_frame: u64,
 }
 
 /// Odometry of one robot.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OdomMsg {
     pub seq: u64,
+    /// The odometry frame: a new number whenever the robot's odometry starts again at the origin
+    /// (the odometry actor or the whole robot restarted), so that a receiver never mixes poses of
+    /// two frames; `seq` starts again with it.
+    pub frame: u64,
     pub stamp_s: f64,
     /// Pose in the robot's odometry frame.
     pub pose: Se2,

@@ -14,6 +14,7 @@ fn scan_msg() -> ScanMsg {
         received_s: 12.51,
         scan: Arc::new(Scan::new(-2.35, 0.0174, 0.05, 10.0, ranges)),
         odom: Some(Se2 { x: 1.0, y: -2.0, theta: 0.3 }),
+        odom_frame: 17,
     }
 }
 
@@ -24,7 +25,7 @@ fn samples() -> (Vec<Uplink>, Vec<Downlink>, Vec<Estimate>, FusedFrame, Vec<Fusi
         Uplink::Scan(scan_msg()),
         Uplink::Odom {
             robot: "robot-a".into(),
-            msg: OdomMsg { seq: 3, stamp_s: 1.0, pose: p, twist: (0.1, 0.2), gyro: false },
+            msg: OdomMsg { seq: 3, frame: 17, stamp_s: 1.0, pose: p, twist: (0.1, 0.2), gyro: false },
         },
         Uplink::Health {
             robot: "robot-b".into(),

@@ -286,6 +286,7 @@ mod tests {
             received_s: 12.51,
             scan: Arc::new(Scan::new(-2.35, 0.0174, 0.05, 10.0, ranges)),
             odom: Some(Se2 { x: 1.0, y: -2.0, theta: 0.3 }),
+            odom_frame: 1,
         })
     }
 
@@ -339,7 +340,14 @@ mod tests {
         ));
         let odom = Uplink::Odom {
             robot: "robot-a".into(),
-            msg: OdomMsg { seq: 1, stamp_s: 1.0, pose: Se2::IDENTITY, twist: (0.0, 0.0), gyro: true },
+            msg: OdomMsg {
+                seq: 1,
+                frame: 1,
+                stamp_s: 1.0,
+                pose: Se2::IDENTITY,
+                twist: (0.0, 0.0),
+                gyro: true,
+            },
         };
         assert!(matches!(
             to_uplink(env(Body::Uplink(odom)), "robot-a", "scan"),
@@ -372,6 +380,7 @@ mod tests {
                 robot: "robot-a".into(),
                 msg: OdomMsg {
                     seq: 3,
+                    frame: 1,
                     stamp_s: 1.0,
                     pose: Se2 { x: 1.0, y: 2.0, theta: 0.5 },
                     twist: (0.1, 0.2),

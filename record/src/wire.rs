@@ -242,6 +242,7 @@ mod tests {
             received_s: 12.35,
             scan: Arc::new(scan.clone()),
             odom: Some(Se2::new(1.0, -2.0, 0.3)),
+            odom_frame: 1,
         });
         let r = decode_uplink(&encode_uplink(99.5, &msg).unwrap()).unwrap();
         assert_eq!(r.rx_s, 99.5);
@@ -275,6 +276,7 @@ mod tests {
                 robot: "a".into(),
                 msg: OdomMsg {
                     seq: 3,
+                    frame: 1,
                     stamp_s: 0.7,
                     pose: Se2::new(0.1, 0.2, 0.3),
                     twist: (0.2, -0.1),

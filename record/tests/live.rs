@@ -140,11 +140,19 @@ async fn a_robot_recorder_writes_the_file_and_serves_the_live_view() {
                     received_s: t,
                     scan,
                     odom: None,
+                    odom_frame: 1,
                 });
                 ports.imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.01 });
                 ports.wheels.send(WheelTravel { stamp_s: t, dt_s: 0.02, left_m: 0.004, right_m: 0.004 });
                 let pose = Se2::new(0.01 * k as f64, 0.0, 0.0);
-                ports.odom.send(OdomMsg { seq: k, stamp_s: t, pose, twist: (0.2, 0.0), gyro: true });
+                ports.odom.send(OdomMsg {
+                    seq: k,
+                    frame: 1,
+                    stamp_s: t,
+                    pose,
+                    twist: (0.2, 0.0),
+                    gyro: true,
+                });
                 ports.downlink.send(Downlink::Command(Command {
                     seq: k,
                     stamp_s: t,

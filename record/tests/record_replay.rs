@@ -125,11 +125,19 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
                     received_s: t,
                     scan: Arc::new(site.scan(&poses, i)),
                     odom: Some(odom),
+                    odom_frame: 1,
                 };
                 robot_ports[i].scans.send(ScanMsg { odom: None, ..scan.clone() });
                 robot_ports[i].imu.send(ImuReading { stamp_s: t, yaw_rate_radps: 0.0 });
                 assert!(end.up.send(Uplink::Scan(scan)));
-                let msg = OdomMsg { seq: k as u64, stamp_s: t, pose: odom, twist: (0.2, 0.0), gyro: true };
+                let msg = OdomMsg {
+                    seq: k as u64,
+                    frame: 1,
+                    stamp_s: t,
+                    pose: odom,
+                    twist: (0.2, 0.0),
+                    gyro: true,
+                };
                 assert!(end.up.send(Uplink::Odom { robot: ids[i].clone(), msg }));
                 sent += 2;
             }

@@ -118,6 +118,7 @@ impl Actor for LidarActor {
                     received_s,
                     scan: Arc::new(scan),
                     odom: None,
+                    odom_frame: 0,
                 });
                 state.health.set(ports, Health::Ok, "scanning");
             }

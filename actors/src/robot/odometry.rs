@@ -36,6 +36,9 @@ pub(crate) struct OdometryActor {
 #[derive(Debug)]
 pub(crate) struct OdometryState {
     pose: Se2,
+    /// This frame's number (`OdomMsg::frame`): the fleet-clock microsecond it started at, so a
+    /// restarted actor (back at the origin) is told apart from the one before.
+    frame: u64,
     seq: u64,
     /// Sum and count of gyro rates since the last wheel travel.
     gyro_sum: f64,
@@ -56,10 +59,11 @@ pub(crate) fn arc(ds: f64, dtheta: f64) -> Se2 {
 }
 
 impl OdometryState {
-    /// At the origin of the odometry frame, nothing known of the gyro.
-    fn new(health: HealthCell) -> Self {
+    /// At the origin of odometry frame `frame`, nothing known of the gyro.
+    fn new(health: HealthCell, frame: u64) -> Self {
         OdometryState {
             pose: Se2::IDENTITY,
+            frame,
             seq: 0,
             gyro_sum: 0.0,
             gyro_n: 0,
@@ -109,7 +113,10 @@ impl Actor for OdometryActor {
         self.ports.imu.subscribe(myself, |g| Some(OdomMsgIn::Gyro(g)));
         let mut health = HealthCell::new(Device::Odometry);
         health.set(&self.ports, Health::Starting, "waiting for wheel travel");
-        Ok(OdometryState::new(health))
+        // Microseconds of the fleet clock: distinct for every start, never 0 (the "no frame" value).
+        let frame = ((self.ports.clock.now_s().max(0.0) * 1e6) as u64).max(1);
+        tracing::info!(robot = %self.ports.robot, frame, "odometry starts a new frame at the origin");
+        Ok(OdometryState::new(health, frame))
     }
 
     async fn handle(
@@ -135,6 +142,7 @@ impl Actor for OdometryActor {
                     (0.5 * (w.left_m + w.right_m) / dt, (w.right_m - w.left_m) / self.track_width_m / dt);
                 self.ports.odom.send(OdomMsg {
                     seq: state.seq,
+                    frame: state.frame,
                     stamp_s: w.stamp_s,
                     pose: state.pose,
                     twist,
@@ -156,7 +164,7 @@ mod tests {
     use super::*;
 
     fn state() -> OdometryState {
-        OdometryState::new(HealthCell::new(Device::Odometry))
+        OdometryState::new(HealthCell::new(Device::Odometry), 1)
     }
 
     fn gyro(s: &mut OdometryState, t: f64, rate: f64) {

@@ -96,9 +96,15 @@ impl Actor for UplinkActor {
             UplinkMsg::Scan(s) => {
                 // Without odometry yet, the scan is of no use to the server.
                 let Some(odom) = odom_at(&state.history, s.stamp_s) else { return Ok(()) };
-                Uplink::Scan(ScanMsg { robot, seq, odom: Some(odom), ..s })
+                let odom_frame = state.history.back().map_or(0, |o| o.frame);
+                Uplink::Scan(ScanMsg { robot, seq, odom: Some(odom), odom_frame, ..s })
             }
             UplinkMsg::Odom(o) => {
+                // A new odometry frame (the odometry restarted at the origin): the old poses are of
+                // another frame and must not be interpolated with the new ones.
+                if state.history.back().is_some_and(|b| b.frame != o.frame) {
+                    state.history.clear();
+                }
                 state.history.push_back(o);
                 while state.history.front().is_some_and(|f| o.stamp_s - f.stamp_s > HISTORY_S) {
                     state.history.pop_front();
@@ -139,6 +145,7 @@ mod tests {
     fn odometry_is_interpolated_at_the_scan_stamp() {
         let o = |t: f64, x: f64, th: f64| OdomMsg {
             seq: 0,
+            frame: 1,
             stamp_s: t,
             pose: Se2::new(x, 0.0, th),
             twist: (0.0, 0.0),

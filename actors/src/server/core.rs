@@ -112,6 +112,8 @@ pub struct Step {
     pub back: Option<bool>,
     /// Why a scan was not used.
     pub refused: Option<Refusal>,
+    /// The robot's odometry started a new frame (it restarted): its filters were re-anchored.
+    pub odometry_restarted: bool,
 }
 
 /// Why the core did not use a scan.
@@ -218,6 +220,8 @@ pub struct ServerCore {
     /// Per robot: stamp of its last fused scan.
     fused_stamp: Vec<f64>,
     lost: Vec<bool>,
+    /// Per robot: the odometry frame of its last scan (0: none yet).
+    odom_frames: Vec<u64>,
 }
 
 impl ServerCore {
@@ -262,6 +266,7 @@ impl ServerCore {
             scans: vec![VecDeque::new(); n],
             fused_stamp: vec![f64::NEG_INFINITY; n],
             lost: vec![false; n],
+            odom_frames: vec![0; n],
             members: setup.members,
         }
     }
@@ -311,6 +316,11 @@ impl ServerCore {
             step.refused = Some(Refusal::NotNewer);
             return step;
         }
+        if self.odom_frames[i] != 0 && s.odom_frame != self.odom_frames[i] {
+            self.odometry_restarted(i);
+            step.odometry_restarted = true;
+        }
+        self.odom_frames[i] = s.odom_frame;
         self.robot_amcl(i, s, odom, &mut step);
         lap(Lap::RobotAmcl);
         let buf = &mut self.scans[i];
@@ -354,6 +364,36 @@ impl ServerCore {
     pub fn mark_lost(&mut self, i: usize) {
         if let Some(l) = self.lost.get_mut(i) {
             *l = true;
+        }
+    }
+
+    /// Robot `i`'s odometry started again at the origin of a new frame (the robot or its odometry
+    /// restarted; issue 19 §7). Nothing of the old frame may meet the new: its AMCL keeps its
+    /// particles but takes the next odometry pose as the new reference (no motion step across the
+    /// frames), its held scans and its map ← odometry correction go, and the pipelines track it
+    /// afresh; when it is the first robot, V's odometry (composed from its frame) restarts too.
+    fn odometry_restarted(&mut self, i: usize) {
+        tracing::warn!(robot = %self.members[i].id, "odometry restarted in a new frame: re-anchoring its filters");
+        if let Some(f) = self.robot_filters.get_mut(i) {
+            f.odometry_restarted();
+        }
+        if let Some(b) = self.scans.get_mut(i) {
+            b.clear();
+        }
+        if let Some(c) = self.corrections.get_mut(i) {
+            *c = None;
+        }
+        for ch in &mut self.channels {
+            if i > 0 {
+                ch.pipeline.reset_robot(i);
+            } else {
+                for k in 1..self.members.len() {
+                    ch.pipeline.reset_robot(k);
+                }
+                if let Some(f) = ch.filter.as_mut() {
+                    f.odometry_restarted();
+                }
+            }
         }
     }
 

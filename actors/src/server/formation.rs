@@ -110,6 +110,9 @@ struct RobotView {
     health: BTreeMap<Device, Health>,
     safety: Option<SafetyState>,
     odom: Option<OdomMsg>,
+    /// When the robot's current odometry frame began (its first pose's stamp): an estimate
+    /// anchored on a scan from before belongs to the old frame.
+    frame_start_s: f64,
     fused: Option<Anchored>,
     own: Option<Anchored>,
     seq: u64,
@@ -420,8 +423,20 @@ impl Actor for FormationActor {
                 let Some(i) = self.ports.index(u.robot()) else { return Ok(()) };
                 let r = &mut state.robots[i];
                 match *u {
-                    Uplink::Odom { msg, .. } => {
-                        if r.odom.is_none_or(|o| msg.seq > o.seq) {
+                    Uplink::Odom { msg, robot } => {
+                        if r.odom.is_some_and(|o| o.frame != msg.frame) {
+                            // The robot restarted its odometry (its `seq` starts again): the
+                            // anchored estimates are of the old frame; its pose is unknown until
+                            // an estimate of the new one comes (the formation holds meanwhile).
+                            tracing::warn!(%robot, "odometry restarted in a new frame: dropping its old estimates");
+                            r.fused = None;
+                            r.own = None;
+                            r.frame_start_s = msg.stamp_s;
+                            r.odom = Some(msg);
+                        } else if r.odom.is_none_or(|o| msg.seq > o.seq) {
+                            if r.odom.is_none() {
+                                r.frame_start_s = msg.stamp_s;
+                            }
                             r.odom = Some(msg);
                         }
                     }
@@ -435,6 +450,10 @@ impl Actor for FormationActor {
             FormationMsg::Estimate(e) => {
                 for (i, a) in e.robots.iter().enumerate() {
                     if let (Some(a), Some(r)) = (a, state.robots.get_mut(i)) {
+                        if a.stamp_s < r.frame_start_s {
+                            // From a scan of the old odometry frame (the localizer lags).
+                            continue;
+                        }
                         match e.source {
                             EstimateSource::Fused(_) => r.fused = Some(*a),
                             EstimateSource::Robot(_) => r.own = Some(*a),

@@ -101,6 +101,9 @@ impl Actor for LocalizerActor {
                         }
                     })
                 });
+                if step.odometry_restarted {
+                    ServerStats::add(&self.ports.stats.odometry_restarts);
+                }
                 if let Some(why) = &step.refused {
                     let n = self.ports.stats.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     // The first few, then every 1000th: a robot sending garbage cannot flood the log.

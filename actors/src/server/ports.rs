@@ -37,6 +37,8 @@ pub struct ServerStats {
     /// Robots declared lost, and back.
     pub robots_lost: AtomicU64,
     pub robots_back: AtomicU64,
+    /// Robots whose odometry started a new frame (they restarted): their filters re-anchored.
+    pub odometry_restarts: AtomicU64,
     /// Estimates from each robot's own AMCL, per robot.
     pub own_estimates: Vec<AtomicU64>,
 }

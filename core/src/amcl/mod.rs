@@ -128,6 +128,12 @@ impl Amcl {
         })
     }
 
+    /// The odometry restarted in a new frame (the robot restarted): keep the particles, and take
+    /// the next odometry pose as the reference, with no motion step from the old frame to the new.
+    pub fn odometry_restarted(&mut self) {
+        self.last_odom = None;
+    }
+
     fn max(&self) -> usize {
         self.params.max_particles.usize()
     }

@@ -264,6 +264,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
                 received_s: t,
                 scan: Arc::clone(scan),
                 odom: Some(odom[i]),
+                odom_frame: 1,
             });
             let mut last = Instant::now();
             let mut pipeline_s = [0.0; 4];

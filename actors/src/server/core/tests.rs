@@ -48,6 +48,7 @@ fn scan(robot: &str, stamp_s: f64, step: f64, n: usize) -> Uplink {
         received_s: stamp_s,
         scan: Arc::new(Scan::new(-135f64.to_radians(), step, 0.05, 10.0, vec![3.0; n])),
         odom: Some(Se2::IDENTITY),
+        odom_frame: 1,
     })
 }
 
@@ -134,6 +135,7 @@ fn any_uplink() -> impl Strategy<Value = (Uplink, f64)> {
                 received_s: stamp,
                 scan: Arc::new(Scan::new(min, step, lo, hi, ranges)),
                 odom: odom.map(|(x, y, t)| Se2 { x, y, theta: t }),
+                odom_frame: 1,
             });
             (u, rx)
         })
@@ -167,4 +169,47 @@ proptest! {
         }
         prop_assert_eq!(fused, 3);
     }
+}
+
+fn scan_in_frame(robot: &str, stamp_s: f64, odom: Se2, frame: u64) -> Uplink {
+    Uplink::Scan(ScanMsg {
+        robot: robot.to_owned(),
+        seq: 1,
+        stamp_s,
+        received_s: stamp_s,
+        scan: Arc::new(Scan::new(-135f64.to_radians(), 1f64.to_radians(), 0.05, 10.0, vec![3.0; 271])),
+        odom: Some(odom),
+        odom_frame: frame,
+    })
+}
+
+/// Issue 19 §7: a robot that restarts comes back with its odometry at the origin of a new frame.
+/// Its AMCL must not read that as a jump of the robot (2 m back here): the pose holds.
+#[test]
+fn a_restarted_robots_odometry_is_not_read_as_motion() {
+    let mut c = core();
+    let own = |step: &Step| {
+        step.estimates
+            .iter()
+            .find(|e| e.source == EstimateSource::Robot(0))
+            .and_then(|e| e.robots[0])
+            .map(|a| a.map)
+    };
+    let mut before = None;
+    for k in 0..10 {
+        let t = 0.1 + f64::from(k) / 15.0;
+        let step = c.offer(&scan_in_frame("robot-a", t, Se2::new(2.0, 0.0, 0.0), 7), t, &mut |_| {});
+        assert!(!step.odometry_restarted);
+        before = own(&step).or(before);
+    }
+    let before = before.unwrap();
+    let t = 1.0;
+    let step = c.offer(&scan_in_frame("robot-a", t, Se2::IDENTITY, 8), t, &mut |_| {});
+    assert!(step.odometry_restarted, "the new frame was seen");
+    let after = own(&step).unwrap();
+    let moved = ((after.x - before.x).powi(2) + (after.y - before.y).powi(2)).sqrt();
+    assert!(moved < 0.5, "the estimate moved {moved} m across the restart: {before:?} -> {after:?}");
+    // Same frame again: no restart.
+    let step = c.offer(&scan_in_frame("robot-a", 1.1, Se2::IDENTITY, 8), 1.1, &mut |_| {});
+    assert!(!step.odometry_restarted);
 }
