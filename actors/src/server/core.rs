@@ -330,15 +330,7 @@ impl ServerCore {
         }
         if self.lost[i] {
             self.lost[i] = false;
-            for ch in &mut self.channels {
-                if i > 0 {
-                    ch.pipeline.reset_robot(i);
-                } else {
-                    for k in 1..self.members.len() {
-                        ch.pipeline.reset_robot(k);
-                    }
-                }
-            }
+            self.retrack(i);
             step.back = Some(!self.lost.iter().any(|l| *l));
         }
         if let Some(set) = self.pick(i) {
@@ -383,15 +375,24 @@ impl ServerCore {
         if let Some(c) = self.corrections.get_mut(i) {
             *c = None;
         }
+        self.retrack(i);
+        if i == 0 {
+            for f in self.channels.iter_mut().filter_map(|ch| ch.filter.as_mut()) {
+                f.odometry_restarted();
+            }
+        }
+    }
+
+    /// Every pipeline tracks robot `i` afresh (full heading search); the pipelines track the
+    /// others relative to the first robot, so for the first robot that is every other one.
+    fn retrack(&mut self, i: usize) {
+        let n = self.members.len();
         for ch in &mut self.channels {
             if i > 0 {
                 ch.pipeline.reset_robot(i);
             } else {
-                for k in 1..self.members.len() {
+                for k in 1..n {
                     ch.pipeline.reset_robot(k);
-                }
-                if let Some(f) = ch.filter.as_mut() {
-                    f.odometry_restarted();
                 }
             }
         }

@@ -529,6 +529,42 @@ pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Che
     wrap_up(rig, c, n0).await;
 }
 
+/// The safety actor dies while the robot drives (issue 19 §1, §3): nothing sends targets, so the
+/// master's hold zeroes them; the restarted safety actor starts disarmed at zero; the commands that
+/// go on are refused; only a new arm moves the robot again.
+pub(crate) async fn safety_crash_moving(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let Some(feed) = drive_until_turning(&rig, 0.2, c).await else { return };
+    let n0 = rig.tree.events.len();
+    let id = rig.tree.id.clone();
+    let Some(safety) = child(&rig.tree.supervisor, "safety").await else {
+        return c.fail("no safety actor");
+    };
+    c.inject();
+    safety.kill();
+    c.detection = c
+        .within("the safety actor back, disarmed", Duration::from_secs(2), || {
+            started(&rig, &id, "safety", n0)
+                && *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::Startup))
+        })
+        .await;
+    // The master's hold (200 ms) or the new actor's zero output, whichever comes first.
+    c.safe_state = c.within("every target zero", Duration::from_millis(400), || targets_zero(&rig)).await;
+    let refused_before = rig.tree.counters.get("safety.refused.not_armed");
+    c.throughout("commanded on, not armed: every target zero", Duration::from_secs(1), || targets_zero(&rig))
+        .await;
+    c.that(
+        rig.tree.counters.get("safety.refused.not_armed") > refused_before,
+        "the commands that went on were refused (not armed)",
+    );
+    drop(feed);
+    let _feed = drive_from(&rig, 0.2, 100_000);
+    c.recovery = c
+        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await;
+    wrap_up(rig, c, n0).await;
+}
+
 /// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.
 pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
     use hil_mocks::lpms::Fault as ImuFault;

@@ -71,6 +71,18 @@ pub const DRILLS: &[Drill] = &[
     },
     Drill { name: "drive-reboot", about: "a drive reboots: reconfigured before it is enabled again" },
     Drill {
+        name: "bad-scan",
+        about: "impossible scans reach the server: refused and counted, the server runs on, V stays localised",
+    },
+    Drill {
+        name: "robot-restart-odometry",
+        about: "a robot's odometry restarts at the origin mid-run: the server re-anchors it, V stays localised",
+    },
+    Drill {
+        name: "safety-crash-moving",
+        about: "the safety actor dies while the robot drives: targets zeroed, back disarmed, no motion until a new arm",
+    },
+    Drill {
         name: "estop-during-restart",
         about: "an e-stop over the link while the safety actor restarts: latched, drives zeroed by the master's hold, back in EStop",
     },
@@ -261,6 +273,9 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
         "drive-fault-moving" => devices::drive_fault_moving(config, seed, &mut c).await,
         "estop-during-restart" => devices::estop_during_restart(config, seed, &mut c).await,
+        "safety-crash-moving" => devices::safety_crash_moving(config, seed, &mut c).await,
+        "robot-restart-odometry" => fleet::robot_restart_odometry(config, seed, &mut c).await,
+        "bad-scan" => fleet::bad_scan(config, seed, &mut c).await,
         "drive-reboot-moving" => devices::drive_reboot_moving(config, seed, &mut c).await,
         "bad-data" => devices::bad_data(config, seed, &mut c).await,
         "absent-at-start" => devices::absent_at_start(config, seed, &mut c).await,
