@@ -643,8 +643,8 @@ pub(crate) async fn robot_restart_odometry(config: &Config, seed: u64, c: &mut C
     );
     c.counters.insert("own_error_mm.max_after_restart".into(), (worst * 1000.0) as u64);
     c.that(
-        worst < 0.3,
-        format!("its own AMCL at most {:.1} cm off after the restart (< 30 cm)", worst * 100.0),
+        worst < 0.12,
+        format!("its own AMCL at most {:.1} cm off after the restart (< 12 cm)", worst * 100.0),
     );
     let report = sim.report();
     match report.samples.last() {
