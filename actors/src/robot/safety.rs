@@ -330,7 +330,17 @@ impl Actor for SafetyActor {
     ) -> Result<(), ActorProcessingErr> {
         let now = self.ports.clock.now_s();
         match msg {
-            SafetyMsg::Tick => self.output(s),
+            SafetyMsg::Tick => {
+                // The latch is the authority: an e-stop whose message this actor missed (a lagging
+                // port, or sent while it was being restarted) still stops the robot within a cycle.
+                if self.ports.estop_latch.load(Ordering::SeqCst)
+                    && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
+                {
+                    tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");
+                    s.core.estop();
+                }
+                self.output(s);
+            }
             SafetyMsg::Link(Downlink::Command(c)) => {
                 if let Err(why) = s.core.offer(c, now) {
                     self.counters.count(match why {

@@ -732,6 +732,18 @@ pub(crate) async fn estop(config: &Config, seed: u64, c: &mut Check) {
     })
     .await;
     c.throughout("still: a reset does not re-arm", Duration::from_millis(500), || wheels_still(&rig)).await;
+    // An e-stop whose message the safety actor never got (only the latch was set, as when it comes
+    // while the actor restarts or the port lags): the actor reads the latch every cycle.
+    rig.tree.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+    c.within("the latch alone e-stops within a few cycles", Duration::from_millis(100), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::EStop)
+    })
+    .await;
+    rig.tree.reset_estop();
+    c.within("reset again", Duration::from_millis(500), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
+    })
+    .await;
     keep_counters(&rig, c);
     let n0 = rig.tree.events.len();
     let log = rig.tree.events.clone();
