@@ -447,22 +447,7 @@ async fn drive_fault_while_moving(config: &Config, seed: u64, c: &mut Check, fau
             && health(&rig, Device::Drives) == Some(Health::Ok)
     })
     .await;
-    let refused_before = rig.tree.counters.get("safety.refused.not_armed");
-    c.throughout(
-        "enabled again and still commanded: every target zero, the robot not armed",
-        Duration::from_secs(2),
-        || targets_zero(&rig) && *rig.tree.ports.safety_now.borrow() != Some(SafetyState::Armed),
-    )
-    .await;
-    c.that(
-        rig.tree.counters.get("safety.refused.not_armed") > refused_before,
-        "the commands that went on were refused (not armed)",
-    );
-    drop(feed);
-    let _feed = drive_from(&rig, 0.15, 100_000);
-    c.recovery = c
-        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
-        .await;
+    refused_until_rearmed(&rig, c, feed, Duration::from_secs(2), 0.15).await;
     c.eq("enables without configuration", rig.mocks.drives[0].now().enables_unconfigured, 0);
     end_without_restarts(rig, c, n0).await;
 }
@@ -550,19 +535,34 @@ pub(crate) async fn safety_crash_moving(config: &Config, seed: u64, c: &mut Chec
         .await;
     // The master's hold (200 ms) or the new actor's zero output, whichever comes first.
     c.safe_state = c.within("every target zero", Duration::from_millis(400), || targets_zero(&rig)).await;
+    refused_until_rearmed(&rig, c, feed, Duration::from_secs(1), 0.2).await;
+    wrap_up(rig, c, n0).await;
+}
+
+/// After a halt, the server goes on commanding (`feed`): for `hold` every target stays zero, the
+/// robot is not armed and the commands are refused; then a new arm, numbered past everything sent,
+/// drives it at `v_mps` again (the drill's recovery time).
+async fn refused_until_rearmed(
+    rig: &RobotRig,
+    c: &mut Check,
+    feed: crate::AbortOnDrop<()>,
+    hold: Duration,
+    v_mps: f64,
+) {
     let refused_before = rig.tree.counters.get("safety.refused.not_armed");
-    c.throughout("commanded on, not armed: every target zero", Duration::from_secs(1), || targets_zero(&rig))
-        .await;
+    c.throughout("still commanded: every target zero, the robot not armed", hold, || {
+        targets_zero(rig) && *rig.tree.ports.safety_now.borrow() != Some(SafetyState::Armed)
+    })
+    .await;
     c.that(
         rig.tree.counters.get("safety.refused.not_armed") > refused_before,
         "the commands that went on were refused (not armed)",
     );
     drop(feed);
-    let _feed = drive_from(&rig, 0.2, 100_000);
+    let _feed = drive_from(rig, v_mps, 100_000);
     c.recovery = c
-        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(rig, 1000.0))
         .await;
-    wrap_up(rig, c, n0).await;
 }
 
 /// Drill 6: bad data from every device and on the link: rejected and counted, nothing panics.
