@@ -467,15 +467,8 @@ pub(crate) async fn drive_reboot_moving(config: &Config, seed: u64, c: &mut Chec
 /// comes back in `EStop`, quick-stopping; an arm does not clear it; a reset and then an arm newer
 /// than the reset do.
 pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Check) {
-    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
-    let Some(feed) = drive_until_turning(&rig, 0.2, c).await else { return };
-    let n0 = rig.tree.events.len();
+    let Some((rig, feed, n0)) = safety_killed_while_driving(config, seed, c).await else { return };
     let id = rig.tree.id.clone();
-    let Some(safety) = child(&rig.tree.supervisor, "safety").await else {
-        return c.fail("no safety actor");
-    };
-    c.inject();
-    safety.kill();
     c.that(rig.server.down.send(&id, Downlink::EStop), "the e-stop queued on the link");
     // The dead actor sends no targets: the master's hold (the 200 ms command timeout) zeroes them.
     c.safe_state = c
@@ -518,15 +511,8 @@ pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Che
 /// master's hold zeroes them; the restarted safety actor starts disarmed at zero; the commands that
 /// go on are refused; only a new arm moves the robot again.
 pub(crate) async fn safety_crash_moving(config: &Config, seed: u64, c: &mut Check) {
-    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
-    let Some(feed) = drive_until_turning(&rig, 0.2, c).await else { return };
-    let n0 = rig.tree.events.len();
+    let Some((rig, feed, n0)) = safety_killed_while_driving(config, seed, c).await else { return };
     let id = rig.tree.id.clone();
-    let Some(safety) = child(&rig.tree.supervisor, "safety").await else {
-        return c.fail("no safety actor");
-    };
-    c.inject();
-    safety.kill();
     c.detection = c
         .within("the safety actor back, disarmed", Duration::from_secs(2), || {
             started(&rig, &id, "safety", n0)
@@ -537,6 +523,25 @@ pub(crate) async fn safety_crash_moving(config: &Config, seed: u64, c: &mut Chec
     c.safe_state = c.within("every target zero", Duration::from_millis(400), || targets_zero(&rig)).await;
     refused_until_rearmed(&rig, c, feed, Duration::from_secs(1), 0.2).await;
     wrap_up(rig, c, n0).await;
+}
+
+/// A robot driving at 0.2 m/s whose safety actor is killed (the injection): the robot, the feed of
+/// commands (still running) and the supervision-event index before the kill.
+async fn safety_killed_while_driving(
+    config: &Config,
+    seed: u64,
+    c: &mut Check,
+) -> Option<(RobotRig, crate::AbortOnDrop<()>, usize)> {
+    let rig = rig(config, seed, SimCan::InProcess, c).await?;
+    let feed = drive_until_turning(&rig, 0.2, c).await?;
+    let n0 = rig.tree.events.len();
+    let Some(safety) = child(&rig.tree.supervisor, "safety").await else {
+        c.fail("no safety actor");
+        return None;
+    };
+    c.inject();
+    safety.kill();
+    Some((rig, feed, n0))
 }
 
 /// After a halt, the server goes on commanding (`feed`): for `hold` every target stays zero, the
