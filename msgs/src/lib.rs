@@ -21,7 +21,7 @@ use amr_core::se2::Se2;
 use serde::{Deserialize, Serialize};
 
 /// The version of these types' encoding, on the network and in recordings.
-pub const SCHEMA_VERSION: u16 = 3;
+pub const SCHEMA_VERSION: u16 = 4;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
@@ -163,9 +163,12 @@ pub struct Command {
 pub enum Downlink {
     Command(Command),
     /// Accept commands again after the watchdog, a start-up or an e-stop reset disarmed the robot.
-    /// Carries the sequence number of the first command it allows: anything older stays refused.
+    /// Carries the sequence number of the first command it allows (anything older stays refused)
+    /// and when it was sent: the robot takes it only if it is newer than the last event that
+    /// stopped the robot and not older than the command timeout.
     Arm {
         seq: u64,
+        stamp_s: f64,
     },
     /// Stop and refuse commands until armed again.
     Disarm,
@@ -205,6 +208,9 @@ pub enum DisarmReason {
     /// The drives or their bus were lost: they stopped (the master zeroes every target, a deaf
     /// drive quick-stops by itself), so the output is zero too.
     DeviceLost,
+    /// The safety layer's inbox overflowed (it stopped keeping up): halted, since an input was
+    /// refused.
+    QueueFull,
 }
 
 /// Times of one fused update's stages, seconds (the paper's Table 4 rows). Wall-clock
@@ -344,6 +350,7 @@ impl fmt::Display for DisarmReason {
             DisarmReason::Requested => "requested",
             DisarmReason::EStopReset => "estop_reset",
             DisarmReason::DeviceLost => "device_lost",
+            DisarmReason::QueueFull => "queue_full",
         })
     }
 }

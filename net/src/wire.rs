@@ -179,7 +179,8 @@ pub fn to_uplink(env: Envelope, key_robot: &str, channel: &str) -> Result<Uplink
 pub fn from_downlink(d: &Downlink, sent_s: f64) -> (f64, Body) {
     let stamp = match d {
         Downlink::Command(c) => c.stamp_s,
-        Downlink::Arm { .. } | Downlink::Disarm | Downlink::EStop | Downlink::ResetEStop => sent_s,
+        Downlink::Arm { stamp_s, .. } => *stamp_s,
+        Downlink::Disarm | Downlink::EStop | Downlink::ResetEStop => sent_s,
     };
     (stamp, Body::Downlink(*d))
 }

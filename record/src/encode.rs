@@ -167,7 +167,9 @@ fn command(robot: &str, d: &Downlink) -> Value {
             "robot": robot, "kind": "command", "seq": c.seq, "stamp_s": c.stamp_s,
             "v_mps": c.v_mps, "w_radps": c.w_radps
         }),
-        Downlink::Arm { seq } => json!({ "robot": robot, "kind": "arm", "seq": seq }),
+        Downlink::Arm { seq, stamp_s } => {
+            json!({ "robot": robot, "kind": "arm", "seq": seq, "stamp_s": stamp_s })
+        }
         Downlink::Disarm => json!({ "robot": robot, "kind": "disarm" }),
         Downlink::EStop => json!({ "robot": robot, "kind": "estop" }),
         Downlink::ResetEStop => json!({ "robot": robot, "kind": "reset_estop" }),

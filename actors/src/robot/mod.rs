@@ -47,8 +47,8 @@ use imu::ImuActor;
 use lidar::LidarActor;
 pub(crate) use lidar::TIM551_RANGE_M;
 use odometry::OdometryActor;
-use ports::{AbortOnDrop, RobotPorts};
-pub use safety::SafetyControl;
+pub use ports::SafetyControl;
+use ports::{AbortOnDrop, RobotPorts, SafetyInput};
 use safety::{SafetyActor, SafetyParams};
 use status::Counters;
 use uplink::UplinkActor;
@@ -105,8 +105,6 @@ pub struct RobotTree {
     pub ports: Arc<RobotPorts>,
     pub events: EventLog,
     pub counters: Counters,
-    /// Sends e-stop, reset and fault to whichever safety actor is running.
-    pub control: Arc<ractor::OutputPort<SafetyControl>>,
     stopping: Arc<std::sync::atomic::AtomicBool>,
     join: tokio::task::JoinHandle<()>,
     _tasks: Vec<AbortOnDrop<()>>,
@@ -116,12 +114,12 @@ impl RobotTree {
     /// Latch the e-stop (also when no safety actor runs at this moment: the next one starts in it).
     pub fn estop(&self) {
         self.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
-        self.control.send(SafetyControl::EStop);
+        self.ports.safety_inbox.push(SafetyInput::Control(SafetyControl::EStop));
     }
 
     /// Clear the e-stop (the robot stays disarmed until armed).
     pub fn reset_estop(&self) {
-        self.control.send(SafetyControl::ResetEStop);
+        self.ports.safety_inbox.push(SafetyInput::Control(SafetyControl::ResetEStop));
     }
 
     /// Orderly shutdown: children stop in reverse order (the drives quick-stop), bounded in time.
@@ -164,7 +162,6 @@ pub async fn start_robot(
     let ports = RobotPorts::new(id.clone(), clock);
     let counters = Counters::default();
     let events = EventLog::default();
-    let control = Arc::new(ractor::OutputPort::<SafetyControl>::default());
 
     let mut lidar_cfg = cfg.devices.lidar.clone();
     if let Some((host, port)) = overrides.lidar {
@@ -206,12 +203,8 @@ pub async fn start_robot(
     let drive = DriveActor { ports: Arc::clone(&ports), drive: cfg.diff_drive(), counters: counters.clone() };
     let odometry =
         OdometryActor { ports: Arc::clone(&ports), track_width_m: cfg.kinematics.track_width_m.get() };
-    let safety = SafetyActor {
-        ports: Arc::clone(&ports),
-        params: safety_params(cfg),
-        counters: counters.clone(),
-        control: Arc::clone(&control),
-    };
+    let safety =
+        SafetyActor { ports: Arc::clone(&ports), params: safety_params(cfg), counters: counters.clone() };
     let uplink = UplinkActor {
         ports: Arc::clone(&ports),
         link: link.up.clone(),
@@ -249,11 +242,7 @@ pub async fn start_robot(
     let p = Arc::clone(&ports);
     let pump = tokio::spawn(async move {
         while let Some(msg) = down.recv().await {
-            if msg == amr_msgs::Downlink::EStop {
-                // Latched before anything else, so that it holds even if no safety actor runs now.
-                p.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
-            }
-            p.downlink.send(msg);
+            p.deliver(msg);
         }
     });
     // The top supervisor ending on its own means it escalated: report Fault, and keep reporting
@@ -271,17 +260,7 @@ pub async fn start_robot(
         }
         drop(sup);
     });
-    Ok(RobotTree {
-        id,
-        supervisor,
-        ports,
-        events,
-        counters,
-        control,
-        stopping,
-        join,
-        _tasks: vec![AbortOnDrop(pump)],
-    })
+    Ok(RobotTree { id, supervisor, ports, events, counters, stopping, join, _tasks: vec![AbortOnDrop(pump)] })
 }
 
 fn report_fault(ports: &RobotPorts, up: &UplinkSender) {

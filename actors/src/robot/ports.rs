@@ -1,15 +1,17 @@
 //! The robot's wiring: output ports that outlive any one actor, so an actor restarted by its
 //! supervisor subscribes again in `pre_start` and the rest of the tree never holds a stale
 //! reference. Ports are lossy (a lagging subscriber skips messages), which suits sensor data; the
-//! safety loop re-sends its output every cycle.
+//! safety loop re-sends its output every cycle. What the safety layer must see (commands, arm,
+//! disarm, e-stop, reset, health changes) goes through [`SafetyInbox`] instead, which loses nothing.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_drivers::canopen::master::MasterEvent;
 use amr_drivers::canopen::shell::MasterCommand;
 use ractor::OutputPort;
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{Notify, mpsc, watch};
 
 use crate::clock::FleetClock;
 use amr_msgs::{Device, Downlink, HealthReport, OdomMsg, SafetyState, ScanMsg};
@@ -41,6 +43,66 @@ pub struct WheelCommand {
     pub quick_stop: bool,
 }
 
+/// An operator's control of the safety layer (a signal to `amr robot`, a button).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SafetyControl {
+    EStop,
+    ResetEStop,
+}
+
+/// One input of the safety layer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SafetyInput {
+    Link(Downlink),
+    Health(HealthReport),
+    Control(SafetyControl),
+}
+
+/// How many inputs the safety inbox holds. At 50 commands a second this is five seconds of
+/// backlog: a safety actor that far behind is stalled, and the overflow halts the robot.
+pub const SAFETY_INBOX_CAPACITY: usize = 256;
+
+/// The safety layer's inputs, in order, none dropped: a bounded queue that outlives the safety
+/// actor, so what arrives while it is being restarted waits for the next one.
+///
+/// Overflow policy: a full inbox refuses the input and sets a flag; the safety actor, on seeing
+/// it, halts the robot (output zero, disarmed) until an explicit re-arm. An e-stop is latched in
+/// [`RobotPorts::estop_latch`] before it is queued, so even a full inbox cannot lose it.
+#[derive(Debug, Default)]
+pub struct SafetyInbox {
+    queue: Mutex<VecDeque<SafetyInput>>,
+    overflowed: AtomicBool,
+    ready: Notify,
+}
+
+impl SafetyInbox {
+    /// Queue `input`; `false` if the inbox was full (the robot will halt).
+    pub fn push(&self, input: SafetyInput) -> bool {
+        let mut q = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+        let queued = if q.len() >= SAFETY_INBOX_CAPACITY {
+            self.overflowed.store(true, Ordering::SeqCst);
+            false
+        } else {
+            q.push_back(input);
+            true
+        };
+        drop(q);
+        self.ready.notify_one();
+        queued
+    }
+
+    /// Everything queued, oldest first, and whether anything was refused since the last take.
+    pub(crate) fn take(&self) -> (Vec<SafetyInput>, bool) {
+        let items = self.queue.lock().unwrap_or_else(PoisonError::into_inner).drain(..).collect();
+        (items, self.overflowed.swap(false, Ordering::SeqCst))
+    }
+
+    /// Wait until something was pushed.
+    pub(crate) async fn wait(&self) {
+        self.ready.notified().await;
+    }
+}
+
 /// A connected CAN bus: the running master's command queue and which connection it is.
 #[derive(Debug, Clone)]
 pub struct BusLink {
@@ -65,8 +127,11 @@ pub struct RobotPorts {
     pub safety: OutputPort<SafetyState>,
     /// The safety layer's current state.
     pub safety_now: watch::Sender<Option<SafetyState>>,
-    /// What came down the link.
+    /// What came down the link (for observers such as a recorder; the safety layer reads
+    /// [`RobotPorts::safety_inbox`]).
     pub downlink: OutputPort<Downlink>,
+    /// The safety layer's inputs.
+    pub safety_inbox: SafetyInbox,
     pub wheel_cmd: OutputPort<WheelCommand>,
     /// The current bus, set by the CAN bus actor (`None` while disconnected).
     pub bus: watch::Sender<Option<BusLink>>,
@@ -74,10 +139,21 @@ pub struct RobotPorts {
     /// The e-stop latch. It lives here, not in the safety actor, so that it survives the actor's
     /// restart and an e-stop that arrives while no safety actor runs is not lost: the next one
     /// starts in `EStop`. Set by every e-stop source; cleared only by the safety actor's reset.
-    pub estop_latch: std::sync::atomic::AtomicBool,
+    pub estop_latch: AtomicBool,
 }
 
 impl RobotPorts {
+    /// A downlink message arrived: e-stops latch at once; the safety layer gets it in order and
+    /// observers on the lossy port.
+    pub fn deliver(&self, msg: Downlink) {
+        if msg == Downlink::EStop {
+            // Latched before anything else, so that it holds even if no safety actor runs now.
+            self.estop_latch.store(true, Ordering::SeqCst);
+        }
+        self.safety_inbox.push(SafetyInput::Link(msg));
+        self.downlink.send(msg);
+    }
+
     #[must_use]
     pub fn new(robot: impl Into<String>, clock: FleetClock) -> Arc<Self> {
         Arc::new(RobotPorts {
@@ -92,10 +168,11 @@ impl RobotPorts {
             safety: OutputPort::default(),
             safety_now: watch::Sender::new(None),
             downlink: OutputPort::default(),
+            safety_inbox: SafetyInbox::default(),
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),
             bus_events: OutputPort::default(),
-            estop_latch: std::sync::atomic::AtomicBool::new(false),
+            estop_latch: AtomicBool::new(false),
         })
     }
 }

@@ -7,6 +7,12 @@
 //! - Command watchdog: no fresh command for `command_timeout_ms` → disarm and stop. Only an
 //!   explicit arm (with a new sequence floor) lets commands through again, so nothing queued during
 //!   an outage is ever applied.
+//! - An arm counts only if it is newer (stamp) than the last event that stopped the robot (start-up
+//!   of this actor, a disarm of any cause, a halt, an e-stop or its reset) and not older than the
+//!   command timeout: an arm sent before a drive fault, or one queued while this actor was being
+//!   restarted, cannot start the robot again.
+//! - Every input comes through [`RobotPorts::safety_inbox`](super::ports::SafetyInbox), in order,
+//!   none dropped; if it ever overflows, the robot halts (`Disarmed(QueueFull)`).
 //! - Every stop the layer makes (watchdog, disarm, lost drives) brakes at the stop deceleration,
 //!   not at the acceleration limit, which only shapes driving while armed.
 //! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed). It comes
@@ -23,7 +29,7 @@ use std::time::Duration;
 
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{RobotPorts, WheelCommand};
+use super::ports::{AbortOnDrop, RobotPorts, SafetyControl, SafetyInput, WheelCommand};
 use super::status::{Counters, HealthCell};
 use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
 
@@ -53,6 +59,17 @@ pub(crate) enum Refusal {
     NotFinite,
 }
 
+/// Why an arm was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ArmRefusal {
+    /// E-stop or fault: only a reset (or a restart of the robot) clears them.
+    Latched,
+    /// Not newer than the last event that stopped the robot.
+    BeforeStop,
+    /// Older than the command timeout, or not finite.
+    Expired,
+}
+
 /// The safety layer's decisions.
 #[derive(Debug, Clone)]
 pub(crate) struct SafetyCore {
@@ -65,11 +82,15 @@ pub(crate) struct SafetyCore {
     /// The twist being output.
     output: (f64, f64),
     last_tick_s: Option<f64>,
+    /// When the robot was last stopped (this core's start, a disarm, a halt, an e-stop or its
+    /// reset): only an arm stamped later counts.
+    stopped_at_s: f64,
 }
 
 impl SafetyCore {
     #[must_use]
-    pub(crate) fn new(params: SafetyParams) -> Self {
+    /// A core started at `now_s` (disarmed: a start is a stop event).
+    pub(crate) fn new(params: SafetyParams, now_s: f64) -> Self {
         SafetyCore {
             params,
             state: SafetyState::Disarmed(DisarmReason::Startup),
@@ -78,6 +99,7 @@ impl SafetyCore {
             seq_floor: 0,
             output: (0.0, 0.0),
             last_tick_s: None,
+            stopped_at_s: now_s,
         }
     }
 
@@ -93,8 +115,18 @@ impl SafetyCore {
         self.output
     }
 
-    /// Arm: accept commands with `seq >= floor`, starting the watchdog now.
-    pub(crate) fn arm(&mut self, floor: u64, now_s: f64) -> bool {
+    /// Arm (stamped `stamp_s` by the sender): accept commands with `seq >= floor`, starting the
+    /// watchdog now.
+    pub(crate) fn arm(&mut self, floor: u64, stamp_s: f64, now_s: f64) -> Result<(), ArmRefusal> {
+        if matches!(self.state, SafetyState::EStop | SafetyState::Fault) {
+            return Err(ArmRefusal::Latched);
+        }
+        if !(stamp_s.is_finite() && now_s - stamp_s <= self.params.command_timeout_s) {
+            return Err(ArmRefusal::Expired);
+        }
+        if stamp_s <= self.stopped_at_s {
+            return Err(ArmRefusal::BeforeStop);
+        }
         match self.state {
             SafetyState::Disarmed(_) => {
                 self.state = SafetyState::Armed;
@@ -103,36 +135,33 @@ impl SafetyCore {
                 self.last_tick_s.get_or_insert(now_s);
                 // The watchdog runs from the arm: a first command must come within the timeout.
                 self.command = Some((Command { seq: 0, stamp_s: now_s, v_mps: 0.0, w_radps: 0.0 }, now_s));
-                true
             }
-            SafetyState::Armed => {
-                self.seq_floor = self.seq_floor.max(floor);
-                true
-            }
-            SafetyState::EStop | SafetyState::Fault => false,
+            SafetyState::Armed => self.seq_floor = self.seq_floor.max(floor),
+            SafetyState::EStop | SafetyState::Fault => {}
         }
+        Ok(())
     }
 
-    /// Disarm (ramp to zero); kept if already e-stopped or faulted.
-    pub(crate) fn disarm(&mut self, reason: DisarmReason) {
+    /// Disarm (ramp to zero) at `now_s`; kept if already e-stopped or faulted.
+    pub(crate) fn disarm(&mut self, reason: DisarmReason, now_s: f64) {
+        self.stopped_at_s = self.stopped_at_s.max(now_s);
         if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
             self.state = SafetyState::Disarmed(reason);
             self.command = None;
         }
     }
 
-    /// Disarm and drop the output to zero at once: the drives were lost, so they have stopped
-    /// already; ramping on from the old speed would make them move again, disarmed, when they return.
-    pub(crate) fn halt(&mut self) {
-        if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
-            self.state = SafetyState::Disarmed(DisarmReason::DeviceLost);
-            self.command = None;
-        }
+    /// Disarm with `reason` and drop the output to zero at once: the drives were lost, faulted or
+    /// rebooted, so they have stopped already; ramping on from the old speed would make them move
+    /// again, disarmed, when they return.
+    pub(crate) fn halt(&mut self, reason: DisarmReason, now_s: f64) {
+        self.disarm(reason, now_s);
         self.output = (0.0, 0.0);
     }
 
     /// Latch the e-stop (a fault stays a fault).
-    pub(crate) fn estop(&mut self) {
+    pub(crate) fn estop(&mut self, now_s: f64) {
+        self.stopped_at_s = self.stopped_at_s.max(now_s);
         if self.state != SafetyState::Fault {
             self.state = SafetyState::EStop;
             self.command = None;
@@ -140,10 +169,11 @@ impl SafetyCore {
         }
     }
 
-    /// Clear the e-stop: the robot is disarmed until armed again.
-    pub(crate) fn reset_estop(&mut self) -> bool {
+    /// Clear the e-stop: the robot is disarmed until armed by an arm newer than this reset.
+    pub(crate) fn reset_estop(&mut self, now_s: f64) -> bool {
         if self.state == SafetyState::EStop {
             self.state = SafetyState::Disarmed(DisarmReason::EStopReset);
+            self.stopped_at_s = self.stopped_at_s.max(now_s);
             true
         } else {
             false
@@ -153,7 +183,8 @@ impl SafetyCore {
     /// Latch a fault: stopped until the robot is restarted. (Only the tests call it: a supervisor's
     /// escalation latches `Fault` on the robot's ports directly, `robot/mod.rs`.)
     #[cfg(test)]
-    pub(crate) fn fault(&mut self) {
+    pub(crate) fn fault(&mut self, now_s: f64) {
+        self.stopped_at_s = self.stopped_at_s.max(now_s);
         self.state = SafetyState::Fault;
         self.command = None;
         self.output = (0.0, 0.0);
@@ -191,7 +222,7 @@ impl SafetyCore {
             && self.command.is_none_or(|(_, at)| now_s - at > p.command_timeout_s)
         {
             tracing::warn!(timeout_s = p.command_timeout_s, "command watchdog: no fresh command, stopping");
-            self.disarm(DisarmReason::Watchdog);
+            self.disarm(DisarmReason::Watchdog, now_s);
         }
         let target = match (self.state, self.command) {
             (SafetyState::Armed, Some((c, _))) => (
@@ -234,18 +265,10 @@ fn halts(h: &HealthReport) -> bool {
 /// Messages of the safety actor.
 #[derive(Debug)]
 pub(crate) enum SafetyMsg {
+    /// One control cycle (it takes the inbox first).
     Tick,
-    Link(Downlink),
-    Health(HealthReport),
-    EStop,
-    ResetEStop,
-}
-
-/// Operator controls of the safety layer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SafetyControl {
-    EStop,
-    ResetEStop,
+    /// Something was queued in the inbox.
+    Inbox,
 }
 
 /// The safety actor.
@@ -254,8 +277,6 @@ pub(crate) struct SafetyActor {
     pub ports: Arc<RobotPorts>,
     pub params: SafetyParams,
     pub counters: Counters,
-    /// The operator's controls (e-stop, reset), for whichever safety actor is running.
-    pub control: Arc<ractor::OutputPort<SafetyControl>>,
 }
 
 #[derive(Debug)]
@@ -263,6 +284,8 @@ pub(crate) struct SafetyActorState {
     core: SafetyCore,
     published: Option<SafetyState>,
     health: HealthCell,
+    /// Wakes this actor when the inbox gets something.
+    _waker: AbortOnDrop<()>,
 }
 
 impl SafetyActor {
@@ -286,6 +309,63 @@ impl SafetyActor {
         let cmd = s.core.tick(self.ports.clock.now_s());
         self.ports.wheel_cmd.send(cmd);
     }
+
+    /// Apply everything in the inbox, oldest first.
+    fn take_inbox(&self, s: &mut SafetyActorState) {
+        let (inputs, overflowed) = self.ports.safety_inbox.take();
+        for input in inputs {
+            self.apply(s, input);
+        }
+        if overflowed {
+            // The stated overflow policy: something was refused, so stop until armed again.
+            tracing::error!(robot = %self.ports.robot, "safety inbox overflowed: halting");
+            self.counters.count("safety.inbox_full");
+            s.core.halt(DisarmReason::QueueFull, self.ports.clock.now_s());
+        }
+    }
+
+    fn apply(&self, s: &mut SafetyActorState, input: SafetyInput) {
+        let now = self.ports.clock.now_s();
+        match input {
+            SafetyInput::Link(Downlink::Command(c)) => {
+                if let Err(why) = s.core.offer(c, now) {
+                    self.counters.count(match why {
+                        Refusal::NotArmed => "safety.refused.not_armed",
+                        Refusal::Stale => "safety.refused.stale",
+                        Refusal::Expired => "safety.refused.expired",
+                        Refusal::NotFinite => "safety.refused.not_finite",
+                    });
+                }
+            }
+            SafetyInput::Link(Downlink::Arm { seq, stamp_s }) => {
+                if let Err(why) = s.core.arm(seq, stamp_s, now) {
+                    self.counters.count("safety.refused.arm");
+                    self.counters.count(match why {
+                        ArmRefusal::Latched => "safety.refused.arm.latched",
+                        ArmRefusal::BeforeStop => "safety.refused.arm.before_stop",
+                        ArmRefusal::Expired => "safety.refused.arm.expired",
+                    });
+                }
+            }
+            SafetyInput::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested, now),
+            SafetyInput::Link(Downlink::EStop) | SafetyInput::Control(SafetyControl::EStop) => {
+                s.core.estop(now);
+                self.ports.estop_latch.store(true, Ordering::SeqCst);
+                // Not waiting for the next cycle.
+                self.output(s);
+            }
+            SafetyInput::Link(Downlink::ResetEStop) | SafetyInput::Control(SafetyControl::ResetEStop) => {
+                if s.core.reset_estop(now) {
+                    self.ports.estop_latch.store(false, Ordering::SeqCst);
+                }
+            }
+            SafetyInput::Health(h) => {
+                if halts(&h) {
+                    s.core.halt(DisarmReason::DeviceLost, now);
+                }
+            }
+        }
+    }
 }
 
 impl Actor for SafetyActor {
@@ -298,26 +378,30 @@ impl Actor for SafetyActor {
         myself: ActorRef<SafetyMsg>,
         (): (),
     ) -> Result<SafetyActorState, ActorProcessingErr> {
-        self.ports.downlink.subscribe(myself.clone(), |d| Some(SafetyMsg::Link(d)));
-        self.ports.health.subscribe(myself.clone(), |h| Some(SafetyMsg::Health(h)));
-        self.control.subscribe(myself.clone(), |c| {
-            Some(match c {
-                SafetyControl::EStop => SafetyMsg::EStop,
-                SafetyControl::ResetEStop => SafetyMsg::ResetEStop,
-            })
-        });
+        let (ports, me) = (Arc::clone(&self.ports), myself.clone());
+        let waker = AbortOnDrop(tokio::spawn(async move {
+            loop {
+                ports.safety_inbox.wait().await;
+                if me.cast(SafetyMsg::Inbox).is_err() {
+                    break;
+                }
+            }
+        }));
         let period = Duration::from_secs_f64(self.params.period_s.max(0.001));
         myself.send_interval(period, || SafetyMsg::Tick);
         let mut s = SafetyActorState {
-            core: SafetyCore::new(self.params),
+            core: SafetyCore::new(self.params, self.ports.clock.now_s()),
             published: None,
             health: HealthCell::new(Device::Safety),
+            _waker: waker,
         };
         if self.ports.estop_latch.load(Ordering::SeqCst) {
             tracing::warn!(robot = %self.ports.robot, "safety restarted with the e-stop latched");
-            s.core.estop();
+            s.core.estop(self.ports.clock.now_s());
             self.output(&mut s);
         }
+        // What arrived while no safety actor ran (an arm from before this start is refused).
+        self.take_inbox(&mut s);
         self.publish(&mut s);
         Ok(s)
     }
@@ -328,51 +412,17 @@ impl Actor for SafetyActor {
         msg: SafetyMsg,
         s: &mut SafetyActorState,
     ) -> Result<(), ActorProcessingErr> {
-        let now = self.ports.clock.now_s();
-        match msg {
-            SafetyMsg::Tick => {
-                // The latch is the authority: an e-stop whose message this actor missed (a lagging
-                // port, or sent while it was being restarted) still stops the robot within a cycle.
-                if self.ports.estop_latch.load(Ordering::SeqCst)
-                    && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
-                {
-                    tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");
-                    s.core.estop();
-                }
-                self.output(s);
+        self.take_inbox(s);
+        if let SafetyMsg::Tick = msg {
+            // The latch is the authority: an e-stop latched by a source that could not reach this
+            // actor still stops the robot within a cycle.
+            if self.ports.estop_latch.load(Ordering::SeqCst)
+                && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
+            {
+                tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");
+                s.core.estop(self.ports.clock.now_s());
             }
-            SafetyMsg::Link(Downlink::Command(c)) => {
-                if let Err(why) = s.core.offer(c, now) {
-                    self.counters.count(match why {
-                        Refusal::NotArmed => "safety.refused.not_armed",
-                        Refusal::Stale => "safety.refused.stale",
-                        Refusal::Expired => "safety.refused.expired",
-                        Refusal::NotFinite => "safety.refused.not_finite",
-                    });
-                }
-            }
-            SafetyMsg::Link(Downlink::Arm { seq }) => {
-                if !s.core.arm(seq, now) {
-                    self.counters.count("safety.refused.arm");
-                }
-            }
-            SafetyMsg::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested),
-            SafetyMsg::Link(Downlink::EStop) | SafetyMsg::EStop => {
-                s.core.estop();
-                self.ports.estop_latch.store(true, Ordering::SeqCst);
-                // Not waiting for the next cycle.
-                self.output(s);
-            }
-            SafetyMsg::Link(Downlink::ResetEStop) | SafetyMsg::ResetEStop => {
-                if s.core.reset_estop() {
-                    self.ports.estop_latch.store(false, Ordering::SeqCst);
-                }
-            }
-            SafetyMsg::Health(h) => {
-                if halts(&h) {
-                    s.core.halt();
-                }
-            }
+            self.output(s);
         }
         self.publish(s);
         Ok(())
@@ -414,18 +464,18 @@ mod tests {
 
     #[test]
     fn starts_disarmed_and_refuses_commands_until_armed() {
-        let mut c = SafetyCore::new(P);
+        let mut c = SafetyCore::new(P, -1.0);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Startup));
         assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Err(Refusal::NotArmed));
         assert_eq!(c.tick(0.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
-        assert!(c.arm(1, 0.0));
+        assert_eq!(c.arm(1, 0.0, 0.0), Ok(()));
         assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Ok(()));
     }
 
     #[test]
     fn limits_speed_and_ramps_each_wheel_at_the_acceleration_limit() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 400, Some((&mut seq, 5.0, 0.0)));
         // 0.05 m/s² → 0.001 m/s per 20 ms cycle.
@@ -437,8 +487,8 @@ mod tests {
         assert!((out[10].v_mps - 0.010).abs() < 1e-9, "{}", out[10].v_mps);
         assert!((out.last().map_or(0.0, |o| o.v_mps) - 0.22).abs() < 1e-12, "capped at max speed");
         // A turn on the spot: each wheel ramps at the limit, the yaw rate is capped.
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 400, Some((&mut seq, 0.0, 9.0)));
         let dw = 0.001 / (P.track_width_m / 2.0);
@@ -448,8 +498,8 @@ mod tests {
 
     #[test]
     fn watchdog_ramps_to_zero_and_needs_a_rearm() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
         let v0 = out.last().map_or(0.0, |o| o.v_mps);
@@ -473,7 +523,7 @@ mod tests {
         // A command that was queued during the outage (older seq, or stamped long ago) is refused
         // even after the re-arm.
         assert_eq!(c.offer(cmd(seq + 1, 6.0, 0.2, 0.0), 14.0), Err(Refusal::NotArmed));
-        assert!(c.arm(seq + 10, 14.0));
+        assert_eq!(c.arm(seq + 10, 14.0, 14.0), Ok(()));
         assert_eq!(c.offer(cmd(seq + 1, 13.9, 0.2, 0.0), 14.0), Err(Refusal::Stale));
         assert_eq!(c.offer(cmd(seq + 10, 13.0, 0.2, 0.0), 14.0), Err(Refusal::Expired));
         assert_eq!(c.offer(cmd(seq + 11, 14.0, 0.2, 0.0), 14.0), Ok(()));
@@ -485,8 +535,8 @@ mod tests {
 
     #[test]
     fn slowing_down_while_armed_keeps_the_comfort_limit_a_disarm_brakes_at_the_stop_rate() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
         let v0 = out.last().map_or(0.0, |o| o.v_mps);
@@ -494,7 +544,7 @@ mod tests {
         let down = run(&mut c, 6.0, 10, Some((&mut seq, 0.1, 0.0)));
         assert!((down[9].v_mps - (v0 - 0.010)).abs() < 1e-9, "{} {v0}", down[9].v_mps);
         // A disarm: 10 mm/s per cycle to zero.
-        c.disarm(DisarmReason::Requested);
+        c.disarm(DisarmReason::Requested, 6.2);
         let stop = run(&mut c, 6.2, 30, None);
         let v1 = down[9].v_mps;
         assert!((stop[0].v_mps - (v1 - 0.010)).abs() < 1e-9, "{} {v1}", stop[0].v_mps);
@@ -504,8 +554,8 @@ mod tests {
 
     #[test]
     fn an_armed_robot_that_never_hears_a_command_stops_at_the_timeout() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 1.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 1.0, 1.0), Ok(()));
         c.tick(1.0);
         c.tick(1.19);
         assert_eq!(c.state(), SafetyState::Armed);
@@ -515,20 +565,53 @@ mod tests {
 
     #[test]
     fn a_lost_drive_halts_the_output_so_nothing_moves_when_it_returns() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.1)));
         assert!(c.output().0 > 0.19);
-        c.halt();
+        c.halt(DisarmReason::DeviceLost, 6.0);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::DeviceLost));
         // From the next cycle on, exactly zero (not a ramp from 0.2 m/s).
         assert_eq!(c.tick(6.02), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
         assert_eq!(c.offer(cmd(seq + 1, 6.02, 0.2, 0.0), 6.02), Err(Refusal::NotArmed));
         // A latched e-stop stays one.
-        c.estop();
-        c.halt();
+        c.estop(6.1);
+        c.halt(DisarmReason::DeviceLost, 6.1);
         assert_eq!(c.state(), SafetyState::EStop);
+    }
+
+    #[test]
+    fn only_an_arm_newer_than_the_last_stop_and_fresh_starts_the_robot() {
+        // Started at 10.0: an arm sent before the start (queued while this core's actor was being
+        // restarted) is refused.
+        let mut c = SafetyCore::new(P, 10.0);
+        assert_eq!(c.arm(1, 9.95, 10.01), Err(ArmRefusal::BeforeStop));
+        assert_eq!(c.arm(1, 10.0, 10.01), Err(ArmRefusal::BeforeStop), "not newer: the same stamp");
+        // One older than the command timeout, or not finite, is refused whatever its stamp.
+        assert_eq!(c.arm(1, 10.05, 10.3), Err(ArmRefusal::Expired));
+        assert_eq!(c.arm(1, f64::NAN, 10.3), Err(ArmRefusal::Expired));
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Startup));
+        assert_eq!(c.arm(1, 10.25, 10.3), Ok(()));
+        let mut seq = 0;
+        run(&mut c, 10.3, 100, Some((&mut seq, 0.1, 0.0)));
+        // A drive faults at 12.5; the arm the server sent at 12.49 arrives after it: refused, and
+        // the robot stays at zero while commands go on.
+        c.halt(DisarmReason::DeviceLost, 12.5);
+        assert_eq!(c.arm(seq + 1, 12.49, 12.51), Err(ArmRefusal::BeforeStop));
+        let out = run(&mut c, 12.52, 20, Some((&mut seq, 0.1, 0.0)));
+        assert!(out.iter().all(|o| o.v_mps == 0.0 && o.w_radps == 0.0));
+        // A disarm of any cause is a stop event too: a reordered arm from before it is refused.
+        assert_eq!(c.arm(seq + 1, 12.95, 12.96), Ok(()));
+        c.disarm(DisarmReason::Requested, 13.0);
+        assert_eq!(c.arm(seq + 1, 12.99, 13.01), Err(ArmRefusal::BeforeStop));
+        assert_eq!(c.arm(seq + 1, 13.01, 13.02), Ok(()));
+        // An e-stop's reset is one: the arm must come after the reset.
+        c.estop(14.0);
+        assert_eq!(c.arm(seq + 1, 14.1, 14.1), Err(ArmRefusal::Latched));
+        assert!(c.reset_estop(14.2));
+        assert_eq!(c.arm(seq + 1, 14.15, 14.21), Err(ArmRefusal::BeforeStop));
+        assert_eq!(c.arm(seq + 1, 14.21, 14.22), Ok(()));
     }
 
     #[test]
@@ -547,23 +630,23 @@ mod tests {
 
     #[test]
     fn estop_latches_until_reset_and_a_fault_never_clears() {
-        let mut c = SafetyCore::new(P);
-        c.arm(0, 0.0);
+        let mut c = SafetyCore::new(P, -1.0);
+        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
         let mut seq = 0;
         run(&mut c, 0.0, 100, Some((&mut seq, 0.2, 0.0)));
-        c.estop();
+        c.estop(2.0);
         assert_eq!(c.output(), (0.0, 0.0));
         assert_eq!(c.tick(2.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: true });
-        assert!(!c.arm(1000, 2.0), "arming does not clear an e-stop");
+        assert_eq!(c.arm(1000, 2.0, 2.0), Err(ArmRefusal::Latched), "arming does not clear an e-stop");
         assert_eq!(c.offer(cmd(1001, 2.0, 0.1, 0.0), 2.0), Err(Refusal::NotArmed));
-        assert!(c.reset_estop());
+        assert!(c.reset_estop(2.0));
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::EStopReset));
         assert!(!c.tick(2.02).quick_stop);
-        assert!(c.arm(1000, 2.04));
-        c.fault();
-        assert!(!c.reset_estop());
-        assert!(!c.arm(2000, 3.0));
-        c.estop();
+        assert_eq!(c.arm(1000, 2.04, 2.04), Ok(()));
+        c.fault(2.05);
+        assert!(!c.reset_estop(3.0));
+        assert_eq!(c.arm(2000, 3.0, 3.0), Err(ArmRefusal::Latched));
+        c.estop(3.0);
         assert_eq!(c.state(), SafetyState::Fault);
         assert!(c.tick(3.0).quick_stop);
     }
@@ -578,9 +661,10 @@ mod tests {
             v: f64,
             w: f64,
         },
-        /// An arm whose floor is `ahead` numbers after the last command sent.
+        /// An arm whose floor is `ahead` numbers after the last command sent, stamped `age_s` ago.
         Arm {
             ahead: u64,
+            age_s: f64,
         },
         Disarm,
         /// The drives lost or faulted.
@@ -599,7 +683,7 @@ mod tests {
         prop_oneof![
             6 => (0u64..3, 0.0..0.4f64, -1.0..1.0f64, -1.0..1.0f64)
                 .prop_map(|(ahead, age_s, v, w)| Op::Command { ahead, age_s, v, w }),
-            2 => (0u64..3).prop_map(|ahead| Op::Arm { ahead }),
+            2 => (0u64..3, 0.0..0.3f64).prop_map(|(ahead, age_s)| Op::Arm { ahead, age_s }),
             1 => Just(Op::Disarm),
             1 => Just(Op::Halt),
             1 => Just(Op::EStop),
@@ -626,8 +710,12 @@ mod tests {
         /// command.
         #[test]
         fn safety_core_invariants_hold_for_any_input_sequence(ops in proptest::collection::vec(op(), 1..200)) {
-            let mut core = SafetyCore::new(P);
+            let mut core = SafetyCore::new(P, -1.0);
             let mut now = 0.0f64;
+            // The last stop event (start, disarm, halt, e-stop or its reset, fault, restart), and
+            // whether an arm newer than it was accepted since.
+            let mut stopped_at = -1.0f64;
+            let mut armed_since_stop = false;
             let mut sent = 0u64;
             // When the robot last had something that lets it move: an accepted arm or command.
             let mut fresh_at = f64::NEG_INFINITY;
@@ -645,38 +733,61 @@ mod tests {
                             fresh_at = now;
                         }
                     }
-                    Op::Arm { ahead } => {
+                    Op::Arm { ahead, age_s } => {
                         let was = core.state();
-                        let ok = core.arm(sent + ahead, now);
-                        prop_assert_eq!(ok, matches!(was, SafetyState::Armed | SafetyState::Disarmed(_)));
+                        let stamp = now - age_s;
+                        let ok = core.arm(sent + ahead, stamp, now).is_ok();
+                        let may = matches!(was, SafetyState::Armed | SafetyState::Disarmed(_))
+                            && age_s <= P.command_timeout_s
+                            && stamp > stopped_at;
+                        prop_assert_eq!(ok, may);
                         if ok && was != SafetyState::Armed {
                             fresh_at = now;
+                            armed_since_stop = true;
                         }
                     }
-                    Op::Disarm => core.disarm(DisarmReason::Requested),
+                    Op::Disarm => {
+                        core.disarm(DisarmReason::Requested, now);
+                        stopped_at = now;
+                        armed_since_stop = false;
+                    }
                     Op::Halt => {
-                        core.halt();
+                        core.halt(DisarmReason::DeviceLost, now);
+                        stopped_at = now;
+                        armed_since_stop = false;
                         jumped = true;
                     }
                     Op::EStop => {
-                        core.estop();
+                        core.estop(now);
+                        stopped_at = now;
+                        armed_since_stop = false;
                         jumped = true;
                     }
                     Op::ResetEStop => {
-                        core.reset_estop();
+                        if core.reset_estop(now) {
+                            stopped_at = now;
+                        }
                     }
                     Op::Fault => {
-                        core.fault();
+                        core.fault(now);
+                        stopped_at = now;
+                        armed_since_stop = false;
                         jumped = true;
                     }
                     Op::Restart => {
-                        core = SafetyCore::new(P);
+                        core = SafetyCore::new(P, now);
+                        stopped_at = now;
+                        armed_since_stop = false;
                         jumped = true;
                     }
                     Op::Tick { dt_s } => {
                         now += dt_s;
                         let state_before = core.state();
                         let out = core.tick(now);
+                        if state_before == SafetyState::Armed && core.state() != SafetyState::Armed {
+                            // The watchdog disarmed: a stop event.
+                            stopped_at = now;
+                        }
                         let (v, w) = (out.v_mps, out.w_radps);
                         prop_assert!(v.abs() <= P.max_speed_mps + 1e-9 && w.abs() <= P.max_yaw_rate_radps + 1e-9, "{v} {w}");
                         if matches!(core.state(), SafetyState::EStop | SafetyState::Fault) {
@@ -700,6 +811,16 @@ mod tests {
                         let top_wheel = P.max_speed_mps + P.max_yaw_rate_radps * P.track_width_m / 2.0;
                         if now - fresh_at > P.command_timeout_s + top_wheel / P.stop_decel_mps2 + 11.0 * P.period_s {
                             prop_assert!(v == 0.0 && w == 0.0, "still moving {v} {w} {} s after the last fresh command", now - fresh_at);
+                        }
+                        // Issue 19 §6: no motion after a fault, e-stop, halt or restart without a
+                        // newer re-arm (a disarm or the watchdog only ramps down what was moving).
+                        if !armed_since_stop && core.state() != SafetyState::Armed {
+                            for k in 0..2 {
+                                prop_assert!(b[k].abs() <= a[k].abs() + 1e-9, "wheel {k} sped up with no arm since the stop");
+                            }
+                        }
+                        if jumped && !armed_since_stop {
+                            prop_assert!(v == 0.0 && w == 0.0, "moving right after a halt, e-stop, fault or restart: {v} {w}");
                         }
                         prev = (v, w);
                         jumped = false;

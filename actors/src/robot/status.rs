@@ -44,6 +44,9 @@ impl HealthCell {
         ports.health_board.send_modify(|b| {
             b.insert(self.device, report.clone());
         });
+        // The safety layer must see every change (a lost drive halts the robot); observers may
+        // skip some.
+        ports.safety_inbox.push(super::ports::SafetyInput::Health(report.clone()));
         ports.health.send(report);
     }
 }

@@ -199,7 +199,7 @@ impl FormationActor {
                         self.resume_where_v_is(state, now);
                     }
                     for i in 0..state.robots.len() {
-                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1 });
+                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1, stamp_s: now });
                     }
                     state.phase = Phase::Arming { since_s: now };
                 }
