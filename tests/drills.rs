@@ -47,6 +47,8 @@ drills! {
     safety_crash_moving => "safety-crash-moving",
     robot_restart_odometry => "robot-restart-odometry",
     bad_scan => "bad-scan",
+    command_burst => "command-burst",
+    robot_freeze => "robot-freeze",
     drive_reboot_moving => "drive-reboot-moving",
     bad_data => "bad-data",
     absent_at_start => "absent-at-start",

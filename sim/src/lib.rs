@@ -631,12 +631,51 @@ pub struct RobotRig {
     pub clock: FleetClock,
     pub world: SharedWorld,
     pub truth: TruthLog,
+    /// The robot's configuration.
+    pub robot: RobotConfig,
     pub tree: RobotTree,
     pub mocks: RobotMocks,
     /// The server's end of the link: read what the robot sends, send it commands.
     pub server: amr_actors::link::ServerEnd,
     pub link: LinkControl,
     _world: AbortOnDrop<()>,
+    /// The robot tree's own runtime, when it has one ([`RobotRig::start_apart`]).
+    pub apart: Option<Apart>,
+}
+
+/// A runtime of its own, on its own thread, for a robot tree: blocking it freezes the whole
+/// robot as a stopped process would (`kill -STOP`: no task runs, nothing is sent, sockets stay
+/// open), while the mock devices, the world and the drill go on in theirs.
+#[derive(Debug)]
+pub struct Apart {
+    handle: tokio::runtime::Handle,
+    /// Dropping it ends the runtime's thread.
+    _stop: tokio::sync::oneshot::Sender<()>,
+}
+
+impl Apart {
+    fn start() -> std::io::Result<Apart> {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        let handle = rt.handle().clone();
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        std::thread::Builder::new().name("robot-apart".into()).spawn(move || {
+            rt.block_on(async move {
+                let _ = stopped.await;
+            });
+        })?;
+        Ok(Apart { handle, _stop: stop })
+    }
+
+    /// Freeze everything on this runtime for `d` (its one thread blocked); returns once the
+    /// freeze has begun (false if the runtime is gone).
+    pub async fn freeze(&self, d: Duration) -> bool {
+        let (frozen, began) = tokio::sync::oneshot::channel();
+        self.handle.spawn(async move {
+            let _ = frozen.send(());
+            std::thread::sleep(d);
+        });
+        began.await.is_ok()
+    }
 }
 
 impl RobotRig {
@@ -660,6 +699,30 @@ impl RobotRig {
         options: RobotOptions,
         tweak: impl FnOnce(&mut DeviceOverrides),
     ) -> Result<RobotRig, SimError> {
+        Self::start_on(config, scenario, seed, can, options, tweak, false).await
+    }
+
+    /// As [`RobotRig::start`], with the robot tree on a runtime of its own ([`Apart`]), so that a
+    /// drill can freeze the robot while its devices go on.
+    pub async fn start_apart(
+        config: &Config,
+        scenario: &ScenarioConfig,
+        seed: u64,
+        can: SimCan,
+        options: RobotOptions,
+    ) -> Result<RobotRig, SimError> {
+        Self::start_on(config, scenario, seed, can, options, |_| {}, true).await
+    }
+
+    async fn start_on(
+        config: &Config,
+        scenario: &ScenarioConfig,
+        seed: u64,
+        can: SimCan,
+        options: RobotOptions,
+        tweak: impl FnOnce(&mut DeviceOverrides),
+        apart: bool,
+    ) -> Result<RobotRig, SimError> {
         let robots = formation_robots(&config.server, &config.robots)?;
         let robot = robots.into_iter().next().ok_or(SimError::Site("the formation is empty".into()))?;
         let clock = FleetClock::start();
@@ -677,8 +740,30 @@ impl RobotRig {
         let end = ends.pop().ok_or(SimError::Site("no link end".into()))?;
         let mut overrides = mocks.overrides();
         tweak(&mut overrides);
-        let tree = start_robot(&robot, overrides, end, clock, options).await?;
-        Ok(RobotRig { clock, world, truth, tree, mocks, server, link, _world: world_task })
+        let config = robot.clone();
+        let (tree, apart) = if apart {
+            let apart = Apart::start().map_err(|e| SimError::Site(format!("the robot's runtime: {e}")))?;
+            let tree = apart
+                .handle
+                .spawn(async move { start_robot(&robot, overrides, end, clock, options).await })
+                .await
+                .map_err(|e| SimError::Site(format!("starting the robot: {e}")))??;
+            (tree, Some(apart))
+        } else {
+            (start_robot(&robot, overrides, end, clock, options).await?, None)
+        };
+        Ok(RobotRig {
+            clock,
+            world,
+            truth,
+            robot: config,
+            tree,
+            mocks,
+            server,
+            link,
+            _world: world_task,
+            apart,
+        })
     }
 }
 

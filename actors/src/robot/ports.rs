@@ -211,3 +211,34 @@ impl<T> Drop for AbortOnDrop<T> {
         self.0.abort();
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disarm() -> SafetyInput {
+        SafetyInput::Link(Downlink::Disarm)
+    }
+
+    #[test]
+    fn the_safety_inbox_keeps_order_and_a_full_one_refuses_and_flags() {
+        let inbox = SafetyInbox::default();
+        let health = SafetyInput::Health(HealthReport {
+            device: Device::Drives,
+            health: amr_msgs::Health::Lost,
+            detail: String::new(),
+        });
+        assert!(inbox.push(disarm()));
+        assert!(inbox.push(health.clone()));
+        assert!(inbox.push(SafetyInput::Control(SafetyControl::EStop)));
+        assert_eq!(inbox.take(), (vec![disarm(), health, SafetyInput::Control(SafetyControl::EStop)], false));
+        assert_eq!(inbox.take(), (vec![], false));
+        // Full: the capacity is taken, the rest refused, and the take reports the overflow once.
+        let taken = (0..SAFETY_INBOX_CAPACITY + 3).filter(|_| inbox.push(disarm())).count();
+        assert_eq!(taken, SAFETY_INBOX_CAPACITY);
+        let (items, overflowed) = inbox.take();
+        assert_eq!((items.len(), overflowed), (SAFETY_INBOX_CAPACITY, true));
+        assert!(inbox.push(disarm()));
+        assert_eq!(inbox.take(), (vec![disarm()], false));
+    }
+}

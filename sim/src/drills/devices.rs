@@ -13,7 +13,7 @@ use hil_mocks::tim551::Fault as LidarFault;
 use ractor::ActorRef;
 
 use super::{
-    Check, all_ok, child, drive, drive_from, events_from, health, keep_counters, rig, wheels_still,
+    Check, all_ok, child, drive, drive_from, events_from, health, keep_counters, rig, rig_on, wheels_still,
     wheels_turning,
 };
 use crate::{RobotRig, SimCan};
@@ -776,4 +776,130 @@ pub(crate) async fn estop(config: &Config, seed: u64, c: &mut Check) {
         "no drive left enabled after the shutdown",
     );
     c.events = lines;
+}
+
+/// A stalled transport flushes its backlog at once (issue 19 §4): a hundred fresh commands, a
+/// disarm, then twenty more arrive in one burst. Every one reaches the safety layer, in order: the
+/// disarm holds (the robot brakes at the stop deceleration), the twenty after it are refused, the
+/// inbox does not overflow, and a new arm drives again. Then the inbox's overflow policy: while the
+/// robot is frozen (its safety actor cannot take anything), more inputs than the inbox holds
+/// arrive; the robot halts, `Disarmed(QueueFull)`, every target zero.
+pub(crate) async fn command_burst(config: &Config, seed: u64, c: &mut Check) {
+    use amr_actors::robot::ports::{SAFETY_INBOX_CAPACITY, SafetyInput};
+    let Some(rig) = rig_on(config, seed, SimCan::InProcess, true, c).await else { return };
+    let Some(apart) = rig.apart.as_ref() else {
+        c.fail("setup: the robot has no runtime of its own");
+        return;
+    };
+    let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
+    drop(feed);
+    let (id, down, clock) = (rig.tree.id.clone(), rig.server.down.clone(), rig.clock);
+    let n0 = rig.tree.events.len();
+    let counter = |name: &str| rig.tree.counters.get(name);
+    let refused0 = counter("safety.refused.not_armed");
+    let cmd = |seq| Downlink::Command(Command { seq, stamp_s: clock.now_s(), v_mps: 0.15, w_radps: 0.0 });
+    c.inject();
+    let mut queued = 0u32;
+    for seq in 50_000..50_100 {
+        queued += u32::from(down.send(&id, cmd(seq)));
+    }
+    queued += u32::from(down.send(&id, Downlink::Disarm));
+    for seq in 50_100..50_120 {
+        queued += u32::from(down.send(&id, cmd(seq)));
+    }
+    c.eq("the burst queued on the link", queued, 121);
+    c.detection = c
+        .within("the burst's disarm applied: Disarmed(Requested)", Duration::from_millis(500), || {
+            *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::Requested))
+        })
+        .await;
+    c.safe_state = c.within("the wheels at rest", Duration::from_secs(1), || wheels_still(&rig)).await;
+    c.within("the twenty commands after the disarm refused", Duration::from_millis(500), || {
+        counter("safety.refused.not_armed") >= refused0 + 20
+    })
+    .await;
+    c.throughout("still disarmed, every target zero", Duration::from_millis(500), || {
+        targets_zero(&rig) && *rig.tree.ports.safety_now.borrow() != Some(SafetyState::Armed)
+    })
+    .await;
+    c.eq("inbox overflows during the burst", counter("safety.inbox_full"), 0);
+    let feed = drive_from(&rig, 0.15, 100_000);
+    c.recovery = c
+        .within("turning again after a new arm", Duration::from_secs(10), || wheels_turning(&rig, 1000.0))
+        .await;
+
+    // The overflow policy. A 100 ms freeze is well inside the drives' heartbeat consumer time.
+    if !apart.freeze(Duration::from_millis(100)).await {
+        c.fail("the robot's runtime is gone");
+    }
+    let inbox = &rig.tree.ports.safety_inbox;
+    let pushed = (0..SAFETY_INBOX_CAPACITY as u64 + 50)
+        .filter(|k| inbox.push(SafetyInput::Link(cmd(200_000 + k))))
+        .count();
+    c.eq("inputs the full inbox took", pushed, SAFETY_INBOX_CAPACITY);
+    c.within("halted on the overflow: Disarmed(QueueFull)", Duration::from_millis(500), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::QueueFull))
+    })
+    .await;
+    c.within("every target zero after the overflow", Duration::from_millis(200), || targets_zero(&rig)).await;
+    c.eq("overflows counted", counter("safety.inbox_full"), 1);
+    drop(feed);
+    end_without_restarts(rig, c, n0).await;
+}
+
+/// The whole robot process freezes (issue 19 §3): none of its tasks runs (no SYNC, no heartbeat,
+/// no target), while its drives run on. Each drive's consumer of the master's heartbeat (0x1016,
+/// written at start-up) expires and its communication-loss reaction (0x6007 = quick stop) stops it:
+/// quick stop engaged within 2 × the consumer time, the wheels at rest within the consumer time
+/// plus the quick-stop ramp. Thawed, the robot finds its drives stopped and halts; it moves again
+/// only after a new arm.
+pub(crate) async fn robot_freeze(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig_on(config, seed, SimCan::InProcess, true, c).await else { return };
+    let Some(apart) = rig.apart.as_ref() else {
+        c.fail("setup: the robot has no runtime of its own");
+        return;
+    };
+    let v = 0.2;
+    let Some(feed) = drive_until_turning(&rig, v, c).await else { return };
+    let snapshots: Vec<_> = rig.mocks.drives.iter().map(crate::watch_drive::Snapshot::of).collect();
+    let speed = || {
+        let (l, r) = crate::watch_drive::wheel_speeds(&rig.robot, &snapshots);
+        l.abs().max(r.abs())
+    };
+    c.within("at speed", Duration::from_secs(10), || speed() > 0.95 * v).await;
+    let d = &rig.robot.devices.drives;
+    let consumer = Duration::from_millis(u64::from(d.master_consumer_ms));
+    let ramp = Duration::from_secs_f64(v / d.quick_stop_decel_mps2);
+    let frozen_for = 2 * consumer + ramp + Duration::from_secs(1);
+    let n0 = rig.tree.events.len();
+    c.inject();
+    if !apart.freeze(frozen_for).await {
+        c.fail("the robot's runtime is gone");
+        return;
+    }
+    let quick_stopped = || {
+        rig.mocks.drives.iter().all(|h| {
+            let s = h.now();
+            s.state == State402::QuickStopActive && s.master_losses >= 1
+        })
+    };
+    let left = |c: &Check, deadline: Duration| deadline.saturating_sub(c.since_injection());
+    let deadline = left(c, 2 * consumer);
+    c.detection =
+        c.within("every drive in quick stop on the master's lost heartbeat", deadline, quick_stopped).await;
+    let deadline = left(c, consumer + ramp + Duration::from_millis(100));
+    c.safe_state = c.within("the wheels at rest", deadline, || wheels_still(&rig)).await;
+    c.that(c.since_injection() < frozen_for, "the drives stopped while the robot was still frozen");
+    tokio::time::sleep(frozen_for.saturating_sub(c.since_injection())).await;
+    c.within("thawed, the robot halted: Disarmed(DeviceLost)", Duration::from_secs(2), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::DeviceLost))
+    })
+    .await;
+    c.within("the drives enabled again", Duration::from_secs(10), || {
+        rig.mocks.drives.iter().all(|h| h.now().state == State402::OperationEnabled)
+            && health(&rig, Device::Drives) == Some(Health::Ok)
+    })
+    .await;
+    refused_until_rearmed(&rig, c, feed, Duration::from_secs(2), 0.15).await;
+    wrap_up(rig, c, n0).await;
 }

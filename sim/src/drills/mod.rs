@@ -110,6 +110,14 @@ pub const DRILLS: &[Drill] = &[
         name: "server-restart",
         about: "the server crashes and restarts: robots stay stopped, reconnect, resume after re-arm",
     },
+    Drill {
+        name: "command-burst",
+        about: "a stalled link flushes commands with a disarm among them: nothing dropped, the disarm holds",
+    },
+    Drill {
+        name: "robot-freeze",
+        about: "the whole robot process freezes: the drives quick-stop on the master's lost heartbeat",
+    },
     Drill { name: "slow-consumer", about: "a stalled localisation does not delay the robot's safety loop" },
     Drill { name: "estop", about: "e-stop: wheels commanded to zero within 100 ms; orderly shutdown" },
     Drill {
@@ -276,6 +284,8 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "safety-crash-moving" => devices::safety_crash_moving(config, seed, &mut c).await,
         "robot-restart-odometry" => fleet::robot_restart_odometry(config, seed, &mut c).await,
         "bad-scan" => fleet::bad_scan(config, seed, &mut c).await,
+        "command-burst" => devices::command_burst(config, seed, &mut c).await,
+        "robot-freeze" => devices::robot_freeze(config, seed, &mut c).await,
         "drive-reboot-moving" => devices::drive_reboot_moving(config, seed, &mut c).await,
         "bad-data" => devices::bad_data(config, seed, &mut c).await,
         "absent-at-start" => devices::absent_at_start(config, seed, &mut c).await,
@@ -328,11 +338,28 @@ pub fn table(outcomes: &[DrillOutcome]) -> String {
 
 /// A robot alone with its mocks, every device Ok.
 pub(crate) async fn rig(config: &Config, seed: u64, can: SimCan, c: &mut Check) -> Option<RobotRig> {
+    rig_on(config, seed, can, false, c).await
+}
+
+/// [`rig`], with the robot on a runtime of its own if `apart` (so that it can be frozen).
+pub(crate) async fn rig_on(
+    config: &Config,
+    seed: u64,
+    can: SimCan,
+    apart: bool,
+    c: &mut Check,
+) -> Option<RobotRig> {
     let Some(scenario) = config.scenarios.get("straight").cloned() else {
         c.fail("setup: the configuration has no `straight` scenario");
         return None;
     };
-    let rig = match RobotRig::start(config, &scenario, seed, can, RobotOptions::default()).await {
+    let options = RobotOptions::default();
+    let started = if apart {
+        RobotRig::start_apart(config, &scenario, seed, can, options).await
+    } else {
+        RobotRig::start(config, &scenario, seed, can, options).await
+    };
+    let rig = match started {
         Ok(r) => r,
         Err(e) => {
             c.that(false, format!("setup: {e}"));
