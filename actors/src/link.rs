@@ -24,6 +24,55 @@ pub struct RobotEnd {
     pub robot: String,
     pub up: UplinkSender,
     pub down: mpsc::Receiver<Downlink>,
+    /// Safety messages that found `down` full.
+    pub missed: Arc<Missed>,
+}
+
+/// Safety messages the link could not queue for the robot because its queue was full. The robot
+/// halts on seeing `any` (and latches the e-stop on `estop`): the stated overflow policy, so a
+/// disarm or an e-stop is never silently lost between the link and the safety layer.
+#[derive(Debug, Default)]
+pub struct Missed {
+    pub any: AtomicBool,
+    pub estop: AtomicBool,
+}
+
+/// The link's side of a robot's downlink queue (bounded, `DEPTH`). A command that finds it full is
+/// dropped and counted by the caller (the next one replaces it; the watchdog covers a gap); a
+/// safety message (arm, disarm, e-stop, reset) is remembered in [`Missed`].
+#[derive(Debug, Clone)]
+pub struct DownlinkTx {
+    tx: mpsc::Sender<Downlink>,
+    missed: Arc<Missed>,
+}
+
+impl DownlinkTx {
+    /// A robot's downlink queue: the link's side, the robot's, and the record of missed messages.
+    #[must_use]
+    pub fn queue() -> (DownlinkTx, mpsc::Receiver<Downlink>, Arc<Missed>) {
+        let (tx, rx) = mpsc::channel(DEPTH);
+        let missed = Arc::new(Missed::default());
+        (DownlinkTx { tx, missed: Arc::clone(&missed) }, rx, missed)
+    }
+
+    /// Queue `d` without waiting; `false` if the queue was full or closed.
+    pub fn send(&self, d: Downlink) -> bool {
+        if self.tx.try_send(d).is_ok() {
+            return true;
+        }
+        if !matches!(d, Downlink::Command(_)) {
+            self.missed.any.store(true, Ordering::SeqCst);
+            if d == Downlink::EStop {
+                self.missed.estop.store(true, Ordering::SeqCst);
+            }
+        }
+        false
+    }
+
+    /// Wait until the robot's end is dropped.
+    pub async fn closed(&self) {
+        self.tx.closed().await;
+    }
 }
 
 /// Sends up the link without ever waiting: a full queue drops the message and counts it.
@@ -211,8 +260,8 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
         let (supply, queues) = mpsc::unbounded_channel();
         supplies.insert(robot.clone(), supply);
         let (up_tx, up_rx) = mpsc::channel::<Uplink>(DEPTH);
-        let (to_robot, robot_rx) = mpsc::channel::<Downlink>(DEPTH);
-        ends.push(RobotEnd { robot: robot.clone(), up: UplinkSender::new(up_tx), down: robot_rx });
+        let (to_robot, robot_rx, missed) = DownlinkTx::queue();
+        ends.push(RobotEnd { robot: robot.clone(), up: UplinkSender::new(up_tx), down: robot_rx, missed });
         routers.push((robot.clone(), up_rx, to_robot, queues));
     }
     let switch = Arc::new(ServerSwitch { robots: robots.len(), up: up_switch, down: supplies });
@@ -275,7 +324,7 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
                         let held = ctl.pass(&name).await;
                         let empty = current.as_ref().is_none_or(mpsc::Receiver::is_empty);
                         ctl.count_late(held, &mut draining, empty);
-                        if ctl.is_cut(&name) || to_robot.try_send(msg).is_err() {
+                        if ctl.is_cut(&name) || !to_robot.send(msg) {
                             ctl.lost.fetch_add(1, Ordering::Relaxed);
                         }
                     }
@@ -295,6 +344,21 @@ mod tests {
 
     fn cmd(seq: u64) -> Downlink {
         Downlink::Command(Command { seq, stamp_s: 0.0, v_mps: 0.1, w_radps: 0.0 })
+    }
+
+    #[test]
+    fn a_full_robot_queue_drops_commands_and_remembers_safety_messages() {
+        let (tx, mut rx, missed) = DownlinkTx::queue();
+        for k in 0..DEPTH as u64 {
+            assert!(tx.send(cmd(k)));
+        }
+        assert!(!tx.send(cmd(999)));
+        assert!(!missed.any.load(Ordering::SeqCst), "a dropped command is not a missed safety message");
+        assert!(!tx.send(Downlink::Disarm));
+        assert!(missed.any.load(Ordering::SeqCst) && !missed.estop.load(Ordering::SeqCst));
+        assert!(!tx.send(Downlink::EStop));
+        assert!(missed.estop.load(Ordering::SeqCst));
+        assert_eq!(rx.try_recv().ok(), Some(cmd(0)), "what was queued stays, in order");
     }
 
     #[tokio::test]

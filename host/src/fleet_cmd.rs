@@ -257,6 +257,48 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
     })
 }
 
+/// `amr estop`'s arguments.
+#[derive(Debug)]
+pub(crate) struct EstopArgs {
+    pub robots: Vec<String>,
+    pub reset: bool,
+    pub user: String,
+    pub config: Option<PathBuf>,
+    pub timeout_ms: u64,
+    pub net: NetArgs,
+}
+
+/// `amr estop`: the operator's network e-stop (or reset) of `robots`, confirmed by each robot.
+pub(crate) fn estop(args: &EstopArgs) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
+    let settings = args.net.settings(&config)?;
+    let robots: Vec<String> = if args.robots.is_empty() {
+        config.server.robots.iter().map(|m| m.id.as_str().to_owned()).collect()
+    } else {
+        args.robots.clone()
+    };
+    let timeout = Duration::from_millis(args.timeout_ms);
+    let what = if args.reset { "e-stop reset" } else { "e-stop" };
+    let outcome = runtime()?.block_on(amr_net::operator_estop(
+        &settings,
+        &args.user,
+        &robots,
+        args.reset,
+        FleetClock::wall(),
+        timeout,
+    ))?;
+    let unconfirmed: Vec<&String> = outcome.iter().filter(|(_, s)| s.is_none()).map(|(r, _)| r).collect();
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    for (robot, state) in &outcome {
+        match state {
+            Some(s) => println!("{robot}: {what} confirmed, now {s}"),
+            None => println!("{robot}: {what} NOT confirmed within {timeout:?}"),
+        }
+    }
+    anyhow::ensure!(unconfirmed.is_empty(), "{what} not confirmed by {unconfirmed:?}: stop them locally");
+    Ok(())
+}
+
 /// `amr sim --world-only`: the world and every robot's mock devices, served on loopback, until
 /// Ctrl-C or SIGTERM. Writes the manifest `amr robot --mock` reads.
 pub(crate) fn world_only(

@@ -234,6 +234,27 @@ enum Command {
         #[command(flatten)]
         rec: record_cmd::RecordArgs,
     },
+    /// E-stop robots over the network as an operator (network.toml's `server.operators`), or with
+    /// `--reset` clear their e-stop (they stay disarmed until the server re-arms them). Waits for
+    /// each robot to report the new state; exits non-zero if one does not.
+    Estop {
+        /// Robots to stop (default: every robot of the formation in server.toml).
+        robots: Vec<String>,
+        /// Clear the e-stop instead.
+        #[arg(long)]
+        reset: bool,
+        /// The operator's user name in the credentials file.
+        #[arg(long, default_value = "operator")]
+        user: String,
+        /// Configuration directory (default: ./config if present, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// How long to wait for the robots' confirmation, ms.
+        #[arg(long, default_value_t = 3000)]
+        timeout_ms: u64,
+        #[command(flatten)]
+        net: fleet_cmd::NetArgs,
+    },
     #[command(subcommand)]
     Mock(MockCommand),
     /// Protocol tools.
@@ -486,6 +507,9 @@ fn main() -> ExitCode {
         #[cfg(feature = "drills")]
         Command::Drill { name, seed, soak_seconds, json, config } => {
             sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
+        }
+        Command::Estop { robots, reset, user, config, timeout_ms, net } => {
+            fleet_cmd::estop(&fleet_cmd::EstopArgs { robots, reset, user, config, timeout_ms, net })
         }
         Command::Server { config, scenario, seed, auto_arm, net, rec } => {
             fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })

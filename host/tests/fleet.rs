@@ -73,7 +73,8 @@ fn write_config(dir: &Path) -> PathBuf {
                     [limits]\nmax_speed_mps = 0.22\nmax_accel_mps2 = 0.05\nmax_yaw_rate_radps = 0.2\n";
     files.push(ConfigFile { path: "scenarios/short.toml".into(), bytes: scenario.as_bytes().to_vec() });
     let creds = dir.join("credentials");
-    std::fs::write(&creds, "server:srv-pw\nrobot-a:a-pw\nrobot-b:b-pw\nobserver:obs-pw\n").unwrap();
+    std::fs::write(&creds, "server:srv-pw\nrobot-a:a-pw\nrobot-b:b-pw\nobserver:obs-pw\noperator:op-pw\n")
+        .unwrap();
     for f in &mut files {
         if f.path == "network.toml" {
             let text =
@@ -324,7 +325,43 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     let at = Instant::now();
     signal("-USR2", robot_a);
     wait_for(&seen, "robot-a's e-stop reset by SIGUSR2", Duration::from_secs(5), latched(at, reset_state));
-    eprintln!("e-stop seen from the server's stdin after {net_estop:?}, from SIGUSR1 after {local_estop:?}");
+    // An operator's e-stop over the network (`fleet/robot-a/estop`), confirmed by the robot.
+    let operator = |reset: bool| {
+        let mut args = vec![
+            "estop".to_owned(),
+            "robot-a".into(),
+            "--config".into(),
+            config.display().to_string(),
+            "--credentials".into(),
+            creds_s.into(),
+            "--endpoint".into(),
+            endpoint.clone(),
+            "--timeout-ms".into(),
+            "5000".into(),
+        ];
+        if reset {
+            args.push("--reset".into());
+        }
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_amr")).args(&args).output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(out.status.success(), "amr estop {args:?}: {text} {}", String::from_utf8_lossy(&out.stderr));
+        text
+    };
+    let at = Instant::now();
+    let said = operator(false);
+    assert!(said.contains("robot-a: e-stop confirmed, now estop"), "{said}");
+    let operator_estop = wait_for(
+        &seen,
+        "robot-a e-stopped by the operator",
+        Duration::from_secs(5),
+        latched(at, SafetyState::EStop),
+    );
+    let said = operator(true);
+    assert!(said.contains("robot-a: e-stop reset confirmed"), "{said}");
+    eprintln!(
+        "e-stop seen from the server's stdin after {net_estop:?}, from SIGUSR1 after {local_estop:?}, \
+         from `amr estop` after {operator_estop:?} (process start included)"
+    );
     eprintln!(
         "server killed: robot-a's watchdog stopped it within {watchdog:?}; the new server ran the \
          formation after {restarted:?}; robot-b killed: seen gone after {seen_gone:?}, formation \

@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
-use amr_actors::link::{DownlinkSender, RobotEnd, ServerEnd, UplinkSender};
+use amr_actors::link::{DownlinkSender, DownlinkTx, RobotEnd, ServerEnd, UplinkSender};
 use amr_actors::robot::ports::AbortOnDrop;
 use amr_msgs::{Device, Downlink, Health, HealthReport, SCHEMA_VERSION, ServerStatus, Uplink};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
@@ -28,7 +28,8 @@ use zenoh::sample::SampleKind;
 
 use crate::settings::{NetError, NetSettings, PREFIX};
 use crate::wire::{
-    Body, Envelope, Freshness, Reject, from_downlink, from_uplink, to_downlink, to_uplink, uplink_channel,
+    Body, Envelope, Freshness, Reject, from_downlink, from_uplink, is_estop, to_downlink, to_estop,
+    to_uplink, uplink_channel,
 };
 
 /// Queue depth between the trees and the bridge (as the in-process link's).
@@ -310,10 +311,11 @@ pub async fn start_robot_bridge(
             }
         }
     });
-    let (down_tx, down_rx) = mpsc::channel::<Downlink>(DEPTH);
+    let (down_tx, down_rx, missed) = DownlinkTx::queue();
     let link = RobotLink {
         robot: robot.to_owned(),
         server: settings.server_user().to_owned(),
+        estop_senders: settings.estop_senders(),
         clock,
         stats: Arc::clone(&stats),
         scans: scan_rx,
@@ -357,25 +359,27 @@ pub async fn start_robot_bridge(
     })
     .await?;
     tracing::info!(robot, endpoints = ?settings.connect.as_ref().unwrap_or(&settings.network.server.connect), "link: robot bridge started");
-    Ok((RobotEnd { robot: robot.to_owned(), up: UplinkSender::new(up_tx), down: down_rx }, bridge))
+    Ok((RobotEnd { robot: robot.to_owned(), up: UplinkSender::new(up_tx), down: down_rx, missed }, bridge))
 }
 
 /// A robot's side of the link once its session is open.
 struct RobotLink {
     robot: String,
     server: String,
+    /// Who may e-stop this robot: the server and the operators.
+    estop_senders: Vec<String>,
     clock: FleetClock,
     stats: Arc<BridgeStats>,
     scans: watch::Receiver<Option<Uplink>>,
     odom: watch::Receiver<Option<Uplink>>,
     health: mpsc::Receiver<Uplink>,
-    down: mpsc::Sender<Downlink>,
+    down: DownlinkTx,
 }
 
 impl RobotLink {
     /// Declare the robot's keys and token and pump until the bridge stops.
     async fn run(self, session: zenoh::Session) -> Result<(), NetError> {
-        let RobotLink { robot, server, clock, stats, scans, odom, mut health, down } = self;
+        let RobotLink { robot, server, estop_senders, clock, stats, scans, odom, mut health, down } = self;
         let key = |ch: &str| format!("{PREFIX}/{robot}/{ch}");
         let sid = new_session();
         let scan_pub = session
@@ -400,7 +404,8 @@ impl RobotLink {
         // Commands: decoded, checked (for me, from the server, newer than the last) and passed on.
         // The safety layer then applies its own rules (armed, sequence floor, stamp age).
         let fresh = Mutex::new(Freshness::default());
-        let (me, cmd_stats, cmd_key) = (robot.clone(), Arc::clone(&stats), key("cmd"));
+        let (me, cmd_stats, cmd_key, cmd_down) =
+            (robot.clone(), Arc::clone(&stats), key("cmd"), down.clone());
         let _subscriber = session
             .declare_subscriber(cmd_key.clone())
             .callback(move |sample| {
@@ -410,14 +415,31 @@ impl RobotLink {
                     to_downlink(env, &me, &server)
                 });
                 match checked {
-                    Ok(d) => {
-                        if down.try_send(d).is_ok() {
-                            cmd_stats.delivered.fetch_add(1, Ordering::Relaxed);
-                        } else {
-                            cmd_stats.queue_full.fetch_add(1, Ordering::Relaxed);
-                        }
-                    }
+                    Ok(d) => deliver(&cmd_down, &cmd_stats, d),
                     Err(r) => cmd_stats.reject(&cmd_key, r.kind(), &r),
+                }
+            })
+            .await
+            .map_err(zerr)?;
+        // E-stops and resets, from the server or an operator: checked per sender (each has its own
+        // sessions), then into the same queue as the commands, in arrival order.
+        let fresh_per_sender: Mutex<BTreeMap<String, Freshness>> = Mutex::new(BTreeMap::new());
+        let (me, estop_stats, estop_key) = (robot.clone(), Arc::clone(&stats), key("estop"));
+        let _estop_subscriber = session
+            .declare_subscriber(estop_key.clone())
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                let checked = Envelope::decode(&bytes).and_then(|env| {
+                    if !estop_senders.contains(&env.origin) {
+                        return Err(Reject::NotAnOperator { origin: env.origin });
+                    }
+                    let mut fresh = fresh_per_sender.lock().unwrap_or_else(PoisonError::into_inner);
+                    fresh.entry(env.origin.clone()).or_default().check(&env)?;
+                    to_estop(env, &me, &estop_senders)
+                });
+                match checked {
+                    Ok(d) => deliver(&down, &estop_stats, d),
+                    Err(r) => estop_stats.reject(&estop_key, r.kind(), &r),
                 }
             })
             .await
@@ -452,6 +474,17 @@ impl RobotLink {
         };
         tokio::join!(latest(scans, scan_pub), latest(odom, odom_pub), health_pump);
         Ok(())
+    }
+}
+
+/// Queue a checked downlink message for the robot tree, counting it delivered or (queue full)
+/// dropped; a safety message that finds the queue full is remembered and halts the robot
+/// ([`DownlinkTx`]).
+fn deliver(down: &DownlinkTx, stats: &BridgeStats, d: Downlink) {
+    if down.send(d) {
+        stats.delivered.fetch_add(1, Ordering::Relaxed);
+    } else {
+        stats.queue_full.fetch_add(1, Ordering::Relaxed);
     }
 }
 
@@ -605,16 +638,21 @@ pub async fn start_server_bridge(
             .express(true)
             .await
             .map_err(zerr)?;
+        let estop_key = format!("{PREFIX}/{robot}/estop");
         let (session, stats) = (session.clone(), Arc::clone(&stats));
         let mut stamper = Stamper::new(sid, &server, robot);
+        let mut estop_stamper = Stamper::new(sid, &server, robot);
         pumps.push(AbortOnDrop(tokio::spawn(async move {
             while let Some(d) = rx.recv().await {
                 let now = clock.now_s();
                 let (stamp, body) = from_downlink(&d, now);
+                let (key, stamper) =
+                    if is_estop(&d) { (&estop_key, &mut estop_stamper) } else { (&key, &mut stamper) };
                 let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
                 let r = match d {
                     Downlink::Command(_) => cmd_pub.put(bytes).await,
-                    // The safety messages go at the highest priority and are never dropped.
+                    // The safety messages go at the highest priority and are never dropped; e-stops
+                    // and resets on their own key, which operators may publish on too.
                     Downlink::Arm { .. } | Downlink::Disarm | Downlink::EStop | Downlink::ResetEStop => {
                         session
                             .put(key.as_str(), bytes)
@@ -664,4 +702,81 @@ pub fn decode_status(bytes: &[u8]) -> Result<ServerStatus, Reject> {
         Body::Status(s) => Ok(s),
         _ => Err(Reject::WrongChannel { kind: "not-status", channel: "status" }),
     }
+}
+
+/// What an operator's e-stop (or reset) found: per robot, the safety state it reported after the
+/// message was sent, if it confirmed within the time allowed.
+pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
+
+/// E-stop `robots` (or, with `reset`, clear their e-stop) as operator `user`: publish on each
+/// robot's `fleet/<robot>/estop` at the highest priority, then wait up to `timeout` for each
+/// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
+/// periodically): `EStop`, or after a reset any other state. The server's access control lets only
+/// the server and the configured operators publish there.
+pub async fn operator_estop(
+    settings: &NetSettings,
+    user: &str,
+    robots: &[String],
+    reset: bool,
+    clock: FleetClock,
+    timeout: Duration,
+) -> Result<EstopOutcome, NetError> {
+    use amr_msgs::SafetyState;
+    let session = tokio::time::timeout(timeout, zenoh::open(settings.client_config(user)?))
+        .await
+        .map_err(|_| NetError::Zenoh(format!("no server reached within {timeout:?}")))?
+        .map_err(zerr)?;
+    let seen: Arc<Mutex<EstopOutcome>> =
+        Arc::new(Mutex::new(robots.iter().map(|r| (r.clone(), None)).collect()));
+    let sent_at = clock.now_s();
+    let mut subscribers = Vec::new();
+    for robot in robots {
+        let (seen, me) = (Arc::clone(&seen), robot.clone());
+        let sub = session
+            .declare_subscriber(format!("{PREFIX}/{robot}/health"))
+            .callback(move |sample| {
+                let bytes = sample.payload().to_bytes();
+                let Ok(u) = Envelope::decode(&bytes).and_then(|env| to_uplink(env, &me, "health")) else {
+                    return;
+                };
+                if let Uplink::Safety { stamp_s, state, .. } = u
+                    && stamp_s >= sent_at
+                {
+                    let ok = if reset { state != SafetyState::EStop } else { state == SafetyState::EStop };
+                    if ok {
+                        seen.lock().unwrap_or_else(PoisonError::into_inner).insert(me.clone(), Some(state));
+                    }
+                }
+            })
+            .await
+            .map_err(zerr)?;
+        subscribers.push(sub);
+    }
+    let msg = if reset { Downlink::ResetEStop } else { Downlink::EStop };
+    let sid = new_session();
+    for robot in robots {
+        let mut stamper = Stamper::new(sid, user, robot);
+        let now = clock.now_s();
+        let (stamp, body) = from_downlink(&msg, now);
+        let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
+        session
+            .put(format!("{PREFIX}/{robot}/estop"), bytes)
+            .priority(Priority::RealTime)
+            .congestion_control(CongestionControl::Block)
+            .express(true)
+            .await
+            .map_err(zerr)?;
+    }
+    let until = tokio::time::Instant::now() + timeout;
+    // Bounded by `timeout`.
+    while tokio::time::Instant::now() < until {
+        if seen.lock().unwrap_or_else(PoisonError::into_inner).values().all(Option::is_some) {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    drop(subscribers);
+    let _ = session.close().await;
+    let outcome = seen.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    Ok(outcome)
 }

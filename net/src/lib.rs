@@ -9,13 +9,15 @@
 //! | `fleet/<robot>/odom` | robot → server | odometry |
 //! | `fleet/<robot>/health` | robot → server | health and safety-state changes |
 //! | `fleet/<robot>/cmd` | server → robot | velocity commands, arm, disarm |
+//! | `fleet/<robot>/estop` | server or operator → robot | e-stop and its reset (highest priority) |
 //! | `fleet/<robot>/alive` | robot (liveliness token) | the server sees a robot join and leave |
 //! | `fleet/server/status` | server → observers | the formation's phase and the robots alive |
 //!
 //! Security: peers authenticate with Zenoh's user/password (the server admits only the users of
-//! its credentials file); the server's access control lets no one but the server publish commands
-//! and no robot publish under another robot's keys; a robot also checks that a command names the
-//! configured server, is for it, and is newer than the last ([`wire::Freshness`]), and its safety
+//! its credentials file); the server's access control lets no one but the server publish commands,
+//! only the server and the configured operators publish e-stops, and no robot publish under another
+//! robot's keys; a robot also checks that a command names the configured server (an e-stop: the
+//! server or an operator), is for it, and is newer than the last ([`wire::Freshness`]), and its safety
 //! layer refuses stale commands and stops by itself when commands stop. User/password
 //! authenticates but does not encrypt: on an untrusted network add Zenoh's TLS transport (not
 //! built in, to keep the build small) or a VPN.
@@ -30,5 +32,8 @@ pub mod network;
 pub mod settings;
 pub mod wire;
 
-pub use bridge::{Bridge, BridgeStats, ServerBridge, decode_status, start_robot_bridge, start_server_bridge};
+pub use bridge::{
+    Bridge, BridgeStats, EstopOutcome, ServerBridge, decode_status, operator_estop, start_robot_bridge,
+    start_server_bridge,
+};
 pub use settings::{Credential, Credentials, NetError, NetSettings};

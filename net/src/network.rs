@@ -37,6 +37,10 @@ pub struct NetworkServer {
     pub listen: Vec<String>,
     /// Zenoh endpoints the robots connect to.
     pub connect: Vec<String>,
+    /// Users besides the server that may e-stop a robot and reset its e-stop (on
+    /// `fleet/<robot>/estop`, e.g. with `amr estop`), and nothing else.
+    #[serde(default)]
+    pub operators: Vec<RobotId>,
 }
 
 /// Longest lease the issue allows, ms.
@@ -56,6 +60,13 @@ impl ConfigFileType for NetworkConfig {
         )?;
         rule(!self.server.listen.is_empty(), "server.listen", "needs at least one endpoint".to_owned())?;
         rule(!self.server.connect.is_empty(), "server.connect", "needs at least one endpoint".to_owned())?;
+        for (i, o) in self.server.operators.iter().enumerate() {
+            rule(
+                o != &self.server.user,
+                format!("server.operators[{i}]"),
+                format!("`{}` is the server's own user", o.as_str()),
+            )?;
+        }
         for (key, list) in [("server.listen", &self.server.listen), ("server.connect", &self.server.connect)]
         {
             for (i, e) in list.iter().enumerate() {

@@ -128,6 +128,18 @@ impl NetSettings {
         self.network.server.user.as_str()
     }
 
+    /// The operators' user names (who may e-stop besides the server).
+    #[must_use]
+    pub fn operators(&self) -> Vec<&str> {
+        self.network.server.operators.iter().map(|o| o.as_str()).collect()
+    }
+
+    /// Who a robot takes an e-stop or its reset from: the server and the operators.
+    #[must_use]
+    pub fn estop_senders(&self) -> Vec<String> {
+        std::iter::once(self.server_user()).chain(self.operators()).map(str::to_owned).collect()
+    }
+
     fn common(&self, mode: &str, me: &Credential) -> Result<zenoh::Config, NetError> {
         let mut c = zenoh::Config::default();
         set(&mut c, "mode", &json!(mode))?;
@@ -154,7 +166,8 @@ impl NetSettings {
             &json!(self.credentials.path.display().to_string()),
         )?;
         let users: Vec<&str> = self.credentials.entries.iter().map(|e| e.user.as_str()).collect();
-        set(&mut c, "access_control", &access_control(self.server_user(), &users, robots))?;
+        let operators = self.operators();
+        set(&mut c, "access_control", &access_control(self.server_user(), &users, robots, &operators))?;
         Ok(c)
     }
 
@@ -178,18 +191,30 @@ fn set(c: &mut zenoh::Config, key: &str, value: &serde_json::Value) -> Result<()
 }
 
 /// The server's access control: every joined user but the server may not publish commands or the
-/// server's status, and may publish (and hold a liveliness token) only under its own robot's keys.
-/// So a robot cannot command another robot or pose as it, and an observer publishes nothing a
-/// robot or the server reads. Rules match on the authenticated user name (Zenoh "usernames"
-/// subjects), and the server's own publications are local, so no rule stops them.
+/// server's status. A robot or an observer may not publish e-stops, and may publish (and hold a
+/// liveliness token) only under its own robot's keys. An operator may publish e-stops and resets
+/// (`fleet/<robot>/estop`) and nothing a robot publishes. So a robot cannot command or stop another
+/// robot or pose as it, and an observer publishes nothing a robot or the server reads. Rules match
+/// on the authenticated user name (Zenoh "usernames" subjects), and the server's own publications
+/// are local, so no rule stops them.
 #[must_use]
-pub fn access_control(server: &str, users: &[&str], robots: &[String]) -> serde_json::Value {
+pub fn access_control(
+    server: &str,
+    users: &[&str],
+    robots: &[String],
+    operators: &[&str],
+) -> serde_json::Value {
     let mut rules = Vec::new();
     let mut subjects = Vec::new();
     let mut policies = Vec::new();
     for (i, user) in users.iter().filter(|u| **u != server).enumerate() {
         let mut keys = vec![format!("{PREFIX}/*/cmd"), format!("{PREFIX}/server/**")];
-        keys.extend(robots.iter().filter(|r| r.as_str() != *user).map(|r| format!("{PREFIX}/{r}/**")));
+        if operators.contains(user) {
+            keys.extend(["scan", "odom", "health", "alive"].map(|ch| format!("{PREFIX}/*/{ch}")));
+        } else {
+            keys.push(format!("{PREFIX}/*/estop"));
+            keys.extend(robots.iter().filter(|r| r.as_str() != *user).map(|r| format!("{PREFIX}/{r}/**")));
+        }
         let (rule, subject) = (format!("r{i}"), format!("s{i}"));
         rules.push(json!({
             "id": rule,
@@ -238,14 +263,30 @@ mod tests {
     #[test]
     fn access_control_denies_commands_and_other_robots_keys_to_every_user_but_the_server() {
         let robots = vec!["robot-a".to_owned(), "robot-b".to_owned()];
-        let acl = access_control("server", &["server", "robot-a", "robot-b", "observer"], &robots);
+        let users = ["server", "robot-a", "robot-b", "observer", "operator"];
+        let acl = access_control("server", &users, &robots, &["operator"]);
         let rules = acl["rules"].as_array().unwrap();
-        assert_eq!(rules.len(), 3, "one per user but the server");
+        assert_eq!(rules.len(), 4, "one per user but the server");
         let keys = |i: usize| -> Vec<String> {
             rules[i]["key_exprs"].as_array().unwrap().iter().map(|k| k.as_str().unwrap().to_owned()).collect()
         };
-        assert_eq!(keys(0), ["fleet/*/cmd", "fleet/server/**", "fleet/robot-b/**"]);
-        assert_eq!(keys(2), ["fleet/*/cmd", "fleet/server/**", "fleet/robot-a/**", "fleet/robot-b/**"]);
+        assert_eq!(keys(0), ["fleet/*/cmd", "fleet/server/**", "fleet/*/estop", "fleet/robot-b/**"]);
+        assert_eq!(
+            keys(2),
+            ["fleet/*/cmd", "fleet/server/**", "fleet/*/estop", "fleet/robot-a/**", "fleet/robot-b/**"]
+        );
+        // The operator: e-stops only (nothing a robot publishes, no commands).
+        assert_eq!(
+            keys(3),
+            [
+                "fleet/*/cmd",
+                "fleet/server/**",
+                "fleet/*/scan",
+                "fleet/*/odom",
+                "fleet/*/health",
+                "fleet/*/alive"
+            ]
+        );
         assert_eq!(acl["subjects"][1]["usernames"][0], "robot-b");
         // Zenoh accepts it.
         let mut c = zenoh::Config::default();

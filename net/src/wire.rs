@@ -64,6 +64,8 @@ pub enum Reject {
     WrongRobot { key: String, robot: String },
     #[error("from `{origin}`, not from the configured server `{server}`")]
     NotFromServer { origin: String, server: String },
+    #[error("an e-stop from `{origin}`, neither the server nor an operator")]
+    NotAnOperator { origin: String },
     #[error("a {kind} message on a {channel} key")]
     WrongChannel { kind: &'static str, channel: &'static str },
     #[error("envelope {seq} of session {session:#x} is not newer than {last}: replayed or reordered")]
@@ -84,6 +86,7 @@ impl Reject {
             }
             Reject::WrongRobot { .. } => "wrong-robot",
             Reject::NotFromServer { .. } => "not-from-server",
+            Reject::NotAnOperator { .. } => "not-an-operator",
             Reject::WrongChannel { .. } => "wrong-channel",
             Reject::Replayed { .. } => "replayed",
         }
@@ -200,6 +203,28 @@ pub fn to_downlink(env: Envelope, me: &str, server: &str) -> Result<Downlink, Re
     }
 }
 
+/// Whether `d` goes on the e-stop key (`fleet/<robot>/estop`) rather than `cmd`.
+#[must_use]
+pub fn is_estop(d: &Downlink) -> bool {
+    matches!(d, Downlink::EStop | Downlink::ResetEStop)
+}
+
+/// The e-stop or reset in an envelope received on `fleet/<robot>/estop`, if it is for `me` and
+/// from one of `senders` (the server and the operators; the server's access control lets only
+/// them publish there, by their authenticated user names).
+pub fn to_estop(env: Envelope, me: &str, senders: &[String]) -> Result<Downlink, Reject> {
+    if env.robot != me {
+        return Err(Reject::WrongRobot { key: me.to_owned(), robot: env.robot });
+    }
+    if !senders.contains(&env.origin) {
+        return Err(Reject::NotAnOperator { origin: env.origin });
+    }
+    match env.body {
+        Body::Downlink(d) if is_estop(&d) => Ok(d),
+        body => Err(Reject::WrongChannel { kind: kind_of(&body), channel: "estop" }),
+    }
+}
+
 fn kind_of(b: &Body) -> &'static str {
     match b {
         Body::Uplink(u) => match u {
@@ -225,6 +250,7 @@ fn static_channel(c: &str) -> &'static str {
         "odom" => "odom",
         "health" => "health",
         "cmd" => "cmd",
+        "estop" => "estop",
         "status" => "status",
         _ => "unknown",
     }

@@ -32,15 +32,18 @@ fn free_port() -> u16 {
 fn setup(name: &str) -> Setup {
     let dir = std::env::temp_dir().join(format!("amr-net-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("creds"), "server:pw-server\nrobot-a:pw-a\nrobot-b:pw-b\nobserver:pw-o\n")
-        .unwrap();
+    std::fs::write(
+        dir.join("creds"),
+        "server:pw-server\nrobot-a:pw-a\nrobot-b:pw-b\nobserver:pw-o\noperator:pw-op\n",
+    )
+    .unwrap();
     Setup { dir, endpoint: format!("tcp/127.0.0.1:{}", free_port()) }
 }
 
 fn settings(s: &Setup, creds: Option<&str>) -> NetSettings {
     let text = format!(
         "lease_ms = 1000\nkeep_alive = 4\ncredentials_file = \"{}\"\n[server]\nuser = \"server\"\n\
-         listen = [\"{e}\"]\nconnect = [\"{e}\"]\n",
+         listen = [\"{e}\"]\nconnect = [\"{e}\"]\noperators = [\"operator\"]\n",
         s.dir.join("creds").display(),
         e = s.endpoint
     );
@@ -262,5 +265,91 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     .expect("the replays are refused and counted");
     assert!(a.down.try_recv().is_err(), "no replayed command reaches the robot's tree");
     bridge_a.shutdown().await;
+    srv.bridge.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may() {
+    let s = setup("estop");
+    let (mut up, srv) = server(&s).await;
+    let (mut a, bridge_a) =
+        start_robot_bridge(&settings(&s, None), "robot-a", FleetClock::wall()).await.unwrap();
+    let (b, bridge_b) = start_robot_bridge(&settings(&s, None), "robot-b", FleetClock::wall()).await.unwrap();
+    wait_alive(&srv, "robot-a", true).await;
+    wait_alive(&srv, "robot-b", true).await;
+    uplink_until_seen(&b, &mut up).await;
+    let observer = zenoh::open(settings(&s, None).client_config("observer").unwrap()).await.unwrap();
+
+    // Resets on robot-a's e-stop key from robot-b and from an observer, each claiming to be an
+    // operator or the server: the access control stops every one. (robot-a's own session would
+    // deliver to itself without the router: that is the robot's own process, not the network.)
+    let now = FleetClock::wall().now_s();
+    let forged = |origin: &str, seq: u64, d: Downlink| amr_net::wire::Envelope {
+        version: amr_msgs::SCHEMA_VERSION,
+        session: 5,
+        seq,
+        origin: origin.into(),
+        robot: "robot-a".into(),
+        stamp_s: now,
+        sent_s: now,
+        body: amr_net::wire::Body::Downlink(d),
+    };
+    for k in 0..5 {
+        for (i, origin) in ["operator", "server"].iter().enumerate() {
+            let seq = 10 * k + i as u64 + 1;
+            let e = forged(origin, seq, Downlink::ResetEStop).encode().unwrap();
+            bridge_b.session().unwrap().put("fleet/robot-a/estop", e.clone()).await.unwrap();
+            observer.put("fleet/robot-a/estop", e).await.unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(a.down.try_recv().is_err(), "an e-stop key put by a robot or an observer reached robot-a");
+
+    // The server's e-stop travels on the e-stop key.
+    let mut got = None;
+    for _ in 0..100 {
+        assert!(up.down.send("robot-a", Downlink::EStop));
+        if let Ok(Some(d)) = timeout(Duration::from_millis(50), a.down.recv()).await {
+            got = Some(d);
+            break;
+        }
+    }
+    assert_eq!(got, Some(Downlink::EStop));
+    while a.down.try_recv().is_ok() {}
+
+    // An operator's: `operator_estop` publishes it and waits for the robot's own report.
+    let op_settings = settings(&s, None);
+    let operator = tokio::spawn(async move {
+        amr_net::operator_estop(
+            &op_settings,
+            "operator",
+            &["robot-a".to_owned()],
+            false,
+            FleetClock::wall(),
+            Duration::from_secs(8),
+        )
+        .await
+    });
+    let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop in time").unwrap();
+    assert_eq!(d, Downlink::EStop);
+    // The robot reports its new state (a robot tree re-sends it periodically).
+    for seq in 100..130 {
+        a.up.send(Uplink::Safety {
+            robot: "robot-a".into(),
+            seq,
+            stamp_s: FleetClock::wall().now_s(),
+            state: SafetyState::EStop,
+        });
+        if operator.is_finished() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let outcome = operator.await.unwrap().unwrap();
+    assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
+    let _ = observer.close().await;
+    bridge_a.shutdown().await;
+    bridge_b.shutdown().await;
     srv.bridge.shutdown().await;
 }

@@ -238,11 +238,19 @@ pub async fn start_robot(
     let (supervisor, join) = Supervisor::spawn(None, Supervisor, top).await?;
 
     // What comes down the link goes to whichever safety actor is running.
-    let mut down = link.down;
+    let (mut down, missed) = (link.down, link.missed);
     let p = Arc::clone(&ports);
     let pump = tokio::spawn(async move {
         while let Some(msg) = down.recv().await {
             p.deliver(msg);
+            // The link's queue was full for a safety message (it is not empty then, so this runs).
+            if missed.estop.swap(false, std::sync::atomic::Ordering::SeqCst) {
+                p.deliver(amr_msgs::Downlink::EStop);
+            }
+            if missed.any.swap(false, std::sync::atomic::Ordering::SeqCst) {
+                tracing::error!(robot = %p.robot, "a safety message found the link's queue full: halting");
+                p.safety_inbox.push(SafetyInput::Missed);
+            }
         }
     });
     // The top supervisor ending on its own means it escalated: report Fault, and keep reporting

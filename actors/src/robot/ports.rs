@@ -56,6 +56,8 @@ pub enum SafetyInput {
     Link(Downlink),
     Health(HealthReport),
     Control(SafetyControl),
+    /// A safety message was lost before it reached the inbox (the link's queue was full).
+    Missed,
 }
 
 /// How many inputs the safety inbox holds. At 50 commands a second this is five seconds of

@@ -364,6 +364,10 @@ impl SafetyActor {
                     s.core.halt(DisarmReason::DeviceLost, now);
                 }
             }
+            SafetyInput::Missed => {
+                self.counters.count("safety.link_queue_full");
+                s.core.halt(DisarmReason::QueueFull, now);
+            }
         }
     }
 }

@@ -844,6 +844,27 @@ pub(crate) async fn command_burst(config: &Config, seed: u64, c: &mut Check) {
     c.within("every target zero after the overflow", Duration::from_millis(200), || targets_zero(&rig)).await;
     c.eq("overflows counted", counter("safety.inbox_full"), 1);
     drop(feed);
+
+    // The link's queue to the robot: while the robot is frozen it fills with commands and a
+    // disarm finds it full. The robot does not lose that silently: thawed, it halts.
+    let feed = drive_from(&rig, 0.15, 300_000);
+    c.within("turning again", Duration::from_secs(10), || wheels_turning(&rig, 1000.0)).await;
+    if !apart.freeze(Duration::from_millis(100)).await {
+        c.fail("the robot's runtime is gone");
+    }
+    // Paced so that the link's router (on the drill's runtime) moves them to the robot's queue.
+    for seq in 400_000..400_200 {
+        down.send(&id, cmd(seq));
+        tokio::task::yield_now().await;
+    }
+    tokio::time::sleep(Duration::from_millis(10)).await;
+    c.that(down.send(&id, Downlink::Disarm), "the disarm queued by the server");
+    c.within("halted on the missed disarm: Disarmed(QueueFull)", Duration::from_millis(500), || {
+        counter("safety.link_queue_full") == 1
+            && *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::QueueFull))
+    })
+    .await;
+    drop(feed);
     end_without_restarts(rig, c, n0).await;
 }
 
