@@ -56,6 +56,7 @@ drills! {
     server_restart => "server-restart",
     slow_consumer => "slow-consumer",
     estop => "estop",
+    estop_input => "estop-input",
 }
 
 /// The chaos soak, shortened from 10 minutes to 40 s: still several faults of several kinds.

@@ -157,6 +157,7 @@ mod canopen {
                     profile_acceleration: 1000,
                     profile_deceleration: 2000,
                     quick_stop_deceleration: 5000,
+                    digital_inputs: false,
                 }],
                 enable_timeout_ms: 1000,
                 mode_confirm_attempts: 3,

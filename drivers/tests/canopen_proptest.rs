@@ -170,6 +170,8 @@ mod canopen {
                     enable_timeout_ms: 1000,
                     mode_confirm_attempts: 5,
                     quick_stop_decel_mps2: 0.5,
+                    estop_input_bit: None,
+                    estop_input_active_low: true,
                 },
                 Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
             );

@@ -42,6 +42,9 @@ mod teco {
                 enable_timeout_ms: 2000,
                 mode_confirm_attempts: 5,
                 quick_stop_decel_mps2: 2.0,
+                // Maps 0x60FD into TPDO2: the mock's inputs travel with its position.
+                estop_input_bit: Some(16),
+                estop_input_active_low: true,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )

@@ -259,6 +259,7 @@ mod teco {
                 profile_acceleration: 100_000,
                 profile_deceleration: 100_000,
                 quick_stop_deceleration: 200_000,
+                digital_inputs: false,
             })
             .collect();
         MasterConfig {
@@ -312,6 +313,8 @@ mod teco {
                 enable_timeout_ms: 2000,
                 mode_confirm_attempts: 5,
                 quick_stop_decel_mps2: 2.0,
+                estop_input_bit: None,
+                estop_input_active_low: true,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )

@@ -15,7 +15,7 @@ use amr_drivers::canopen::master::MasterEvent;
 use amr_drivers::canopen::shell::MasterCommand;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, BusLink, RobotPorts, WheelCommand, WheelTravel};
+use super::ports::{AbortOnDrop, BusLink, RobotPorts, SafetyControl, SafetyInput, WheelCommand, WheelTravel};
 use super::status::{Counters, HealthCell};
 use amr_msgs::{Device, Health};
 
@@ -235,6 +235,19 @@ impl Actor for DriveActor {
                     tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
                 }
                 MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
+                MasterEvent::Inputs { node, bits } => {
+                    if self.drive.drives().estop_pressed(bits) {
+                        // The e-stop chain wired to the drive: latched like every e-stop (only an
+                        // explicit reset clears it, whatever the input does next).
+                        tracing::error!(robot = %self.ports.robot, node, bits, "e-stop input pressed");
+                        self.counters.count("drives.estop_input");
+                        self.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+                        self.ports.safety_inbox.push(SafetyInput::Control(SafetyControl::EStop));
+                        // Not waiting for the safety layer's next cycle.
+                        state.quick_stopped = true;
+                        self.send(state, MasterCommand::QuickStop);
+                    }
+                }
                 MasterEvent::Configured { .. }
                 | MasterEvent::EmcyReset { .. }
                 | MasterEvent::SdoDone { .. } => {}

@@ -147,7 +147,22 @@ impl DrivesConfig {
             self.heartbeat_producer_ms <= u32::from(u16::MAX),
             key("heartbeat_producer_ms"),
             format!("must fit the 16-bit object 0x1017 (got {} ms)", self.heartbeat_producer_ms),
+        )?;
+        rule(
+            self.estop_input_bit.is_none_or(|b| b <= 31),
+            key("estop_input_bit"),
+            format!("must be a bit of the 32-bit object 0x60FD, 0..=31 (got {:?})", self.estop_input_bit),
         )
+    }
+
+    /// Whether digital inputs `bits` (0x60FD) show the e-stop pressed (false when no input is
+    /// configured).
+    #[must_use]
+    pub fn estop_pressed(&self, bits: u32) -> bool {
+        self.estop_input_bit.is_some_and(|b| {
+            let high = bits.checked_shr(u32::from(b)).is_some_and(|v| v & 1 == 1);
+            high != self.estop_input_active_low
+        })
     }
 }
 
@@ -231,6 +246,29 @@ quick_stop_decel_mps2 = 0.5
             err("\"quick-stop\"", "\"none\""),
             "robot-a.toml:20: drives.comm_loss_reaction: unknown variant `none`, expected one of `fault`, \
              `disable-voltage`, `quick-stop`"
+        );
+    }
+
+    #[test]
+    fn the_estop_input_is_a_bit_of_0x60fd_normally_closed_by_default() {
+        let f: File = amr_settings::parse_file("robot-a.toml", GOOD).unwrap();
+        assert_eq!(f.drives.estop_input_bit, None);
+        assert!(!f.drives.estop_pressed(0), "no input configured: never pressed");
+        let wired =
+            GOOD.replace("quick_stop_decel_mps2 = 0.5", "quick_stop_decel_mps2 = 0.5\nestop_input_bit = 16");
+        let f: File = amr_settings::parse_file("robot-a.toml", &wired).unwrap();
+        assert!(f.drives.estop_input_active_low);
+        assert!(!f.drives.estop_pressed(1 << 16), "the chain closed");
+        assert!(f.drives.estop_pressed(0), "pressed, or a broken wire");
+        assert!(f.drives.estop_pressed(0xFFFE_FFFF), "other inputs do not matter");
+        let high =
+            wired.replace("estop_input_bit = 16", "estop_input_bit = 16\nestop_input_active_low = false");
+        let f: File = amr_settings::parse_file("robot-a.toml", &high).unwrap();
+        assert!(f.drives.estop_pressed(1 << 16) && !f.drives.estop_pressed(0));
+        let e = amr_settings::parse_file::<File>("robot-a.toml", &wired.replace("= 16", "= 32")).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "robot-a.toml:24: drives.estop_input_bit: must be a bit of the 32-bit object 0x60FD, 0..=31 (got Some(32))"
         );
     }
 }

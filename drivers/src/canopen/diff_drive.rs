@@ -63,6 +63,19 @@ pub struct DrivesConfig {
     /// robot's normal acceleration limit.
     #[serde(deserialize_with = "amr_settings::value::positive")]
     pub quick_stop_decel_mps2: f64,
+    /// The bit of either drive's digital inputs (0x60FD, 0–31; CiA 402 leaves 16–31 to the
+    /// manufacturer) that the robot's e-stop chain is wired to, if any: the master maps 0x60FD into
+    /// TPDO2 and the robot latches its e-stop when the input reads pressed.
+    #[serde(default)]
+    pub estop_input_bit: Option<u8>,
+    /// The e-stop input reads 0 when pressed (a normally-closed chain: a broken wire stops the
+    /// robot too). Default true.
+    #[serde(default = "yes")]
+    pub estop_input_active_low: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Wheel geometry, from a robot file's `[kinematics]` (amr-core's type; this crate takes plain numbers).
@@ -173,6 +186,7 @@ impl DiffDrive {
                 profile_acceleration: to_units(accel_mps2),
                 profile_deceleration: to_units(decel_mps2),
                 quick_stop_deceleration: to_units(quick_stop_decel_mps2),
+                digital_inputs: self.drives.estop_input_bit.is_some(),
             })
             .collect()
     }
@@ -266,6 +280,8 @@ mod tests {
                 enable_timeout_ms: 1000,
                 mode_confirm_attempts: 5,
                 quick_stop_decel_mps2: 0.5,
+                estop_input_bit: None,
+                estop_input_active_low: true,
             },
             Geometry { wheel_radius_m: 0.065, track_width_m: 0.33 },
         )

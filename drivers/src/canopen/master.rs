@@ -16,7 +16,8 @@ use super::frame::{CanFrame, Cob, NodeId};
 use super::heartbeat::{ConsumerState, HeartbeatConsumer, HeartbeatProducer};
 use super::nmt::{NmtCommand, NmtState, sync_frame};
 use super::pdo::{
-    self, PdoDirection, RPDO1_MAP, TPDO1_MAP, TPDO2_MAP, TRANSMISSION_SYNC_EVERY, decode_tpdo1, decode_tpdo2,
+    self, PdoDirection, RPDO1_MAP, TPDO1_MAP, TPDO2_INPUTS_MAP, TPDO2_MAP, TRANSMISSION_SYNC_EVERY,
+    decode_tpdo1, decode_tpdo2,
 };
 use super::sdo::{ObjectAddr, SdoClient, SdoFailure, SdoRequest, SdoResult, SdoStep};
 
@@ -73,6 +74,9 @@ pub struct DriveSetup {
     pub profile_deceleration: u32,
     /// 0x6085, drive velocity units per second.
     pub quick_stop_deceleration: u32,
+    /// Map the digital inputs (0x60FD) into TPDO2 and report their changes
+    /// ([`MasterEvent::Inputs`]): an e-stop chain is wired to the drive.
+    pub digital_inputs: bool,
 }
 
 /// Everything the master needs.
@@ -145,6 +149,14 @@ pub enum MasterEvent {
         node: NodeId,
         /// The new state.
         state: State402,
+    },
+    /// A drive's digital inputs (0x60FD) changed, or were read for the first time since it was
+    /// configured (only for drives set up with `digital_inputs`).
+    Inputs {
+        /// The node.
+        node: NodeId,
+        /// 0x60FD.
+        bits: u32,
     },
     /// A drive reached Operation enabled (the enable sequence confirmed).
     Enabled {
@@ -231,6 +243,8 @@ struct Drive {
     velocity_actual: i32,
     position: Option<i32>,
     position_fresh: bool,
+    /// The last digital inputs reported (0x60FD), when watched.
+    inputs: Option<u32>,
     target: i32,
     last_emcy_code: u16,
     recovery: Recovery,
@@ -281,6 +295,7 @@ impl Master {
                 velocity_actual: 0,
                 position: None,
                 position_fresh: false,
+                inputs: None,
                 target: 0,
                 last_emcy_code: 0,
                 recovery: Recovery::Idle,
@@ -592,10 +607,17 @@ impl Master {
                 }
             }
             Cob::Tpdo(2, _) => {
-                if let Some(p) = decode_tpdo2(frame.data()) {
+                if let Some((p, inputs)) = decode_tpdo2(frame.data()) {
                     let d = &mut self.drives[i];
                     d.position = Some(p);
                     d.position_fresh = true;
+                    if let Some(bits) = inputs.filter(|_| d.setup.digital_inputs)
+                        && d.inputs != Some(bits)
+                    {
+                        d.inputs = Some(bits);
+                        let node = d.setup.node_id;
+                        self.events.push_back(MasterEvent::Inputs { node, bits });
+                    }
                 }
             }
             _ => {}
@@ -672,6 +694,7 @@ impl Master {
         d.state = None;
         d.position = None;
         d.position_fresh = false;
+        d.inputs = None;
         d.recovery = Recovery::Idle;
         d.enable_deadline = None;
         d.mode_reads = 0;
@@ -702,7 +725,11 @@ impl Master {
         for (dir, k, map) in [
             (PdoDirection::Receive, 1, &RPDO1_MAP[..]),
             (PdoDirection::Transmit, 1, &TPDO1_MAP[..]),
-            (PdoDirection::Transmit, 2, &TPDO2_MAP[..]),
+            (
+                PdoDirection::Transmit,
+                2,
+                if s.digital_inputs { &TPDO2_INPUTS_MAP[..] } else { &TPDO2_MAP[..] },
+            ),
         ] {
             for req in pdo::remap_requests(dir, k, n, TRANSMISSION_SYNC_EVERY, map) {
                 jobs.push_back(Job::Sdo(req, JobKind::Config));

@@ -46,6 +46,9 @@ pub const TARGET_VELOCITY: MapEntry = MapEntry::new(0x60FF, 0, 32);
 pub const VELOCITY_ACTUAL: MapEntry = MapEntry::new(0x606C, 0, 32);
 /// Position actual value 0x6064 (i32).
 pub const POSITION_ACTUAL: MapEntry = MapEntry::new(0x6064, 0, 32);
+/// Digital inputs 0x60FD (u32; CiA 402: bit 0 negative limit, 1 positive limit, 2 home, 3
+/// interlock, 16–31 manufacturer-specific).
+pub const DIGITAL_INPUTS: MapEntry = MapEntry::new(0x60FD, 0, 32);
 
 /// RPDO1 of the profile-velocity set: controlword + target velocity.
 pub const RPDO1_MAP: [MapEntry; 2] = [CONTROLWORD, TARGET_VELOCITY];
@@ -53,6 +56,9 @@ pub const RPDO1_MAP: [MapEntry; 2] = [CONTROLWORD, TARGET_VELOCITY];
 pub const TPDO1_MAP: [MapEntry; 2] = [STATUSWORD, VELOCITY_ACTUAL];
 /// TPDO2: position actual.
 pub const TPDO2_MAP: [MapEntry; 1] = [POSITION_ACTUAL];
+/// TPDO2 when the drive's digital inputs are watched (an e-stop wired to one): position actual and
+/// digital inputs, 8 bytes.
+pub const TPDO2_INPUTS_MAP: [MapEntry; 2] = [POSITION_ACTUAL, DIGITAL_INPUTS];
 
 /// Which direction a PDO goes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -168,10 +174,13 @@ pub fn decode_tpdo1(data: &[u8]) -> Option<(u16, i32)> {
     }
 }
 
-/// TPDO2 payload → position actual (counts).
-pub fn decode_tpdo2(data: &[u8]) -> Option<i32> {
+/// TPDO2 payload → position actual (counts) and, when mapped, the digital inputs.
+pub fn decode_tpdo2(data: &[u8]) -> Option<(i32, Option<u32>)> {
     match data {
-        [p0, p1, p2, p3, ..] => Some(i32::from_le_bytes([*p0, *p1, *p2, *p3])),
+        [p0, p1, p2, p3, i0, i1, i2, i3, ..] => {
+            Some((i32::from_le_bytes([*p0, *p1, *p2, *p3]), Some(u32::from_le_bytes([*i0, *i1, *i2, *i3]))))
+        }
+        [p0, p1, p2, p3, ..] => Some((i32::from_le_bytes([*p0, *p1, *p2, *p3]), None)),
         _ => None,
     }
 }

@@ -90,7 +90,13 @@ pub enum Fault {
     SlowSdo(Duration),
     /// Drop the next `count` frames the drive sends.
     DropFrames(u32),
+    /// The digital inputs (0x60FD) read `bits` from now: a switch pressed or released.
+    Inputs(u32),
 }
+
+/// The digital inputs (0x60FD) at power-on: bit 16 (manufacturer-specific) high, the e-stop chain
+/// closed, as the robot files wire it (`devices.drives.estop_input_bit = 16`, active low).
+pub const DEFAULT_INPUTS: u32 = 1 << 16;
 
 /// What a test can observe of a mock drive.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -158,7 +164,7 @@ fn mappable(index: u16, receive: bool) -> bool {
     if receive {
         matches!(index, 0x6040 | 0x60FF | 0x6060)
     } else {
-        matches!(index, 0x6041 | 0x606C | 0x6064 | 0x6061 | 0x603F)
+        matches!(index, 0x6041 | 0x606C | 0x6064 | 0x6061 | 0x603F | 0x60FD)
     }
 }
 
@@ -190,6 +196,8 @@ struct Objects {
     out: Vec<CanFrame>,
     remapped: bool,
     stats: DriveSnapshot,
+    /// 0x60FD: the wired inputs (physical: kept across a reboot).
+    inputs: u32,
 }
 
 impl Objects {
@@ -229,6 +237,7 @@ impl Objects {
             remapped: false,
             stats,
             cfg,
+            inputs: DEFAULT_INPUTS,
         }
     }
 
@@ -362,6 +371,7 @@ impl Objects {
             0x6064 => u64::from(self.motor.reported_position() as u32),
             0x606C => u64::from(self.velocity_units() as u32),
             0x60FF => u64::from(self.target_velocity as u32),
+            0x60FD => u64::from(self.inputs),
             _ => return None,
         })
     }
@@ -431,7 +441,7 @@ impl ObjectDictionary for Objects {
             (0x6007, 0) => self.comm_loss.to_le_bytes().to_vec(),
             (0x603F..=0x6041, 0) => (self.value_of(index).unwrap_or(0) as u16).to_le_bytes().to_vec(),
             (0x6060 | 0x6061, 0) => vec![self.value_of(index).unwrap_or(0) as u8],
-            (0x6064 | 0x606C | 0x60FF, 0) => {
+            (0x6064 | 0x606C | 0x60FD | 0x60FF, 0) => {
                 (self.value_of(index).unwrap_or(0) as u32).to_le_bytes().to_vec()
             }
             (0x6083, 0) => self.accel.to_le_bytes().to_vec(),
@@ -449,9 +459,11 @@ impl ObjectDictionary for Objects {
     fn write(&mut self, addr: ObjectAddr, data: &[u8]) -> Result<(), AbortCode> {
         let ObjectAddr { index, sub } = addr;
         match (index, sub) {
-            (0x1000 | 0x1001 | 0x1008 | 0x1018 | 0x6041 | 0x6061 | 0x6064 | 0x606C | 0x603F | 0x6502, _) => {
-                Err(AbortCode::READ_ONLY)
-            }
+            (
+                0x1000 | 0x1001 | 0x1008 | 0x1018 | 0x6041 | 0x6061 | 0x6064 | 0x606C | 0x603F | 0x60FD
+                | 0x6502,
+                _,
+            ) => Err(AbortCode::READ_ONLY),
             (0x1017, 0) => {
                 self.heartbeat_ms = u16::from_le_bytes(le(data)?);
                 self.producer.set_period(Duration::from_millis(u64::from(self.heartbeat_ms)), self.now);
@@ -607,10 +619,11 @@ impl TecoDrive {
     }
 
     fn boot_up(&mut self, now: Instant) {
-        let motor = self.od.motor.clone();
+        let (motor, inputs) = (self.od.motor.clone(), self.od.inputs);
         let mut stats = self.od.stats;
         stats.boots += 1;
         self.od = Objects::boot(self.od.cfg.clone(), now, motor, stats);
+        self.od.inputs = inputs;
         self.sdo = SdoServer::new();
         self.pending_rpdo = None;
         self.last_async = [None, None];
@@ -798,6 +811,7 @@ impl TecoDrive {
             Fault::SdoAbort { index, code } => self.sdo_abort = Some((index, AbortCode(code))),
             Fault::SlowSdo(d) => self.sdo_delay = d,
             Fault::DropFrames(n) => self.drop_next = n,
+            Fault::Inputs(bits) => self.od.inputs = bits,
         }
         self.flush_out(now);
     }

@@ -17,7 +17,7 @@ use std::net::SocketAddr;
 
 use amr_drivers::canopen::transport::in_process::InProcessBus;
 
-pub use device::{DEVICE_TYPE_402_SERVO, DriveSnapshot, Fault, TecoDrive, TecoDriveConfig};
+pub use device::{DEFAULT_INPUTS, DEVICE_TYPE_402_SERVO, DriveSnapshot, Fault, TecoDrive, TecoDriveConfig};
 pub use task::{DriveHandle, spawn_drive};
 
 /// Mock drives on an in-process bus behind a socketcand server.

@@ -924,3 +924,47 @@ pub(crate) async fn robot_freeze(config: &Config, seed: u64, c: &mut Check) {
     refused_until_rearmed(&rig, c, feed, Duration::from_secs(2), 0.15).await;
     wrap_up(rig, c, n0).await;
 }
+
+/// The robot's e-stop chain opens (issue 19 §5): it is wired to a digital input of a drive
+/// (0x60FD bit 16, normally closed), which the master reads in TPDO2 every cycle. The drive actor
+/// latches the e-stop and quick-stops the drives at once; the latch holds when the input closes
+/// again and refuses an arm; an explicit reset and a new arm drive again.
+pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
+    let n0 = rig.tree.events.len();
+    let estop = || *rig.tree.ports.safety_now.borrow() == Some(SafetyState::EStop);
+    c.inject();
+    rig.mocks.drives[0].inject(DriveFault::Inputs(hil_mocks::teco_drive::DEFAULT_INPUTS & !(1 << 16)));
+    c.detection =
+        c.within("the e-stop latched from the drive's input", Duration::from_millis(200), estop).await;
+    c.safe_state = c
+        .within("every drive quick-stopped", Duration::from_millis(200), || {
+            rig.mocks.drives.iter().all(|h| h.now().state == State402::QuickStopActive)
+        })
+        .await;
+    c.within("the wheels at rest", Duration::from_secs(1), || wheels_still(&rig)).await;
+    rig.mocks.drives[0].inject(DriveFault::Inputs(hil_mocks::teco_drive::DEFAULT_INPUTS));
+    drop(feed);
+    let refused = rig.tree.counters.get("safety.refused.arm.latched");
+    let _feed = drive_from(&rig, 0.15, 100_000);
+    c.throughout("latched after the input closed again, an arm refused", Duration::from_millis(500), || {
+        estop() && wheels_still(&rig)
+    })
+    .await;
+    c.that(rig.tree.counters.get("safety.refused.arm.latched") > refused, "the arm was refused (latched)");
+    c.eq("e-stop inputs seen", rig.tree.counters.get("drives.estop_input"), 1);
+    drop(_feed);
+    rig.tree.reset_estop();
+    c.within("reset: Disarmed(EStopReset)", Duration::from_millis(500), || {
+        *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
+    })
+    .await;
+    let _feed = drive_from(&rig, 0.15, 200_000);
+    c.recovery = c
+        .within("turning again after the reset and a new arm", Duration::from_secs(10), || {
+            wheels_turning(&rig, 1000.0)
+        })
+        .await;
+    end_without_restarts(rig, c, n0).await;
+}

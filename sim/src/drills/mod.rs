@@ -119,6 +119,10 @@ pub const DRILLS: &[Drill] = &[
         about: "the whole robot process freezes: the drives quick-stop on the master's lost heartbeat",
     },
     Drill { name: "slow-consumer", about: "a stalled localisation does not delay the robot's safety loop" },
+    Drill {
+        name: "estop-input",
+        about: "the e-stop chain on a drive's digital input (0x60FD) opens: latched, quick stop, reset needed",
+    },
     Drill { name: "estop", about: "e-stop: wheels commanded to zero within 100 ms; orderly shutdown" },
     Drill {
         name: "soak",
@@ -293,6 +297,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "server-restart" => fleet::server_restart(config, seed, &mut c).await,
         "slow-consumer" => fleet::slow_consumer(config, seed, &mut c).await,
         "estop" => devices::estop(config, seed, &mut c).await,
+        "estop-input" => devices::estop_input(config, seed, &mut c).await,
         "soak" => soak::soak(config, seed, soak::SOAK_FULL, &mut c).await,
         _ => return None,
     }
