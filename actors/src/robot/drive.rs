@@ -15,7 +15,7 @@ use amr_drivers::canopen::master::MasterEvent;
 use amr_drivers::canopen::shell::MasterCommand;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, BusLink, RobotPorts, SafetyControl, SafetyInput, WheelCommand, WheelTravel};
+use super::ports::{AbortOnDrop, BusLink, RobotPorts, SafetyInput, WheelCommand, WheelTravel};
 use super::status::{Counters, HealthCell};
 use amr_msgs::{Device, Health};
 
@@ -236,13 +236,14 @@ impl Actor for DriveActor {
                 }
                 MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
                 MasterEvent::Inputs { node, bits } => {
-                    if self.drive.drives().estop_pressed(bits) {
-                        // The e-stop chain wired to the drive: latched like every e-stop (only an
-                        // explicit reset clears it, whatever the input does next).
+                    let pressed = self.drive.drives().estop_pressed(bits);
+                    self.ports.estop_latch.input(pressed);
+                    if pressed {
+                        // The e-stop chain wired to the drive: latched like every e-stop (only a
+                        // local reset clears it, once the input is released).
                         tracing::error!(robot = %self.ports.robot, node, bits, "e-stop input pressed");
                         self.counters.count("drives.estop_input");
-                        self.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
-                        self.ports.safety_inbox.push(SafetyInput::Control(SafetyControl::EStop));
+                        self.ports.safety_inbox.push(SafetyInput::EStopInput);
                         // Not waiting for the safety layer's next cycle.
                         state.quick_stopped = true;
                         self.send(state, MasterCommand::QuickStop);

@@ -113,7 +113,7 @@ pub struct RobotTree {
 impl RobotTree {
     /// Latch the e-stop (also when no safety actor runs at this moment: the next one starts in it).
     pub fn estop(&self) {
-        self.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+        self.ports.estop_latch.set(ports::EStopSource::Local);
         self.ports.safety_inbox.push(SafetyInput::Control(SafetyControl::EStop));
     }
 

@@ -5,7 +5,7 @@
 //! disarm, e-stop, reset, health changes) goes through [`SafetyInbox`] instead, which loses nothing.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_drivers::canopen::master::MasterEvent;
@@ -50,12 +50,68 @@ pub enum SafetyControl {
     ResetEStop,
 }
 
+/// Where an e-stop came from. A reset clears only the sources at its own place (ISO 13850: a
+/// reset is a manual action where the stop was initiated): the server's or an operator's reset
+/// over the network clears a network e-stop, never one pressed on the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EStopSource {
+    /// Over the link (the server's `estop`, an operator's `amr estop`).
+    Network = 1,
+    /// On the robot's computer (SIGUSR1 to `amr robot`, the in-process control).
+    Local = 2,
+    /// The e-stop chain on a drive's digital input.
+    Input = 4,
+}
+
+/// The e-stop latch: which sources hold it. It lives in the ports, not in the safety actor, so
+/// that it survives the actor's restart and an e-stop that arrives while no safety actor runs is
+/// not lost.
+#[derive(Debug, Default)]
+pub struct EStopLatch {
+    sources: AtomicU8,
+    /// The drive input reads pressed now (a local reset cannot clear it until it is released).
+    input_pressed: AtomicBool,
+}
+
+impl EStopLatch {
+    /// Latch from `source`.
+    pub fn set(&self, source: EStopSource) {
+        self.sources.fetch_or(source as u8, Ordering::SeqCst);
+    }
+
+    /// Whether any source holds it.
+    #[must_use]
+    pub fn is_set(&self) -> bool {
+        self.sources.load(Ordering::SeqCst) != 0
+    }
+
+    /// The e-stop input's state now (set by the drive actor on every change).
+    pub fn input(&self, pressed: bool) {
+        self.input_pressed.store(pressed, Ordering::SeqCst);
+        if pressed {
+            self.set(EStopSource::Input);
+        }
+    }
+
+    /// A reset from the network (`local` false) or on the robot (`local` true): clears the sources
+    /// of its place (a pressed input stays); true if nothing holds the latch any more.
+    pub fn reset(&self, local: bool) -> bool {
+        let mut mask = if local { EStopSource::Local as u8 } else { EStopSource::Network as u8 };
+        if local && !self.input_pressed.load(Ordering::SeqCst) {
+            mask |= EStopSource::Input as u8;
+        }
+        self.sources.fetch_and(!mask, Ordering::SeqCst) & !mask == 0
+    }
+}
+
 /// One input of the safety layer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SafetyInput {
     Link(Downlink),
     Health(HealthReport),
     Control(SafetyControl),
+    /// The e-stop input of a drive reads pressed (already latched as [`EStopSource::Input`]).
+    EStopInput,
     /// A safety message was lost before it reached the inbox (the link's queue was full).
     Missed,
 }
@@ -138,10 +194,9 @@ pub struct RobotPorts {
     /// The current bus, set by the CAN bus actor (`None` while disconnected).
     pub bus: watch::Sender<Option<BusLink>>,
     pub bus_events: OutputPort<MasterEvent>,
-    /// The e-stop latch. It lives here, not in the safety actor, so that it survives the actor's
-    /// restart and an e-stop that arrives while no safety actor runs is not lost: the next one
-    /// starts in `EStop`. Set by every e-stop source; cleared only by the safety actor's reset.
-    pub estop_latch: AtomicBool,
+    /// The e-stop latch: the next safety actor starts in `EStop` if it is set. Set by every e-stop
+    /// source; cleared only by the safety actor, on a reset from the same place.
+    pub estop_latch: EStopLatch,
 }
 
 impl RobotPorts {
@@ -150,7 +205,7 @@ impl RobotPorts {
     pub fn deliver(&self, msg: Downlink) {
         if msg == Downlink::EStop {
             // Latched before anything else, so that it holds even if no safety actor runs now.
-            self.estop_latch.store(true, Ordering::SeqCst);
+            self.estop_latch.set(EStopSource::Network);
         }
         self.safety_inbox.push(SafetyInput::Link(msg));
         self.downlink.send(msg);
@@ -174,7 +229,7 @@ impl RobotPorts {
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),
             bus_events: OutputPort::default(),
-            estop_latch: AtomicBool::new(false),
+            estop_latch: EStopLatch::default(),
         })
     }
 }
@@ -220,6 +275,30 @@ mod tests {
 
     fn disarm() -> SafetyInput {
         SafetyInput::Link(Downlink::Disarm)
+    }
+
+    #[test]
+    fn an_estop_latch_clears_only_by_a_reset_from_where_it_was_pressed() {
+        let l = EStopLatch::default();
+        assert!(!l.is_set());
+        l.set(EStopSource::Network);
+        assert!(!l.reset(true) && l.is_set(), "a local reset leaves a network e-stop");
+        assert!(l.reset(false) && !l.is_set());
+        l.set(EStopSource::Local);
+        assert!(!l.reset(false) && l.is_set(), "the network cannot clear a local e-stop");
+        assert!(l.reset(true) && !l.is_set());
+        // The input: not while it reads pressed, and never from the network.
+        l.input(true);
+        assert!(l.is_set());
+        assert!(!l.reset(true) && !l.reset(false));
+        l.input(false);
+        assert!(l.is_set(), "released, it stays latched");
+        assert!(!l.reset(false));
+        assert!(l.reset(true) && !l.is_set());
+        // Both: each place clears its own.
+        l.set(EStopSource::Network);
+        l.set(EStopSource::Local);
+        assert!(!l.reset(false) && l.reset(true));
     }
 
     #[test]

@@ -24,12 +24,11 @@
 //! publishes the wheel command.
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
-use super::ports::{AbortOnDrop, RobotPorts, SafetyControl, SafetyInput, WheelCommand};
+use super::ports::{AbortOnDrop, EStopSource, RobotPorts, SafetyControl, SafetyInput, WheelCommand};
 use super::status::{Counters, HealthCell};
 use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
 
@@ -348,15 +347,26 @@ impl SafetyActor {
                 }
             }
             SafetyInput::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested, now),
-            SafetyInput::Link(Downlink::EStop) | SafetyInput::Control(SafetyControl::EStop) => {
+            SafetyInput::Link(Downlink::EStop)
+            | SafetyInput::Control(SafetyControl::EStop)
+            | SafetyInput::EStopInput => {
+                match input {
+                    SafetyInput::Link(_) => self.ports.estop_latch.set(EStopSource::Network),
+                    SafetyInput::Control(_) => self.ports.estop_latch.set(EStopSource::Local),
+                    // Latched as such by the drive actor before it was queued.
+                    _ => {}
+                }
                 s.core.estop(now);
-                self.ports.estop_latch.store(true, Ordering::SeqCst);
                 // Not waiting for the next cycle.
                 self.output(s);
             }
             SafetyInput::Link(Downlink::ResetEStop) | SafetyInput::Control(SafetyControl::ResetEStop) => {
-                if s.core.reset_estop(now) {
-                    self.ports.estop_latch.store(false, Ordering::SeqCst);
+                let local = matches!(input, SafetyInput::Control(_));
+                if self.ports.estop_latch.reset(local) {
+                    s.core.reset_estop(now);
+                } else {
+                    tracing::warn!(robot = %self.ports.robot, local, "e-stop reset refused: held by another source");
+                    self.counters.count("safety.refused.reset");
                 }
             }
             SafetyInput::Health(h) => {
@@ -399,7 +409,7 @@ impl Actor for SafetyActor {
             health: HealthCell::new(Device::Safety),
             _waker: waker,
         };
-        if self.ports.estop_latch.load(Ordering::SeqCst) {
+        if self.ports.estop_latch.is_set() {
             tracing::warn!(robot = %self.ports.robot, "safety restarted with the e-stop latched");
             s.core.estop(self.ports.clock.now_s());
             self.output(&mut s);
@@ -420,7 +430,7 @@ impl Actor for SafetyActor {
         if let SafetyMsg::Tick = msg {
             // The latch is the authority: an e-stop latched by a source that could not reach this
             // actor still stops the robot within a cycle.
-            if self.ports.estop_latch.load(Ordering::SeqCst)
+            if self.ports.estop_latch.is_set()
                 && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
             {
                 tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");

@@ -739,7 +739,7 @@ pub(crate) async fn estop(config: &Config, seed: u64, c: &mut Check) {
     c.throughout("still: a reset does not re-arm", Duration::from_millis(500), || wheels_still(&rig)).await;
     // An e-stop whose message the safety actor never got (only the latch was set, as when it comes
     // while the actor restarts or the port lags): the actor reads the latch every cycle.
-    rig.tree.ports.estop_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+    rig.tree.ports.estop_latch.set(amr_actors::robot::ports::EStopSource::Local);
     c.within("the latch alone e-stops within a few cycles", Duration::from_millis(100), || {
         *rig.tree.ports.safety_now.borrow() == Some(SafetyState::EStop)
     })
@@ -927,8 +927,9 @@ pub(crate) async fn robot_freeze(config: &Config, seed: u64, c: &mut Check) {
 
 /// The robot's e-stop chain opens (issue 19 §5): it is wired to a digital input of a drive
 /// (0x60FD bit 16, normally closed), which the master reads in TPDO2 every cycle. The drive actor
-/// latches the e-stop and quick-stops the drives at once; the latch holds when the input closes
-/// again and refuses an arm; an explicit reset and a new arm drive again.
+/// latches the e-stop and quick-stops the drives at once. A local reset is refused while the chain
+/// is open; the latch holds when it closes again and refuses an arm; the server's reset over the
+/// network is refused (the stop was not initiated there); a local reset and a new arm drive again.
 pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
     let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
     let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
@@ -944,6 +945,12 @@ pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
         })
         .await;
     c.within("the wheels at rest", Duration::from_secs(1), || wheels_still(&rig)).await;
+    let refused_resets = || rig.tree.counters.get("safety.refused.reset");
+    rig.tree.reset_estop();
+    c.within("a local reset refused while the chain is open", Duration::from_millis(300), || {
+        refused_resets() == 1 && estop()
+    })
+    .await;
     rig.mocks.drives[0].inject(DriveFault::Inputs(hil_mocks::teco_drive::DEFAULT_INPUTS));
     drop(feed);
     let refused = rig.tree.counters.get("safety.refused.arm.latched");
@@ -955,6 +962,11 @@ pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
     c.that(rig.tree.counters.get("safety.refused.arm.latched") > refused, "the arm was refused (latched)");
     c.eq("e-stop inputs seen", rig.tree.counters.get("drives.estop_input"), 1);
     drop(_feed);
+    c.that(rig.server.down.send(&rig.tree.id, Downlink::ResetEStop), "the server's reset queued");
+    c.within("the server's reset refused: the stop was local", Duration::from_millis(300), || {
+        refused_resets() == 2 && estop()
+    })
+    .await;
     rig.tree.reset_estop();
     c.within("reset: Disarmed(EStopReset)", Duration::from_millis(500), || {
         *rig.tree.ports.safety_now.borrow() == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
