@@ -28,8 +28,8 @@ use zenoh::sample::SampleKind;
 
 use crate::settings::{NetError, NetSettings, PREFIX};
 use crate::wire::{
-    Body, Envelope, Freshness, Reject, from_downlink, from_uplink, is_estop, to_downlink, to_estop,
-    to_uplink, uplink_channel,
+    Body, Envelope, Freshness, Reject, check_enabling_age, from_downlink, from_uplink, is_estop, to_downlink,
+    to_estop, to_uplink, uplink_channel,
 };
 
 /// Queue depth between the trees and the bridge (as the in-process link's).
@@ -41,14 +41,15 @@ fn zerr(e: impl std::fmt::Display) -> NetError {
     NetError::Zenoh(e.to_string())
 }
 
-/// A new session number: differs between two starts of a process (nanoseconds of the wall clock
-/// mixed with the process id).
+/// A new session number: the wall clock's nanoseconds now, so a restarted sender's session is
+/// larger than its last one (receivers refuse an older session: [`Freshness`]).
 fn new_session() -> u64 {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos() as u64)
-        .unwrap_or(0);
-    nanos ^ (u64::from(std::process::id()) << 40)
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
+}
+
+/// The wall clock now, Unix seconds: what sessions are compared with.
+fn wall_now_s() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// What a bridge counted.
@@ -411,8 +412,11 @@ impl RobotLink {
             .callback(move |sample| {
                 let bytes = sample.payload().to_bytes();
                 let checked = Envelope::decode(&bytes).and_then(|env| {
-                    fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env)?;
-                    to_downlink(env, &me, &server)
+                    // For this robot and from the server, before it may touch the replay record.
+                    let d = to_downlink(env.clone(), &me, &server)?;
+                    check_enabling_age(&env, clock.now_s())?;
+                    fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env, wall_now_s())?;
+                    Ok(d)
                 });
                 match checked {
                     Ok(d) => deliver(&cmd_down, &cmd_stats, d),
@@ -433,9 +437,11 @@ impl RobotLink {
                     if !estop_senders.contains(&env.origin) {
                         return Err(Reject::NotAnOperator { origin: env.origin });
                     }
+                    let d = to_estop(env.clone(), &me, &estop_senders)?;
+                    check_enabling_age(&env, clock.now_s())?;
                     let mut fresh = fresh_per_sender.lock().unwrap_or_else(PoisonError::into_inner);
-                    fresh.entry(env.origin.clone()).or_default().check(&env)?;
-                    to_estop(env, &me, &estop_senders)
+                    fresh.entry(env.origin.clone()).or_default().check(&env, wall_now_s())?;
+                    Ok(d)
                 });
                 match checked {
                     Ok(d) => deliver(&down, &estop_stats, d),
@@ -562,7 +568,7 @@ pub async fn start_server_bridge(
                         .unwrap_or_else(PoisonError::into_inner)
                         .entry(robot.to_owned())
                         .or_default()
-                        .check(&env)?;
+                        .check(&env, wall_now_s())?;
                     to_uplink(env, robot, ch)
                 });
                 match checked {

@@ -23,7 +23,8 @@ pub const MAX_DETAIL_BYTES: usize = 512;
 pub struct Envelope {
     /// [`SCHEMA_VERSION`] of the sender.
     pub version: u16,
-    /// The sending node's session: new at every start of its process.
+    /// The sending node's session: the start of its process, nanoseconds of Unix time, so a
+    /// restarted sender's session is newer (receivers refuse an older one: [`Freshness`]).
     pub session: u64,
     /// Counts the sender's envelopes on this key within its session, from 1.
     pub seq: u64,
@@ -70,6 +71,14 @@ pub enum Reject {
     WrongChannel { kind: &'static str, channel: &'static str },
     #[error("envelope {seq} of session {session:#x} is not newer than {last}: replayed or reordered")]
     Replayed { session: u64, seq: u64, last: u64 },
+    #[error(
+        "session {session:#x} is older than the sender's session {known:#x}: a replay from an earlier run"
+    )]
+    OldSession { session: u64, known: u64 },
+    #[error("session {session:#x} starts in the future (now {now_s:.3} s): refused")]
+    FutureSession { session: u64, now_s: f64 },
+    #[error("a {kind} stamped {age_s:.3} s ago: older than {MAX_ENABLING_AGE_S} s")]
+    Stale { kind: &'static str, age_s: f64 },
     #[error("non-finite {0}")]
     NotFinite(&'static str),
 }
@@ -88,7 +97,8 @@ impl Reject {
             Reject::NotFromServer { .. } => "not-from-server",
             Reject::NotAnOperator { .. } => "not-an-operator",
             Reject::WrongChannel { .. } => "wrong-channel",
-            Reject::Replayed { .. } => "replayed",
+            Reject::Replayed { .. } | Reject::OldSession { .. } | Reject::FutureSession { .. } => "replayed",
+            Reject::Stale { .. } => "stale",
         }
     }
 }
@@ -256,17 +266,36 @@ fn static_channel(c: &str) -> &'static str {
     }
 }
 
-/// Refuses envelopes that are not newer than the last one accepted from the same sender session:
-/// a replayed or reordered sample. A new session (the sender restarted) starts afresh.
+/// How far a sender's session start may lie ahead of the receiver's clock (clocks synchronised
+/// by NTP or PTP differ by milliseconds; a session from further ahead would lock the real sender
+/// out until then).
+pub const MAX_SESSION_AHEAD_S: f64 = 5.0;
+
+/// Oldest arm or e-stop reset a robot takes from the network, by its stamp, s. Messages that
+/// stop (disarm, e-stop) are taken however late they come: stopping is always safe, and a replay
+/// of one is refused by [`Freshness`] anyway.
+pub const MAX_ENABLING_AGE_S: f64 = 2.0;
+
+/// Refuses replays of one sender (one `Freshness` per sender): an envelope not newer than the last
+/// one accepted from the same session (replayed or reordered), one from an older session than the
+/// newest seen (a sample recorded in an earlier run of the sender), and a session starting in the
+/// future beyond [`MAX_SESSION_AHEAD_S`]. A newer session (the sender restarted) starts afresh.
 #[derive(Debug, Default, Clone)]
 pub struct Freshness {
     last: Option<(u64, u64)>,
 }
 
 impl Freshness {
-    /// Accept `env` if it is newer than the last accepted one of its session.
-    pub fn check(&mut self, env: &Envelope) -> Result<(), Reject> {
+    /// Accept `env`, received at `now_s` (fleet clock, Unix seconds), if it is fresh.
+    pub fn check(&mut self, env: &Envelope, now_s: f64) -> Result<(), Reject> {
+        let session_s = env.session as f64 / 1e9;
+        if session_s > now_s + MAX_SESSION_AHEAD_S {
+            return Err(Reject::FutureSession { session: env.session, now_s });
+        }
         match self.last {
+            Some((known, _)) if env.session < known => {
+                Err(Reject::OldSession { session: env.session, known })
+            }
             Some((session, last)) if session == env.session && env.seq <= last => {
                 Err(Reject::Replayed { session, seq: env.seq, last })
             }
@@ -276,6 +305,18 @@ impl Freshness {
             }
         }
     }
+}
+
+/// Refuses an arm or e-stop reset stamped more than [`MAX_ENABLING_AGE_S`] before `now_s` (or not
+/// finite); every other downlink passes (commands have the safety layer's own, tighter, age limit).
+pub fn check_enabling_age(env: &Envelope, now_s: f64) -> Result<(), Reject> {
+    let kind = match &env.body {
+        Body::Downlink(Downlink::Arm { .. }) => "arm",
+        Body::Downlink(Downlink::ResetEStop) => "reset_estop",
+        _ => return Ok(()),
+    };
+    let age_s = now_s - env.stamp_s;
+    if age_s.is_finite() && age_s <= MAX_ENABLING_AGE_S { Ok(()) } else { Err(Reject::Stale { kind, age_s }) }
 }
 
 #[cfg(test)]
@@ -387,16 +428,46 @@ mod tests {
     }
 
     #[test]
-    fn freshness_refuses_replays_within_a_session_and_restarts_with_a_new_one() {
+    fn freshness_refuses_replays_and_older_or_future_sessions_and_takes_a_newer_one() {
+        // Sessions are start times in ns: this sender started at 1000 s, the receiver's clock is at
+        // 2000 s.
+        let now = 2000.0;
         let mut f = Freshness::default();
         let mut e = env(Body::Downlink(Downlink::Disarm));
-        assert!(f.check(&e).is_ok());
-        assert!(matches!(f.check(&e), Err(Reject::Replayed { .. })));
+        e.session = 1_000_000_000_000;
+        assert!(f.check(&e, now).is_ok());
+        assert!(matches!(f.check(&e, now), Err(Reject::Replayed { .. })));
         e.seq = 2;
-        assert!(f.check(&e).is_ok());
-        e.session = 8;
-        e.seq = 1;
-        assert!(f.check(&e).is_ok(), "a restarted sender");
+        assert!(f.check(&e, now).is_ok());
+        // The sender restarted at 1500 s: its new session is taken.
+        let mut newer = e.clone();
+        newer.session = 1_500_000_000_000;
+        newer.seq = 1;
+        assert!(f.check(&newer, now).is_ok(), "a restarted sender");
+        // A sample recorded from its earlier run is refused, whatever its sequence number.
+        e.seq = 99;
+        assert!(matches!(f.check(&e, now), Err(Reject::OldSession { .. })));
+        // A session that starts beyond the tolerance in the future would lock the sender out.
+        let mut ahead = newer.clone();
+        ahead.session = 2_010_000_000_000;
+        assert!(matches!(f.check(&ahead, now), Err(Reject::FutureSession { .. })));
+        ahead.session = 2_004_000_000_000;
+        assert!(f.check(&ahead, now).is_ok(), "within the clocks' tolerance");
+    }
+
+    #[test]
+    fn a_stale_arm_or_reset_is_refused_a_stale_stop_is_not() {
+        let at = |d: Downlink, stamp_s: f64| Envelope { stamp_s, ..env(Body::Downlink(d)) };
+        let now = 100.0;
+        let arm = Downlink::Arm { seq: 1, stamp_s: 97.0 };
+        assert!(matches!(check_enabling_age(&at(arm, 97.0), now), Err(Reject::Stale { kind: "arm", .. })));
+        assert!(check_enabling_age(&at(arm, 98.5), now).is_ok());
+        assert!(matches!(
+            check_enabling_age(&at(Downlink::ResetEStop, f64::NAN), now),
+            Err(Reject::Stale { kind: "reset_estop", .. })
+        ));
+        assert!(check_enabling_age(&at(Downlink::EStop, 10.0), now).is_ok(), "stopping is always safe");
+        assert!(check_enabling_age(&at(Downlink::Disarm, 10.0), now).is_ok());
     }
 
     #[test]

@@ -264,6 +264,29 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     .await
     .expect("the replays are refused and counted");
     assert!(a.down.try_recv().is_err(), "no replayed command reaches the robot's tree");
+    // A command recorded from an earlier run of the server (an older session), with a sequence
+    // number far ahead: refused as well, and a stale arm from the current session too.
+    let mut earlier = amr_net::wire::Envelope::decode(&old).unwrap();
+    earlier.session -= 1_000_000_000;
+    earlier.seq = 1_000_000;
+    let mut stale_arm = amr_net::wire::Envelope::decode(&old).unwrap();
+    stale_arm.seq = 2_000_000;
+    stale_arm.stamp_s = FleetClock::wall().now_s() - 10.0;
+    stale_arm.body = amr_net::wire::Body::Downlink(Downlink::Arm { seq: 1, stamp_s: stale_arm.stamp_s });
+    let (replayed, stale) = (bridge_a.stats.rejected("replayed"), bridge_a.stats.rejected("stale"));
+    for env in [earlier, stale_arm] {
+        srv.bridge.session().unwrap().put("fleet/robot-a/cmd", env.encode().unwrap()).await.unwrap();
+    }
+    timeout(WAIT, async {
+        while bridge_a.stats.rejected("replayed") < replayed + 1
+            || bridge_a.stats.rejected("stale") < stale + 1
+        {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("the older session and the stale arm are refused and counted");
+    assert!(a.down.try_recv().is_err(), "neither reaches the robot's tree");
     bridge_a.shutdown().await;
     srv.bridge.shutdown().await;
 }
