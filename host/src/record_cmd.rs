@@ -24,9 +24,13 @@ pub(crate) struct RecordArgs {
     /// Record the run to this MCAP file (Foxglove's schemas: opens in Foxglove with no plugin).
     #[arg(long, value_name = "FILE.mcap")]
     pub record: Option<PathBuf>,
-    /// Serve a live Foxglove WebSocket view here, e.g. 127.0.0.1:8765.
-    #[arg(long, value_name = "ADDR")]
+    /// Serve a live Foxglove WebSocket view (default address 127.0.0.1:8765; an address other
+    /// than loopback needs `--foxglove-token`). At most 8 clients, 64 subscriptions each.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
     pub foxglove: Option<SocketAddr>,
+    /// The token every live-view client must present (`ws://HOST:PORT/?token=TOKEN`).
+    #[arg(long, value_name = "TOKEN")]
+    pub foxglove_token: Option<String>,
 }
 
 /// A running recording and/or live view.
@@ -49,7 +53,9 @@ impl RecordArgs {
         let (hub, live) = match self.foxglove {
             Some(addr) => {
                 let hub = Hub::default();
-                let live = amr_record::serve(addr, hub.clone(), "amr")
+                let options =
+                    amr_record::LiveOptions { token: self.foxglove_token.clone(), ..Default::default() };
+                let live = amr_record::serve_with(addr, hub.clone(), "amr", options)
                     .await
                     .with_context(|| format!("serving the Foxglove live view on {addr}"))?;
                 tracing::info!(address = %live.addr, "Foxglove live view: open ws://{} in Foxglove", live.addr);

@@ -54,7 +54,7 @@ pub mod replay;
 pub mod sink;
 pub mod wire;
 
-pub use live::{Hub, LiveServer, serve};
+pub use live::{Hub, LiveOptions, LiveServer, serve, serve_with};
 pub use log_layer::LogLayer;
 pub use recorder::{FileRecorder, LogTap, RecordError, RecordOptions, RecordSources, Recorder};
 pub use replay::{ReplayReport, run as replay};

@@ -5,6 +5,12 @@
 //! subscribers as a binary frame: opcode 0x01, the subscription id (u32 LE), the log time in ns
 //! (u64 LE), the JSON body. A slow client skips messages (a bounded queue per client), it never
 //! slows the recorder.
+//!
+//! Access ([`LiveOptions`]): the protocol has no authentication, so the server binds to loopback
+//! unless a token is set; with a token every client must present it (`?token=…` in the URL, or an
+//! `Authorization: Bearer …` header). At most [`MAX_CLIENTS`] clients at once (another is refused
+//! with HTTP 503) and [`MAX_SUBSCRIPTIONS`] subscriptions per client (more are refused with a
+//! `status` error).
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
@@ -24,6 +30,25 @@ use crate::encode::{Out, schema_text};
 pub const SUBPROTOCOL: &str = "foxglove.websocket.v1";
 /// Messages queued per client before it starts skipping.
 const QUEUE: usize = 1024;
+/// Clients served at once by default.
+pub const MAX_CLIENTS: usize = 8;
+/// Subscriptions per client by default (the recorder has a few dozen channels at most).
+pub const MAX_SUBSCRIPTIONS: usize = 64;
+
+/// Who may connect, and how many.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LiveOptions {
+    /// Required from every client when set; needed to bind anywhere but loopback.
+    pub token: Option<String>,
+    pub max_clients: usize,
+    pub max_subscriptions: usize,
+}
+
+impl Default for LiveOptions {
+    fn default() -> Self {
+        LiveOptions { token: None, max_clients: MAX_CLIENTS, max_subscriptions: MAX_SUBSCRIPTIONS }
+    }
+}
 
 #[derive(Debug, Clone)]
 struct Channel {
@@ -102,18 +127,40 @@ impl Drop for LiveServer {
     }
 }
 
-/// Listen on `addr` (e.g. `127.0.0.1:8765`; port 0 picks one) and serve `hub`'s channels.
+/// Listen on `addr` (loopback, e.g. `127.0.0.1:8765`; port 0 picks one) and serve `hub`'s
+/// channels with the default bounds and no token.
 pub async fn serve(addr: SocketAddr, hub: Hub, name: &str) -> std::io::Result<LiveServer> {
+    serve_with(addr, hub, name, LiveOptions::default()).await
+}
+
+/// [`serve`] with `options`: an address other than loopback needs a token.
+pub async fn serve_with(
+    addr: SocketAddr,
+    hub: Hub,
+    name: &str,
+    options: LiveOptions,
+) -> std::io::Result<LiveServer> {
+    if !addr.ip().is_loopback() && options.token.as_deref().is_none_or(str::is_empty) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!(
+                "the live view has no authentication of its own: bind {addr} only with a token, or use loopback"
+            ),
+        ));
+    }
     let listener = TcpListener::bind(addr).await?;
     let addr = listener.local_addr()?;
     let (h, name) = (hub.clone(), name.to_owned());
+    let slots = Arc::new(tokio::sync::Semaphore::new(options.max_clients));
+    let options = Arc::new(options);
     let accept = tokio::spawn(async move {
         loop {
             match listener.accept().await {
                 Ok((stream, peer)) => {
-                    let (h, name) = (h.clone(), name.clone());
+                    let (h, name, options) = (h.clone(), name.clone(), Arc::clone(&options));
+                    let slot = Arc::clone(&slots).try_acquire_owned().ok();
                     tokio::spawn(async move {
-                        if let Err(e) = connection(stream, h, &name).await {
+                        if let Err(e) = connection(stream, h, &name, &options, slot).await {
                             tracing::debug!(%peer, error = %e, "live: connection ended");
                         }
                     });
@@ -139,9 +186,53 @@ fn advertise(channels: &[Channel]) -> Message {
     Message::text(json!({ "op": "advertise", "channels": list }).to_string())
 }
 
-/// Accept the handshake only for our subprotocol, and answer with it.
+/// The token a client presents: `token=` in the query, or an `Authorization: Bearer` header.
+fn presented_token(req: &Request) -> Option<String> {
+    let from_query = req
+        .uri()
+        .query()
+        .into_iter()
+        .flat_map(|q| q.split('&'))
+        .find_map(|kv| kv.strip_prefix("token="))
+        .map(str::to_owned);
+    from_query.or_else(|| {
+        req.headers()
+            .get("Authorization")
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .map(|t| t.trim().to_owned())
+    })
+}
+
+/// Equal, in a time that does not depend on where they differ.
+fn same_secret(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+fn refuse(status: u16, why: &str) -> ErrorResponse {
+    let mut e = ErrorResponse::new(Some(why.to_owned()));
+    *e.status_mut() = tokio_tungstenite::tungstenite::http::StatusCode::from_u16(status)
+        .unwrap_or(tokio_tungstenite::tungstenite::http::StatusCode::BAD_REQUEST);
+    e
+}
+
+/// Accept the handshake only for our subprotocol, with the token if one is set, while a client
+/// slot is free; answer with the subprotocol.
 #[allow(clippy::result_large_err, reason = "tungstenite's callback signature")]
-fn negotiate(req: &Request, mut resp: Response) -> Result<Response, ErrorResponse> {
+fn negotiate(
+    req: &Request,
+    mut resp: Response,
+    token: Option<&str>,
+    slot_free: bool,
+) -> Result<Response, ErrorResponse> {
+    if !slot_free {
+        return Err(refuse(503, "too many live-view clients"));
+    }
+    if let Some(t) = token
+        && !presented_token(req).is_some_and(|p| same_secret(p.as_bytes(), t.as_bytes()))
+    {
+        return Err(refuse(401, "a token is required"));
+    }
     let offered = req
         .headers()
         .get_all("Sec-WebSocket-Protocol")
@@ -163,8 +254,16 @@ async fn connection(
     stream: TcpStream,
     hub: Hub,
     name: &str,
+    options: &LiveOptions,
+    slot: Option<tokio::sync::OwnedSemaphorePermit>,
 ) -> Result<(), tokio_tungstenite::tungstenite::Error> {
-    let mut ws = tokio_tungstenite::accept_hdr_async(stream, negotiate).await?;
+    let (token, free) = (options.token.as_deref(), slot.is_some());
+    #[allow(clippy::result_large_err, reason = "tungstenite's callback signature")]
+    let mut ws =
+        tokio_tungstenite::accept_hdr_async(stream, |req: &Request, resp| negotiate(req, resp, token, free))
+            .await?;
+    // Held for as long as the client is connected.
+    let _slot = slot;
     // Subscribe before the snapshot: a channel born in between is advertised twice, never missed.
     let mut rx = hub.0.tx.subscribe();
     ws.send(Message::text(
@@ -178,7 +277,12 @@ async fn connection(
     loop {
         tokio::select! {
             incoming = ws.next() => match incoming {
-                Some(Ok(Message::Text(t))) => client_op(t.as_str(), &mut subs),
+                Some(Ok(Message::Text(t))) => {
+                    if let Some(refused) = client_op(t.as_str(), &mut subs, options.max_subscriptions) {
+                        let status = json!({ "op": "status", "level": 2, "message": refused });
+                        ws.send(Message::text(status.to_string())).await?;
+                    }
+                }
                 Some(Ok(Message::Close(_))) | None => return Ok(()),
                 Some(Ok(_)) => {}
                 Some(Err(e)) => return Err(e),
@@ -203,23 +307,30 @@ async fn connection(
 }
 
 /// `subscribe` {subscriptions: [{id, channelId}]} and `unsubscribe` {subscriptionIds: [..]};
-/// anything else is ignored.
-fn client_op(text: &str, subs: &mut BTreeMap<u32, u32>) {
-    let Ok(v) = serde_json::from_str::<Value>(text) else { return };
+/// anything else is ignored. A subscription beyond `max` is refused: the reason, for a `status`.
+fn client_op(text: &str, subs: &mut BTreeMap<u32, u32>, max: usize) -> Option<String> {
+    let Ok(v) = serde_json::from_str::<Value>(text) else { return None };
     let as_u32 = |v: &Value| v.as_u64().and_then(|n| u32::try_from(n).ok());
     match v["op"].as_str() {
         Some("subscribe") => {
+            let mut refused = 0;
             for s in v["subscriptions"].as_array().into_iter().flatten() {
                 if let (Some(id), Some(ch)) = (as_u32(&s["id"]), as_u32(&s["channelId"])) {
-                    subs.insert(ch, id);
+                    if subs.len() < max || subs.contains_key(&ch) {
+                        subs.insert(ch, id);
+                    } else {
+                        refused += 1;
+                    }
                 }
             }
+            (refused > 0).then(|| format!("{refused} subscription(s) refused: at most {max} per client"))
         }
         Some("unsubscribe") => {
             for id in v["subscriptionIds"].as_array().into_iter().flatten().filter_map(as_u32) {
                 subs.retain(|_, s| *s != id);
             }
+            None
         }
-        _ => {}
+        _ => None,
     }
 }

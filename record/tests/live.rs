@@ -220,3 +220,88 @@ async fn a_robot_recorder_writes_the_file_and_serves_the_live_view() {
     assert_eq!(find("robot-a lidar: lost gone").unwrap()["level"], 4, "ERROR: {health:?}");
     assert_eq!(find("robot-a safety: disarmed:device_lost").unwrap()["level"], 2, "INFO: {health:?}");
 }
+
+/// A WebSocket handshake with the subprotocol to `path` on `addr`: the client, or the HTTP status
+/// of the refusal.
+async fn handshake(
+    addr: std::net::SocketAddr,
+    path: &str,
+) -> Result<
+    tokio_tungstenite::WebSocketStream<tokio::net::TcpStream>,
+    tokio_tungstenite::tungstenite::http::StatusCode,
+> {
+    let stream = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let mut req = format!("ws://{addr}{path}").into_client_request().unwrap();
+    req.headers_mut().insert("Sec-WebSocket-Protocol", HeaderValue::from_static(SUBPROTOCOL));
+    match tokio_tungstenite::client_async(req, stream).await {
+        Ok((ws, _)) => Ok(ws),
+        Err(tokio_tungstenite::tungstenite::Error::Http(resp)) => Err(resp.status()),
+        Err(e) => panic!("handshake: {e}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_live_view_needs_a_token_off_loopback_and_checks_it() {
+    use amr_record::{LiveOptions, serve_with};
+    // Off loopback without a token: refused before any socket is opened.
+    let e = serve_with("0.0.0.0:0".parse().unwrap(), Hub::default(), "t", LiveOptions::default())
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+    assert!(e.to_string().contains("token"), "{e}");
+    // With a token (here on loopback), a client must present it.
+    let options = LiveOptions { token: Some("s3cret-token".into()), ..LiveOptions::default() };
+    let server = serve_with("127.0.0.1:0".parse().unwrap(), Hub::default(), "t", options).await.unwrap();
+    let status =
+        |r: Result<_, _>| r.err().map(|s: tokio_tungstenite::tungstenite::http::StatusCode| s.as_u16());
+    assert_eq!(status(handshake(server.addr, "/").await), Some(401));
+    assert_eq!(status(handshake(server.addr, "/?token=s3cret-tokem").await), Some(401));
+    assert_eq!(status(handshake(server.addr, "/?token=s3cret").await), Some(401));
+    assert!(handshake(server.addr, "/?token=s3cret-token").await.is_ok());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_live_view_bounds_its_clients_and_their_subscriptions() {
+    use amr_record::{LiveOptions, serve_with};
+    let hub = Hub::default();
+    for k in 0..4 {
+        hub.publish(&out(&format!("/t{k}"), k));
+    }
+    let options = LiveOptions { max_clients: 2, max_subscriptions: 3, ..LiveOptions::default() };
+    let server = serve_with("127.0.0.1:0".parse().unwrap(), hub, "t", options).await.unwrap();
+    let mut first = handshake(server.addr, "/").await.unwrap();
+    let second = handshake(server.addr, "/").await.unwrap();
+    assert_eq!(handshake(server.addr, "/").await.err().map(|s| s.as_u16()), Some(503), "a third client");
+    // A slot frees when a client leaves (bounded wait: the server notices the close).
+    drop(second);
+    let mut again = None;
+    for _ in 0..100 {
+        if let Ok(ws) = handshake(server.addr, "/").await {
+            again = Some(ws);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(again.is_some(), "a client again once one left");
+    // Four subscriptions where three are allowed: one refused, with a status error.
+    let subs: Vec<serde_json::Value> =
+        (1..=4).map(|k| serde_json::json!({ "id": k, "channelId": k })).collect();
+    first
+        .send(Message::text(serde_json::json!({ "op": "subscribe", "subscriptions": subs }).to_string()))
+        .await
+        .unwrap();
+    let status = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            if let Some(Ok(Message::Text(t))) = first.next().await {
+                let v: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                if v["op"] == "status" {
+                    return v;
+                }
+            }
+        }
+    })
+    .await
+    .expect("a status message");
+    assert_eq!(status["level"], 2);
+    assert_eq!(status["message"], "1 subscription(s) refused: at most 3 per client");
+}
