@@ -31,6 +31,9 @@ pub(crate) struct RecordArgs {
     /// The token every live-view client must present (`ws://HOST:PORT/?token=TOKEN`).
     #[arg(long, value_name = "TOKEN")]
     pub foxglove_token: Option<String>,
+    /// Write the recording's chunks uncompressed (default: LZ4).
+    #[arg(long)]
+    pub record_uncompressed: bool,
 }
 
 /// A running recording and/or live view.
@@ -63,7 +66,8 @@ impl RecordArgs {
             }
             None => (None, None),
         };
-        let options = RecordOptions { file: self.record.clone(), live: hub, ..RecordOptions::default() };
+        let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
+        let options = RecordOptions { file: self.record.clone(), live: hub, flush };
         let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;
         if let Some(f) = &self.record {
             tracing::info!(file = %f.display(), "recording");

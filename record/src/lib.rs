@@ -27,14 +27,17 @@
 //! ratio, about 3×, is the point.) In the workspace this crate adds 47 crates to what amr-actors
 //! already pulls in, of which `tracing-subscriber` and `serde_json` are in the `amr` binary anyway.
 //!
-//! **No compression.** `mcap`'s default features build the zstd and lz4 C libraries (`zstd-sys`,
-//! `lz4-sys`): zstd alone costs about 95 s more CPU per clean build and a C compiler. A 16 s
-//! `amr sim --virtual-time` run (two robots, the short straight-and-turn scenario) records 6.2 MB
-//! (390 kB/s: the exact uplink 43 %, the Foxglove scans 31 %); `zstd -3` makes it 1.42 MB (4.4×),
-//! `lz4` 2.69 MB (2.3×). For the runs this project records (a few minutes of simulation or a drill)
-//! the disk is cheaper than the build; a robot recording for hours would want zstd: enable
-//! `mcap/zstd`, set `compression(Some(mcap::Compression::Zstd))` in [`sink::McapFile::create`] and let
-//! [`read`]'s chunk check accept compressed chunks. Not done here because no test would cover it.
+//! **LZ4 chunks.** Chunks are LZ4-compressed by default ([`sink::FlushPolicy::lz4`]; `amr …
+//! --record-uncompressed` turns it off). `mcap`'s `lz4` feature builds liblz4 (`lz4-sys`, C):
+//! about 12 s more per clean build here, against about 95 s of CPU for `zstd-sys`. Measured on
+//! 2026-12-02 (`amr sim --virtual-time --duration 60 --seed 3 --record F [--record-uncompressed]`,
+//! debug build, so liblz4 unoptimised): one recorded minute of two robots is 21.4 MB uncompressed
+//! and 9.1 MB with LZ4 (2.35×), for 0.21 s more CPU (medians of three runs: 6.79 s against
+//! 6.58 s). zstd -3 would make such a file about 4.4× smaller (measured on an earlier 16 s run:
+//! 6.2 MB → 1.42 MB, lz4 2.69 MB) for that build cost. [`read`] checks a compressed chunk's records
+//! with liblz4 before mcap's reader sees them (lz4_flex 0.10, which Zenoh builds, panics on some
+//! damaged frames: the damaged-file test found it); `amr replay` and the Python `mcap` package read
+//! the files (tests in `tests/record_replay.rs`).
 //!
 //! # Crash safety
 //!

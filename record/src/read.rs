@@ -56,17 +56,36 @@ fn record_end(b: &[u8], at: usize) -> Option<usize> {
     (end <= b.len()).then_some(end)
 }
 
-/// An uncompressed chunk whose records are all whole (<https://mcap.dev/spec#chunk-op0x06>:
+/// Largest chunk (uncompressed) a reader takes: chunks here hold about a second of data (well under
+/// 1 MB); a chunk claiming more is damaged, or a decompression bomb.
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
+
+/// A chunk, uncompressed or LZ4, whose records are all whole (<https://mcap.dev/spec#chunk-op0x06>:
 /// start u64, end u64, uncompressed size u64, crc u32, compression string, records u64-prefixed).
 fn chunk_ok(body: &[u8]) -> bool {
     let check = || -> Option<bool> {
+        let uncompressed = u64_at(body, 16)?;
         let compression_len = usize::try_from(u32_at(body, 28)?).ok()?;
-        if compression_len != 0 {
-            // Not ours (this build writes and reads uncompressed chunks only).
-            return Some(false);
-        }
-        let len = usize::try_from(u64_at(body, 32)?).ok()?;
-        let records = body.get(40..40usize.checked_add(len)?)?;
+        let compression = body.get(32..32usize.checked_add(compression_len)?)?;
+        let at = 32 + compression_len;
+        let len = usize::try_from(u64_at(body, at)?).ok()?;
+        let stored = body.get(at + 8..(at + 8).checked_add(len)?)?;
+        let inflated;
+        let records = match compression {
+            b"" => stored,
+            b"lz4" if uncompressed <= MAX_CHUNK_BYTES => {
+                let mut out = Vec::with_capacity(usize::try_from(uncompressed).ok()?);
+                let mut frames = std::io::Read::take(lz4::Decoder::new(stored).ok()?, uncompressed + 1);
+                std::io::Read::read_to_end(&mut frames, &mut out).ok()?;
+                if out.len() as u64 != uncompressed {
+                    return Some(false);
+                }
+                inflated = out;
+                &inflated[..]
+            }
+            // zstd, or a chunk too big to take: not readable by this build.
+            _ => return Some(false),
+        };
         let mut at = 0;
         while at < records.len() {
             at = record_end(records, at)?;

@@ -25,12 +25,15 @@ pub struct FlushPolicy {
     pub max_messages: usize,
     /// Log time since the last flush, ns (the fleet clock: virtual time in a virtual-time run).
     pub max_interval_ns: u64,
+    /// Compress each chunk with LZ4 (MCAP compression `lz4`: the LZ4 frame format), as rosbag2
+    /// compresses its chunks; every MCAP reader decompresses it.
+    pub lz4: bool,
 }
 
 impl Default for FlushPolicy {
-    /// About a second of data, and never more than 2000 messages.
+    /// About a second of data, never more than 2000 messages, LZ4-compressed.
     fn default() -> Self {
-        FlushPolicy { max_messages: 2000, max_interval_ns: 1_000_000_000 }
+        FlushPolicy { max_messages: 2000, max_interval_ns: 1_000_000_000, lz4: true }
     }
 }
 
@@ -62,13 +65,13 @@ impl std::fmt::Debug for McapFile {
 
 impl McapFile {
     /// Create (truncate) `path`. Chunks are written whole (`disable_seeking`: the writer keeps the
-    /// open chunk in memory and never goes back to patch a header), uncompressed (see the crate
-    /// docs for why), with message indexes and a summary when finished.
+    /// open chunk in memory and never goes back to patch a header), LZ4-compressed if the policy
+    /// says so (see the crate docs for the sizes), with message indexes and a summary when finished.
     pub fn create(path: &Path, policy: FlushPolicy) -> Result<Self, SinkError> {
         let file = File::create(path)
             .map_err(|source| SinkError::Io { path: path.display().to_string(), source })?;
         let writer = mcap::WriteOptions::new()
-            .compression(None)
+            .compression(policy.lz4.then_some(mcap::Compression::Lz4))
             .profile("")
             .library(concat!("amr-record ", env!("CARGO_PKG_VERSION")))
             .disable_seeking(true)

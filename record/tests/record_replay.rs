@@ -335,7 +335,7 @@ fn out(topic: &str, t_ns: u64) -> Out {
 fn a_killed_writer_leaves_every_flushed_message() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("crash.mcap");
-    let policy = FlushPolicy { max_messages: 10, max_interval_ns: u64::MAX };
+    let policy = FlushPolicy { max_messages: 10, max_interval_ns: u64::MAX, lz4: true };
     let mut f = McapFile::create(&path, policy).unwrap();
     for k in 0..95u64 {
         f.write(&out(if k % 2 == 0 { "/a" } else { "/b" }, k)).unwrap();
@@ -348,6 +348,32 @@ fn a_killed_writer_leaves_every_flushed_message() {
     assert_eq!(n, (0..90).collect::<Vec<_>>());
     let topics: BTreeSet<&str> = rec.messages.iter().map(|m| m.topic.as_str()).collect();
     assert_eq!(topics, BTreeSet::from(["/a", "/b"]));
+}
+
+#[test]
+fn chunks_are_lz4_compressed_by_default_and_read_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let (lz4, plain) = (dir.path().join("lz4.mcap"), dir.path().join("plain.mcap"));
+    for (path, compress) in [(&lz4, true), (&plain, false)] {
+        let mut f = McapFile::create(path, FlushPolicy { lz4: compress, ..FlushPolicy::default() }).unwrap();
+        for k in 0..3000u64 {
+            f.write(&out("/a", k * 1_000_000)).unwrap();
+        }
+        f.finish().unwrap();
+    }
+    assert!(FlushPolicy::default().lz4);
+    let bytes = std::fs::read(&lz4).unwrap();
+    let summary = mcap::read::Summary::read(&bytes).unwrap().unwrap();
+    assert!(!summary.chunk_indexes.is_empty());
+    assert!(summary.chunk_indexes.iter().all(|c| c.compression == "lz4"), "every chunk compressed");
+    let (a, b) = (read_file(&lz4).unwrap(), read_file(&plain).unwrap());
+    assert_eq!(a.messages.len(), 3000);
+    let key = |r: &amr_record::read::Recording| -> Vec<(String, u64, Vec<u8>)> {
+        r.messages.iter().map(|m| (m.topic.clone(), m.log_time_ns, m.data.clone())).collect()
+    };
+    assert_eq!(key(&a), key(&b));
+    let (small, big) = (bytes.len(), std::fs::metadata(&plain).unwrap().len() as usize);
+    assert!(small * 3 < big * 2, "lz4 {small} bytes, uncompressed {big}");
 }
 
 #[test]
@@ -424,4 +450,37 @@ fn a_recording_cut_by_a_crash_replays_up_to_the_cut() {
     assert_eq!(report.identical, report.compared, "{report:#?}");
     // Estimates of the last messages before the cut may be after it: extra, never missing.
     assert_eq!(report.missing, 0, "{report:#?}");
+}
+
+/// An independent reader: the Python `mcap` package (PyPI; `.ci/run` installs it) reads the
+/// LZ4-compressed recording, every message, with the same count per topic as ours.
+#[test]
+fn the_python_mcap_reader_reads_a_compressed_recording() {
+    let r = t4();
+    let script = "import collections, json, sys\n\
+                  from mcap.reader import make_reader\n\
+                  with open(sys.argv[1], 'rb') as f:\n\
+                  \x20   r = make_reader(f)\n\
+                  \x20   chunks = {c.compression for c in r.get_summary().chunk_indexes}\n\
+                  \x20   n = collections.Counter(ch.topic for _, ch, _ in r.iter_messages())\n\
+                  print(json.dumps({'topics': n, 'compression': sorted(chunks)}))\n";
+    let out = std::process::Command::new("python3")
+        .args(["-c", script, r.path.to_str().unwrap()])
+        .output()
+        .expect("python3 (the CI installs it with the `mcap` package: pip install mcap)");
+    assert!(
+        out.status.success(),
+        "python mcap reader failed (pip install mcap): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["compression"], serde_json::json!(["lz4"]));
+    let ours = read_file(&r.path).unwrap();
+    let mut counts: BTreeMap<String, u64> = BTreeMap::new();
+    for m in &ours.messages {
+        *counts.entry(m.topic.clone()).or_default() += 1;
+    }
+    let theirs: BTreeMap<String, u64> = serde_json::from_value(v["topics"].clone()).unwrap();
+    assert!(!counts.is_empty());
+    assert_eq!(theirs, counts);
 }
