@@ -153,16 +153,30 @@ async fn a_peer_with_wrong_credentials_cannot_join() {
     srv.bridge.shutdown().await;
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
-    let s = setup("acl");
-    let (mut up, srv) = server(&s).await;
-    let (mut a, bridge_a) =
-        start_robot_bridge(&settings(&s, None), "robot-a", FleetClock::wall()).await.unwrap();
-    let (b, bridge_b) = start_robot_bridge(&settings(&s, None), "robot-b", FleetClock::wall()).await.unwrap();
+/// The server and both robots, joined, each robot's uplink seen.
+struct Fleet {
+    up: ServerEnd,
+    srv: ServerBridge,
+    a: RobotEnd,
+    bridge_a: amr_net::Bridge,
+    _b: RobotEnd,
+    bridge_b: amr_net::Bridge,
+}
+
+async fn fleet(s: &Setup) -> Fleet {
+    let (mut up, srv) = server(s).await;
+    let (a, bridge_a) = start_robot_bridge(&settings(s, None), "robot-a", FleetClock::wall()).await.unwrap();
+    let (b, bridge_b) = start_robot_bridge(&settings(s, None), "robot-b", FleetClock::wall()).await.unwrap();
     wait_alive(&srv, "robot-a", true).await;
     wait_alive(&srv, "robot-b", true).await;
     uplink_until_seen(&b, &mut up).await;
+    Fleet { up, srv, a, bridge_a, _b: b, bridge_b }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
+    let s = setup("acl");
+    let Fleet { mut up, srv, mut a, bridge_a, bridge_b, .. } = fleet(&s).await;
 
     // robot-b forges a command for robot-a, claiming to be the server, and a safety message as a.
     let forged = amr_net::wire::Envelope {
@@ -294,13 +308,7 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may() {
     let s = setup("estop");
-    let (mut up, srv) = server(&s).await;
-    let (mut a, bridge_a) =
-        start_robot_bridge(&settings(&s, None), "robot-a", FleetClock::wall()).await.unwrap();
-    let (b, bridge_b) = start_robot_bridge(&settings(&s, None), "robot-b", FleetClock::wall()).await.unwrap();
-    wait_alive(&srv, "robot-a", true).await;
-    wait_alive(&srv, "robot-b", true).await;
-    uplink_until_seen(&b, &mut up).await;
+    let Fleet { up, srv, mut a, bridge_a, bridge_b, .. } = fleet(&s).await;
     let observer = zenoh::open(settings(&s, None).client_config("observer").unwrap()).await.unwrap();
 
     // Resets on robot-a's e-stop key from robot-b and from an observer, each claiming to be an
