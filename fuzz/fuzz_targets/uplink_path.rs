@@ -1,32 +1,37 @@
 //! Fuzz the fusion server's whole uplink path, as the server's bridge and localizer run it on a
-//! Zenoh sample: `Envelope::decode`, the per-key `Freshness` check, `to_uplink` on the key's robot
-//! and channel, then `ServerCore::offer` on one core that lives across inputs (built once from the
-//! embedded configuration the way `amr server` builds it, but running T1–T4 side by side so every
-//! pipeline runs). The receive time is the server's own clock: it advances 1/30 s per input (two
-//! robots at 15 Hz), never from the wire.
+//! Zenoh sample: `Envelope::decode`, the key's `Freshness` check (with the server's clock as now),
+//! `to_uplink` on the key's robot and channel, then `ServerCore::offer` on one core that lives
+//! across inputs (built once from the embedded configuration the way `amr server` builds it, but
+//! running T1–T4 side by side so every pipeline runs). The server's clock (fleet clock, Unix
+//! seconds) starts at 2026-12-01T00:00:00Z and advances 1/30 s per input (two robots at 15 Hz),
+//! never from the wire.
 //!
 //! The first byte chooses (bit 0) the key's robot, (bits 1–2) the key's channel: the one of the
-//! decoded message's kind, `scan`, `odom` or `health`, and (bit 3) the mode:
+//! decoded message's kind, `scan`, `odom` or `health`, (bit 6) whether the server's bridge has just
+//! restarted (its replay record for the key is empty), and (bit 3) the mode:
 //! - raw (bit 3 clear): the rest of the input is the sample's payload;
 //! - structured (bit 3 set): the rest is read field by field into a scan that the robot's bridge
 //!   could send — a LiDAR scan ray-cast on the paper site with the other robot beside it, or
 //!   constant, patterned or raw ranges; beam counts up to 10 000; extreme angles, increments,
 //!   range limits, stamps and odometry — encoded as the robot's bridge encodes it, then received
 //!   through the same path. Its envelope must decode to exactly the scan that was sent.
-//!   Bit 4 replays the previous structured envelope's sequence number; bit 5 names another robot
-//!   in the envelope or the message.
+//!   Bit 4 repeats the previous structured envelope's sequence number, bit 5 names other robots
+//!   in the envelope or the message, bit 7 takes the envelope's session from the input.
 //!
 //! A zero byte read past the end, or a zero selector, gives the realistic default, so the
 //! structured mode of an all-zero tail is a valid TiM551 scan that the core fuses.
 //!
 //! `UPLINK_PATH_SEEDS=<dir>` writes a few seed inputs (valid scans in both modes) into `<dir>` at
-//! start-up (before libFuzzer reads its corpus): see fuzz/README.md.
+//! start-up (before libFuzzer reads its corpus); `UPLINK_PATH_STATS=1` prints what the bridge
+//! refused and what the core did, and the largest allocation: see fuzz/README.md.
 #![no_main]
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::RefCell;
 use std::collections::BTreeMap;
 use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::server::core::ServerCore;
@@ -36,14 +41,15 @@ use amr_core::config::Configuration;
 use amr_core::geometry::{Polygon, cast_ray};
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
+use amr_core::vamr::pipeline::UpdateError;
 use amr_msgs::{SCHEMA_VERSION, ScanMsg, Uplink};
-use amr_net::wire::{Body, Envelope, Freshness, from_uplink, to_uplink, uplink_channel};
+use amr_net::wire::{Body, Envelope, Freshness, Reject, from_uplink, to_uplink, uplink_channel};
 use libfuzzer_sys::fuzz_target;
 
+/// The server's clock (the fleet clock, Unix seconds) at the first input: 2026-12-01T00:00:00Z.
+const START_S: f64 = 1_796_083_200.0;
 /// The server's clock step per input, s.
 const RX_STEP_S: f64 = 1.0 / 30.0;
-/// The structured mode's sender session (a robot's bridge picks one per process start).
-const SESSION: u64 = 0x5eed_0000_0000_0001;
 /// Channels a key can name; `None`: the one of the decoded message's kind.
 const CHANNELS: [Option<&str>; 4] = [None, Some("scan"), Some("odom"), Some("health")];
 /// The paper site (config/maps/paper-site.yaml: 210 x 76 cells of 5 cm from (-5.25, -1.8)).
@@ -65,6 +71,54 @@ struct Server {
     rx_s: f64,
     /// The structured mode's sender: its last sequence number.
     seq: u64,
+    /// `UPLINK_PATH_STATS=1`: what the bridge refused and what the core did.
+    stats: Option<Stats>,
+}
+
+fn stats_on() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| std::env::var_os("UPLINK_PATH_STATS").is_some())
+}
+
+/// What the bridge refused and what the core did, printed every 2^k inputs (an input refused
+/// before decoding counts too).
+#[derive(Default)]
+struct Stats {
+    inputs: u64,
+    by: BTreeMap<String, u64>,
+}
+
+impl Stats {
+    fn add(&mut self, k: String) {
+        *self.by.entry(k).or_default() += 1;
+        self.inputs += 1;
+        if self.inputs.is_power_of_two() {
+            let largest = LARGEST.load(Ordering::Relaxed);
+            eprintln!(
+                "uplink_path: {} inputs, largest allocation {largest} bytes: {:?}",
+                self.inputs, self.by
+            );
+        }
+    }
+
+    fn count(&mut self, step: &amr_actors::server::core::Step) {
+        let mut add = |k: String| *self.by.entry(k).or_default() += 1;
+        match &step.refused {
+            Some(r) => add(format!("refused:{}", r.kind())),
+            None if step.robot.is_some() => add("accepted".into()),
+            None => add("not-a-scan".into()),
+        }
+        for f in &step.fusions {
+            let what = match &f.result {
+                Ok(_) => "fused",
+                Err(UpdateError::Sync(_)) => "sync-gate",
+                Err(UpdateError::RobotCount { .. }) => "robot-count",
+                Err(UpdateError::NoPosition { why, .. } | UpdateError::NoHeading { why, .. }) => why,
+            };
+            add(format!("{:?}:{what}", f.configuration));
+        }
+        self.add("offered".into());
+    }
 }
 
 impl Server {
@@ -85,14 +139,13 @@ impl Server {
             auto_arm: false,
             policy: RestartPolicy::default(),
         };
-        let cs = core_setup(
-            &setup,
-            &[Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4],
-        );
+        let cs =
+            core_setup(&setup, &[Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4]);
         let initial_v = cs.initial_v;
         let core = ServerCore::new(cs);
         let robots: Vec<String> = core.members().iter().map(|m| m.id.clone()).collect();
-        let slots = core.members().iter().map(|m| (Se2::new(0.0, m.slot_y_m, 0.0), m.lidar_to_base)).collect();
+        let slots =
+            core.members().iter().map(|m| (Se2::new(0.0, m.slot_y_m, 0.0), m.lidar_to_base)).collect();
         let chassis = core.members().iter().map(|m| m.chassis.clone()).collect();
         let site = Polygon::centered_rectangle(SITE.0, SITE.1).expect("a rectangle");
         Server {
@@ -103,23 +156,58 @@ impl Server {
             site,
             initial_v,
             fresh: BTreeMap::new(),
-            rx_s: 0.0,
+            rx_s: START_S,
             seq: 0,
+            stats: stats_on().then(Stats::default),
         }
     }
 
     /// A sample on `fleet/<robot>/<channel>`, received now: the server's bridge, then its localizer.
-    fn receive(&mut self, bytes: &[u8], robot: usize, channel: Option<&'static str>) -> Option<Uplink> {
+    /// `restarted`: the server's bridge has just started (its replay records are empty).
+    fn receive(
+        &mut self,
+        bytes: &[u8],
+        robot: usize,
+        channel: Option<&'static str>,
+        restarted: bool,
+    ) -> Option<Uplink> {
         self.rx_s += RX_STEP_S;
-        let env = Envelope::decode(bytes).ok()?;
+        let uplink = self.bridge(bytes, robot, channel, restarted);
+        let uplink = match uplink {
+            Ok(u) => u,
+            Err(r) => {
+                if let Some(stats) = &mut self.stats {
+                    stats.add(format!("link:{}", r.kind()));
+                }
+                return None;
+            }
+        };
+        let step = self.core.offer(&uplink, self.rx_s, &mut |_| {});
+        if let Some(stats) = &mut self.stats {
+            stats.count(&step);
+        }
+        Some(uplink)
+    }
+
+    /// The server's bridge on a sample (`start_server_bridge` in net/src/bridge.rs).
+    fn bridge(
+        &mut self,
+        bytes: &[u8],
+        robot: usize,
+        channel: Option<&'static str>,
+        restarted: bool,
+    ) -> Result<Uplink, Reject> {
+        let env = Envelope::decode(bytes)?;
         let channel = channel.unwrap_or(match &env.body {
             Body::Uplink(u) => uplink_channel(u),
             _ => "scan",
         });
-        self.fresh.entry((robot, channel)).or_default().check(&env).ok()?;
-        let uplink = to_uplink(env, &self.robots[robot], channel).ok()?;
-        let _step = self.core.offer(&uplink, self.rx_s, &mut |_| {});
-        Some(uplink)
+        let fresh = self.fresh.entry((robot, channel)).or_default();
+        if restarted {
+            *fresh = Freshness::default();
+        }
+        fresh.check(&env, self.rx_s)?;
+        to_uplink(env, &self.robots[robot], channel)
     }
 
     /// Where V is at `t_s` in the default motion: up and down a 4 m leg of the site's axis.
@@ -145,6 +233,12 @@ impl Server {
         let stamp_s = rx_next - r.real(0.01, -1.0, 1.0);
         let received_s = stamp_s + r.real(0.005, -1.0, 1.0);
         let seq = r.u64();
+        // The envelope's session: the start of the current second (sessions are the sender's start
+        // time, ns: a sender that restarts every second, so that a newer session a raw input left
+        // on the key stops refusing these within seconds), or any from the input.
+        let session = if flags & 0x80 != 0 { r.u64() } else { (rx_next.floor() as u64) * 1_000_000_000 };
+        // Who the envelope says sent it and is about, and whom the scan names.
+        let names = if flags & 0x20 != 0 { r.u8() } else { 0 };
         // The default odometry: V's progress along its leg, each robot from its own origin.
         let progress = Self::v_progress(stamp_s);
         let odom = (r.u8() < 240).then(|| Se2 {
@@ -183,13 +277,12 @@ impl Server {
                     .collect()
             }
         };
-        let names = [self.robots[robot].as_str(), self.robots[1 - robot.min(1)].as_str(), "robot-x", ""];
-        let (origin, about, named) = if flags & 0x20 != 0 {
-            let w = r.u8();
-            (names[usize::from(w & 3)], names[usize::from((w >> 2) & 3)], names[usize::from((w >> 4) & 3)])
-        } else {
-            (names[0], names[0], names[0])
-        };
+        let candidates = [self.robots[robot].as_str(), self.robots[1 - robot.min(1)].as_str(), "robot-x", ""];
+        let (origin, about, named) = (
+            candidates[usize::from(names & 3)],
+            candidates[usize::from((names >> 2) & 3)],
+            candidates[usize::from((names >> 4) & 3)],
+        );
         let uplink = Uplink::Scan(ScanMsg {
             robot: named.to_owned(),
             seq,
@@ -206,7 +299,7 @@ impl Server {
         let (stamp, body) = from_uplink(&uplink);
         let env = Envelope {
             version: SCHEMA_VERSION,
-            session: SESSION,
+            session,
             seq: self.seq,
             origin: origin.to_owned(),
             robot: about.to_owned(),
@@ -220,7 +313,15 @@ impl Server {
 
     /// `n` beams from `robot`'s LiDAR with its base's V at `v`, on the site with the other robots
     /// in their slots, each beam perturbed by one input byte (0x7f: no return, 0x80: infinite).
-    fn cast(&self, robot: usize, v: Se2, step: f64, angle_min: f64, n: usize, r: &mut Reader<'_>) -> Vec<f64> {
+    fn cast(
+        &self,
+        robot: usize,
+        v: Se2,
+        step: f64,
+        angle_min: f64,
+        n: usize,
+        r: &mut Reader<'_>,
+    ) -> Vec<f64> {
         let (slot, mount) = self.slots[robot];
         let lidar = v * slot * mount;
         let site = Se2::new(SITE.2, SITE.3, 0.0);
@@ -339,6 +440,43 @@ fn same_scan(a: &ScanMsg, b: &ScanMsg) -> bool {
         && a.scan.ranges_m().iter().zip(b.scan.ranges_m()).all(|(x, y)| bits(*x, *y))
 }
 
+/// The system allocator, noting the largest single allocation (`UPLINK_PATH_STATS=1` prints it
+/// whenever an input sets a new largest: the measure behind the README's allocation bound).
+struct Measured;
+
+static LARGEST: AtomicUsize = AtomicUsize::new(0);
+
+fn note(size: usize) {
+    if size > LARGEST.load(Ordering::Relaxed) {
+        LARGEST.fetch_max(size, Ordering::Relaxed);
+    }
+}
+
+// SAFETY: every call is passed to `System` unchanged.
+unsafe impl GlobalAlloc for Measured {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note(layout.size());
+        unsafe { System.alloc_zeroed(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note(new_size);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Measured = Measured;
+
 thread_local! {
     static SERVER: RefCell<Option<Server>> = const { RefCell::new(None) };
 }
@@ -359,9 +497,10 @@ fn write_seeds(dir: &std::path::Path) {
         noisy.extend(std::iter::repeat_n(0u8, 30));
         noisy.extend((0..271u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8 & 0x0f));
         seeds.push((format!("structured-noisy-{robot}"), noisy));
-        // Raw: the same scan's envelope, as a sample's payload on the scan key.
+        // Raw: the same scan's envelope, as a sample's payload on the scan key, the bridge just
+        // started (so that the envelope's session and sequence number stay fresh).
         let bytes = with_server(|s| s.structured(&mut Reader(&[]), usize::from(robot), 0).0);
-        let mut raw = vec![0x02 | robot];
+        let mut raw = vec![0x40 | 0x02 | robot];
         raw.extend(bytes);
         seeds.push((format!("raw-tim551-{robot}"), raw));
     }
@@ -379,24 +518,38 @@ fuzz_target!(
         }
         // Build the core before libFuzzer starts counting allocations.
         with_server(|_| ());
+        if stats_on() {
+            eprintln!("uplink_path: largest allocation while building the core: {} bytes", LARGEST.load(Ordering::Relaxed));
+        }
+        LARGEST.store(0, Ordering::Relaxed);
     },
     |data: &[u8]| {
-        let Some((&b0, rest)) = data.split_first() else { return };
-        let robot = usize::from(b0 & 1);
-        let channel = CHANNELS[usize::from((b0 >> 1) & 3)];
-        with_server(|s| {
-            let robot = robot % s.robots.len();
-            if b0 & 0x08 == 0 {
-                s.receive(rest, robot, channel);
-            } else {
-                let (bytes, sent) = s.structured(&mut Reader(rest), robot, b0);
-                if let Some(got) = s.receive(&bytes, robot, channel) {
-                    let (Uplink::Scan(a), Uplink::Scan(b)) = (&sent, &got) else {
-                        panic!("a scan was sent, {got:?} received");
-                    };
-                    assert!(same_scan(a, b), "the scan changed on the wire: sent {a:?}, received {b:?}");
-                }
-            }
-        });
+        let before = LARGEST.load(Ordering::Relaxed);
+        run(data);
+        let after = LARGEST.load(Ordering::Relaxed);
+        if after > before && after > 1 << 20 && stats_on() {
+            let head: String = data.iter().take(48).map(|b| format!("{b:02x}")).collect();
+            eprintln!("uplink_path: new largest allocation {after} bytes, input of {} bytes: {head}...", data.len());
+        }
     }
 );
+
+fn run(data: &[u8]) {
+    let Some((&b0, rest)) = data.split_first() else { return };
+    let robot = usize::from(b0 & 1);
+    let channel = CHANNELS[usize::from((b0 >> 1) & 3)];
+    with_server(|s| {
+        let robot = robot % s.robots.len();
+        if b0 & 0x08 == 0 {
+            s.receive(rest, robot, channel, b0 & 0x40 != 0);
+        } else {
+            let (bytes, sent) = s.structured(&mut Reader(rest), robot, b0);
+            if let Some(got) = s.receive(&bytes, robot, channel, b0 & 0x40 != 0) {
+                let (Uplink::Scan(a), Uplink::Scan(b)) = (&sent, &got) else {
+                    panic!("a scan was sent, {got:?} received");
+                };
+                assert!(same_scan(a, b), "the scan changed on the wire: sent {a:?}, received {b:?}");
+            }
+        }
+    });
+}

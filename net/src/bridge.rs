@@ -563,13 +563,16 @@ pub async fn start_server_bridge(
                 }
                 let bytes = sample.payload().to_bytes();
                 let checked = Envelope::decode(&bytes).and_then(|env| {
+                    // From that robot, on its channel, before it may touch the replay record (an
+                    // envelope refused here must not lock the sender out with a newer session).
+                    let u = to_uplink(env.clone(), robot, ch)?;
                     fresh
                         .lock()
                         .unwrap_or_else(PoisonError::into_inner)
                         .entry(robot.to_owned())
                         .or_default()
                         .check(&env, wall_now_s())?;
-                    to_uplink(env, robot, ch)
+                    Ok(u)
                 });
                 match checked {
                     Ok(u) => {

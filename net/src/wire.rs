@@ -168,7 +168,8 @@ pub fn from_uplink(u: &Uplink) -> (f64, Body) {
 }
 
 /// The uplink message in an envelope received on `fleet/<robot>/<channel>`: from that robot, about
-/// that robot, on the channel of its kind.
+/// that robot, on the channel of its kind, its stamp finite (and an odometry pose and twist
+/// finite: the formation steers from it).
 pub fn to_uplink(env: Envelope, key_robot: &str, channel: &str) -> Result<Uplink, Reject> {
     if env.robot != key_robot || env.origin != key_robot {
         return Err(Reject::WrongRobot { key: key_robot.to_owned(), robot: env.robot });
@@ -183,6 +184,14 @@ pub fn to_uplink(env: Envelope, key_robot: &str, channel: &str) -> Result<Uplink
     let kind = uplink_channel(&u);
     if kind != channel {
         return Err(Reject::WrongChannel { kind, channel: static_channel(channel) });
+    }
+    if !u.stamp_s().is_finite() {
+        return Err(Reject::NotFinite("stamp"));
+    }
+    if let Uplink::Odom { msg, .. } = &u
+        && ![msg.pose.x, msg.pose.y, msg.pose.theta, msg.twist.0, msg.twist.1].iter().all(|v| v.is_finite())
+    {
+        return Err(Reject::NotFinite("odometry"));
     }
     Ok(u)
 }
@@ -468,6 +477,36 @@ mod tests {
         ));
         assert!(check_enabling_age(&at(Downlink::EStop, 10.0), now).is_ok(), "stopping is always safe");
         assert!(check_enabling_age(&at(Downlink::Disarm, 10.0), now).is_ok());
+    }
+
+    #[test]
+    fn an_uplink_with_a_stamp_or_odometry_that_is_not_finite_is_refused() {
+        let odom = |x: f64, stamp_s: f64| Uplink::Odom {
+            robot: "robot-a".into(),
+            msg: OdomMsg {
+                seq: 1,
+                frame: 1,
+                stamp_s,
+                pose: Se2 { x, y: 0.0, theta: 0.0 },
+                twist: (0.0, 0.0),
+                gyro: true,
+            },
+        };
+        assert!(to_uplink(env(Body::Uplink(odom(1.0, 3.0))), "robot-a", "odom").is_ok());
+        assert_eq!(
+            to_uplink(env(Body::Uplink(odom(f64::NAN, 3.0))), "robot-a", "odom"),
+            Err(Reject::NotFinite("odometry"))
+        );
+        assert_eq!(
+            to_uplink(env(Body::Uplink(odom(1.0, f64::INFINITY))), "robot-a", "odom"),
+            Err(Reject::NotFinite("stamp"))
+        );
+        let safety =
+            Uplink::Safety { robot: "robot-a".into(), seq: 1, stamp_s: f64::NAN, state: SafetyState::Armed };
+        assert_eq!(
+            to_uplink(env(Body::Uplink(safety)), "robot-a", "health"),
+            Err(Reject::NotFinite("stamp"))
+        );
     }
 
     #[test]

@@ -175,7 +175,7 @@ async fn run_connection<T: CanTransport + 'static>(
         if let MasterEvent::Error(e @ CanopenError::Link(LinkError::Transport(_))) = &ev {
             reason = e.to_string();
         }
-        actor.ports.bus_events.send(ev);
+        actor.ports.bus_events.push(ev);
     }
     actor.ports.bus.send_replace(None);
     drop(task);

@@ -29,6 +29,8 @@ pub(crate) const MAX_FAULT_RESETS: u32 = 3;
 #[derive(Debug)]
 pub(crate) enum DriveMsg {
     Bus(Option<BusLink>),
+    /// The master's events are waiting in [`RobotPorts::bus_events`].
+    Events,
     Master(MasterEvent),
     Wheels(WheelCommand),
 }
@@ -45,6 +47,8 @@ pub(crate) struct DriveActor {
 #[derive(Debug)]
 pub(crate) struct DriveState {
     _watch: AbortOnDrop<()>,
+    /// Wakes this actor when the master has events.
+    _events: AbortOnDrop<()>,
     bus: Option<BusLink>,
     health: HealthCell,
     enabled: BTreeSet<NodeId>,
@@ -116,7 +120,17 @@ impl Actor for DriveActor {
     type Arguments = ();
 
     async fn pre_start(&self, myself: ActorRef<DriveMsg>, (): ()) -> Result<DriveState, ActorProcessingErr> {
-        self.ports.bus_events.subscribe(myself.clone(), |e| Some(DriveMsg::Master(e)));
+        // Events from before this actor started belong to an earlier bus or actor: not ours.
+        let _ = self.ports.bus_events.take();
+        let (ports, me) = (Arc::clone(&self.ports), myself.clone());
+        let events = AbortOnDrop(tokio::spawn(async move {
+            loop {
+                ports.bus_events.wait().await;
+                if me.cast(DriveMsg::Events).is_err() {
+                    break;
+                }
+            }
+        }));
         self.ports.wheel_cmd.subscribe(myself.clone(), |c| Some(DriveMsg::Wheels(c)));
         let mut rx = self.ports.bus.subscribe();
         rx.mark_changed();
@@ -132,6 +146,7 @@ impl Actor for DriveActor {
         health.set(&self.ports, Health::Starting, "waiting for the CAN bus");
         Ok(DriveState {
             _watch: AbortOnDrop(watch),
+            _events: events,
             bus: None,
             health,
             enabled: BTreeSet::new(),
@@ -166,7 +181,34 @@ impl Actor for DriveActor {
         msg: DriveMsg,
         state: &mut DriveState,
     ) -> Result<(), ActorProcessingErr> {
+        if let DriveMsg::Events = msg {
+            let (events, lost) = self.ports.bus_events.take();
+            for ev in events {
+                self.apply(state, DriveMsg::Master(ev));
+            }
+            if lost {
+                // What the drives did is unknown: they count as not enabled (which halts the robot)
+                // until the master confirms them again.
+                tracing::error!(robot = %self.ports.robot, "CANopen events lost: drives degraded");
+                self.counters.count("drives.events_lost");
+                state.enabled.clear();
+                state.health.set(&self.ports, Health::Degraded, "CANopen events lost");
+                if !state.quick_stopped {
+                    self.send(state, MasterCommand::Enable);
+                }
+            }
+        } else {
+            self.apply(state, msg);
+        }
+        self.update_health(state);
+        Ok(())
+    }
+}
+
+impl DriveActor {
+    fn apply(&self, state: &mut DriveState, msg: DriveMsg) {
         match msg {
+            DriveMsg::Events => {}
             DriveMsg::Bus(link) => {
                 let new = link.as_ref().map(|l| l.generation) != state.bus.as_ref().map(|l| l.generation);
                 if new {
@@ -269,7 +311,5 @@ impl Actor for DriveActor {
                 self.send(state, MasterCommand::SetTargets(targets.to_vec()));
             }
         }
-        self.update_health(state);
-        Ok(())
     }
 }

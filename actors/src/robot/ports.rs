@@ -120,24 +120,39 @@ pub enum SafetyInput {
 /// backlog: a safety actor that far behind is stalled, and the overflow halts the robot.
 pub const SAFETY_INBOX_CAPACITY: usize = 256;
 
+/// How many CANopen master events wait for the drive actor: twenty seconds of SYNC cycles.
+pub const BUS_EVENTS_CAPACITY: usize = 1024;
+
 /// The safety layer's inputs, in order, none dropped: a bounded queue that outlives the safety
 /// actor, so what arrives while it is being restarted waits for the next one.
 ///
 /// Overflow policy: a full inbox refuses the input and sets a flag; the safety actor, on seeing
 /// it, halts the robot (output zero, disarmed) until an explicit re-arm. An e-stop is latched in
 /// [`RobotPorts::estop_latch`] before it is queued, so even a full inbox cannot lose it.
-#[derive(Debug, Default)]
-pub struct SafetyInbox {
-    queue: Mutex<VecDeque<SafetyInput>>,
+pub type SafetyInbox = Inbox<SafetyInput>;
+
+/// A bounded queue between actors that loses nothing silently: items in order, a full queue
+/// refuses the item and flags it, and the consumer decides what a loss means (the safety layer
+/// halts; the drive actor marks the drives degraded, which halts too).
+#[derive(Debug)]
+pub struct Inbox<T> {
+    queue: Mutex<VecDeque<T>>,
+    capacity: usize,
     overflowed: AtomicBool,
     ready: Notify,
 }
 
-impl SafetyInbox {
-    /// Queue `input`; `false` if the inbox was full (the robot will halt).
-    pub fn push(&self, input: SafetyInput) -> bool {
+impl<T> Inbox<T> {
+    /// An empty inbox for `capacity` items.
+    #[must_use]
+    pub fn new(capacity: usize) -> Self {
+        Inbox { queue: Mutex::default(), capacity, overflowed: AtomicBool::new(false), ready: Notify::new() }
+    }
+
+    /// Queue `input`; `false` if the inbox was full (the consumer will see the overflow).
+    pub fn push(&self, input: T) -> bool {
         let mut q = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
-        let queued = if q.len() >= SAFETY_INBOX_CAPACITY {
+        let queued = if q.len() >= self.capacity {
             self.overflowed.store(true, Ordering::SeqCst);
             false
         } else {
@@ -150,7 +165,7 @@ impl SafetyInbox {
     }
 
     /// Everything queued, oldest first, and whether anything was refused since the last take.
-    pub(crate) fn take(&self) -> (Vec<SafetyInput>, bool) {
+    pub(crate) fn take(&self) -> (Vec<T>, bool) {
         let items = self.queue.lock().unwrap_or_else(PoisonError::into_inner).drain(..).collect();
         (items, self.overflowed.swap(false, Ordering::SeqCst))
     }
@@ -193,7 +208,8 @@ pub struct RobotPorts {
     pub wheel_cmd: OutputPort<WheelCommand>,
     /// The current bus, set by the CAN bus actor (`None` while disconnected).
     pub bus: watch::Sender<Option<BusLink>>,
-    pub bus_events: OutputPort<MasterEvent>,
+    /// The CANopen master's events, for the drive actor (drive health is made of them).
+    pub bus_events: Inbox<MasterEvent>,
     /// The e-stop latch: the next safety actor starts in `EStop` if it is set. Set by every e-stop
     /// source; cleared only by the safety actor, on a reset from the same place.
     pub estop_latch: EStopLatch,
@@ -225,10 +241,10 @@ impl RobotPorts {
             safety: OutputPort::default(),
             safety_now: watch::Sender::new(None),
             downlink: OutputPort::default(),
-            safety_inbox: SafetyInbox::default(),
+            safety_inbox: Inbox::new(SAFETY_INBOX_CAPACITY),
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),
-            bus_events: OutputPort::default(),
+            bus_events: Inbox::new(BUS_EVENTS_CAPACITY),
             estop_latch: EStopLatch::default(),
         })
     }
@@ -303,7 +319,7 @@ mod tests {
 
     #[test]
     fn the_safety_inbox_keeps_order_and_a_full_one_refuses_and_flags() {
-        let inbox = SafetyInbox::default();
+        let inbox = SafetyInbox::new(SAFETY_INBOX_CAPACITY);
         let health = SafetyInput::Health(HealthReport {
             device: Device::Drives,
             health: amr_msgs::Health::Lost,

@@ -250,13 +250,15 @@ fn ramp_wheels(from: (f64, f64), to: (f64, f64), dv: f64, track_m: f64) -> (f64,
 }
 
 /// Whether a health report stops the robot until it is armed again: without working drives
-/// commands cannot be followed. A drive that faulted or rebooted (drives `Degraded`: one left
-/// Operation enabled) is reset and enabled again by the drive actor; the halt makes its output zero
-/// by then, so it never comes back into motion by itself.
+/// commands cannot be followed. Drives that are anything but Ok halt it: a fault or reboot of one
+/// (`Degraded`: it left Operation enabled), their loss, and their reconfiguration (`Starting`:
+/// both rebooted or were reset, e.g. after the whole robot froze and the master found them silent).
+/// The drive actor enables them again by itself; the halt has made the output zero by then, so
+/// they never come back into motion without a new arm.
 fn halts(h: &HealthReport) -> bool {
     match h.device {
-        Device::Drives => matches!(h.health, Health::Lost | Health::Fault | Health::Degraded),
-        Device::CanBus => matches!(h.health, Health::Lost | Health::Fault),
+        Device::Drives => h.health != Health::Ok,
+        Device::CanBus => matches!(h.health, Health::Lost | Health::Fault | Health::Starting),
         _ => false,
     }
 }
@@ -636,7 +638,8 @@ mod tests {
         assert!(halts(&report(Device::Drives, Health::Fault)));
         assert!(halts(&report(Device::CanBus, Health::Lost)));
         assert!(!halts(&report(Device::Drives, Health::Ok)));
-        assert!(!halts(&report(Device::Drives, Health::Starting)));
+        assert!(halts(&report(Device::Drives, Health::Starting)), "reconfigured after a reset");
+        assert!(halts(&report(Device::CanBus, Health::Starting)));
         assert!(!halts(&report(Device::CanBus, Health::Degraded)));
         assert!(!halts(&report(Device::Lidar, Health::Lost)));
         assert!(!halts(&report(Device::Imu, Health::Fault)));
