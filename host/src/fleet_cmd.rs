@@ -26,14 +26,22 @@ pub(crate) fn default_manifest() -> PathBuf {
     std::env::temp_dir().join("amr-world.json")
 }
 
-/// Network options shared by `amr robot` and `amr server`.
+/// Network options shared by `amr robot`, `amr server` and `amr estop`.
 #[derive(Debug, Clone, clap::Args)]
 pub(crate) struct NetArgs {
-    /// The `user:password` file (default: network.toml's `credentials_file`).
-    #[arg(long)]
+    /// The fleet's certificates: ca.pem and this machine's NAME.pem, NAME.key (default:
+    /// network.toml's `certs_dir`; make them with `amr fleet certs`).
+    #[arg(long, value_name = "DIR")]
+    pub certs: Option<PathBuf>,
+    /// Plain TCP with user/password instead of mutual TLS: nothing is encrypted and a robot
+    /// cannot tell the server from whoever answers at its address. For a closed test bench only.
+    #[arg(long, conflicts_with = "certs")]
+    pub insecure: bool,
+    /// With --insecure: the `user:password` file (default: network.toml's `credentials_file`).
+    #[arg(long, requires = "insecure")]
     pub credentials: Option<PathBuf>,
     /// Zenoh endpoints instead of network.toml's (`amr server`: to listen on; `amr robot`: to
-    /// connect to), e.g. tcp/127.0.0.1:7447.
+    /// connect to), e.g. tls/127.0.0.1:7447.
     #[arg(long, value_delimiter = ',')]
     pub endpoint: Vec<String>,
 }
@@ -41,8 +49,15 @@ pub(crate) struct NetArgs {
 impl NetArgs {
     fn settings(&self, config: &Config) -> anyhow::Result<NetSettings> {
         let network = NetworkConfig::from_set(config)?;
-        let mut s = NetSettings::new(network.as_ref(), self.credentials.as_deref())
-            .context("setting up the network link")?;
+        let mut s = if self.insecure {
+            tracing::warn!(
+                "--insecure: the fleet link is plain TCP, unencrypted, the server unauthenticated"
+            );
+            NetSettings::insecure(network.as_ref(), self.credentials.as_deref())
+        } else {
+            NetSettings::tls(network.as_ref(), self.certs.as_deref())
+        }
+        .context("setting up the network link")?;
         if !self.endpoint.is_empty() {
             s.listen = Some(self.endpoint.clone());
             s.connect = Some(self.endpoint.clone());
@@ -255,6 +270,85 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         bridge.bridge.shutdown().await;
         Ok(())
     })
+}
+
+/// `amr fleet certs`'s arguments.
+#[derive(Debug, Clone, clap::Args)]
+pub(crate) struct CertsArgs {
+    /// Where to write them (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// The robots (default: the formation's in server.toml).
+    #[arg(long, value_delimiter = ',')]
+    pub robots: Vec<String>,
+    /// Operators and observers (default: network.toml's `server.operators`; with --no-server,
+    /// none).
+    #[arg(long, value_delimiter = ',')]
+    pub operators: Option<Vec<String>>,
+    /// Host names and addresses robots dial to reach the server (default: the hosts of
+    /// network.toml's `server.connect`, plus localhost and 127.0.0.1).
+    #[arg(long, value_delimiter = ',')]
+    pub server_hosts: Vec<String>,
+    /// Only make certificates for the robots and operators named, not the server's (a robot
+    /// joining a fleet whose directory holds the CA).
+    #[arg(long)]
+    pub no_server: bool,
+    /// Validity of the members' certificates, days (the CA's: ten years).
+    #[arg(long, default_value_t = 825)]
+    pub days: u32,
+    /// Configuration directory (default: ./config if present, else the embedded defaults).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+}
+
+/// `amr fleet certs`: the fleet's CA and every member's key pair (see `amr_net::certs`).
+pub(crate) fn certs(args: &CertsArgs) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
+    let network = NetworkConfig::from_set(&config)?;
+    let robots: Vec<String> = if args.robots.is_empty() {
+        config.server.robots.iter().map(|m| m.id.as_str().to_owned()).collect()
+    } else {
+        args.robots.clone()
+    };
+    // Joining a fleet (--no-server) makes only the members named.
+    let operators = args.operators.clone().unwrap_or_else(|| {
+        let listed = network.iter().flat_map(|n| n.server.operators.iter().map(|o| o.as_str().to_owned()));
+        if args.no_server { Vec::new() } else { listed.collect() }
+    });
+    let server_hosts = if args.server_hosts.is_empty() {
+        let mut hosts: Vec<String> = network
+            .iter()
+            .flat_map(|n| n.server.connect.iter())
+            .filter_map(|e| {
+                e.split_once('/').and_then(|(_, a)| a.rsplit_once(':')).map(|(h, _)| h.to_owned())
+            })
+            .collect();
+        hosts.extend(["localhost".to_owned(), "127.0.0.1".to_owned()]);
+        hosts.dedup();
+        hosts
+    } else {
+        args.server_hosts.clone()
+    };
+    let server = (!args.no_server)
+        .then(|| network.as_ref().map_or_else(|| "server".to_owned(), |n| n.server.user.as_str().to_owned()));
+    let req = amr_net::certs::CertRequest {
+        server_hosts: if args.no_server { Vec::new() } else { server_hosts.clone() },
+        server,
+        robots,
+        others: operators,
+        days: args.days,
+    };
+    let made = amr_net::certs::make(&args.out, &req)?;
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    {
+        let ca = if made.new_ca { "a new fleet CA" } else { "the directory's CA" };
+        println!("{}: {ca} signed {}", args.out.display(), made.members.join(", "));
+        if !args.no_server {
+            println!("the server's certificate is valid for: {}", server_hosts.join(", "));
+        }
+        println!("give each machine ca.pem and its own NAME.pem and NAME.key; keep ca.key offline");
+    }
+    Ok(())
 }
 
 /// `amr estop`'s arguments.

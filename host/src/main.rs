@@ -243,7 +243,7 @@ enum Command {
         /// Clear the e-stop instead.
         #[arg(long)]
         reset: bool,
-        /// The operator's user name in the credentials file.
+        /// The operator's name (its certificate's, or with --insecure its user).
         #[arg(long, default_value = "operator")]
         user: String,
         /// Configuration directory (default: ./config if present, else the embedded defaults).
@@ -255,11 +255,23 @@ enum Command {
         #[command(flatten)]
         net: fleet_cmd::NetArgs,
     },
+    /// The fleet link's set-up.
+    #[command(subcommand)]
+    Fleet(FleetCommand),
     #[command(subcommand)]
     Mock(MockCommand),
     /// Protocol tools.
     #[command(subcommand)]
     Tools(ToolsCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum FleetCommand {
+    /// Make the fleet's certificates for the link's mutual TLS: a CA (ca.pem, ca.key), and a key
+    /// pair and certificate for the server, each robot and each operator (NAME.pem, NAME.key).
+    /// Give each machine ca.pem and its own pair only; keep ca.key offline. A directory that
+    /// already holds ca.pem and ca.key keeps its CA, which signs the new members.
+    Certs(fleet_cmd::CertsArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -508,6 +520,7 @@ fn main() -> ExitCode {
         Command::Drill { name, seed, soak_seconds, json, config } => {
             sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
         }
+        Command::Fleet(FleetCommand::Certs(args)) => fleet_cmd::certs(&args),
         Command::Estop { robots, reset, user, config, timeout_ms, net } => {
             fleet_cmd::estop(&fleet_cmd::EstopArgs { robots, reset, user, config, timeout_ms, net })
         }

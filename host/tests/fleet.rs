@@ -64,7 +64,8 @@ fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-/// The shipped configuration with a short scenario and a 1 s lease, and a credentials file.
+/// The shipped configuration with a short scenario and a 1 s lease, a credentials file (for
+/// `--insecure`) and, made by `amr fleet certs`, the fleet's certificates in `dir/certs`.
 fn write_config(dir: &Path) -> PathBuf {
     let mut files = read_files(&ConfigSource::Dir(hil_tests::config_dir())).unwrap();
     files.retain(|f| !f.path.starts_with("scenarios/"));
@@ -84,6 +85,16 @@ fn write_config(dir: &Path) -> PathBuf {
     }
     let config = dir.join("config");
     hil_tests::write_dir(&files, &config).unwrap();
+    let args = ["fleet", "certs", "--out", "certs", "--config", "config", "--server-hosts", "127.0.0.1"];
+    let out = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(args)
+        .args(["--operators", "operator,observer"])
+        .current_dir(dir)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "amr {args:?}: {said} {}", String::from_utf8_lossy(&out.stderr));
+    assert!(said.contains("a new fleet CA signed server, robot-a, robot-b, operator, observer"), "{said}");
     creds
 }
 
@@ -107,12 +118,13 @@ fn wait_for(seen: &Mutex<Seen>, what: &str, limit: Duration, f: impl Fn(&Seen) -
 #[test]
 fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish() {
     let tmp = tempfile::tempdir().unwrap();
-    let creds = write_config(tmp.path());
+    write_config(tmp.path());
     let config = tmp.path().join("config");
+    let certs = tmp.path().join("certs");
     let manifest = tmp.path().join("world.json");
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let endpoint = format!("tls/127.0.0.1:{}", free_port());
     let log = |n: &str| tmp.path().join(format!("{n}.log"));
-    let (creds_s, manifest_s) = (creds.to_str().unwrap(), manifest.to_str().unwrap());
+    let (certs_s, manifest_s) = (certs.to_str().unwrap(), manifest.to_str().unwrap());
     let robot_args = |id: &str| {
         vec![
             "robot".to_owned(),
@@ -120,8 +132,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
             config.join(format!("{id}.toml")).display().to_string(),
             "--mock".into(),
             manifest_s.into(),
-            "--credentials".into(),
-            creds_s.into(),
+            "--certs".into(),
+            certs_s.into(),
             "--endpoint".into(),
             endpoint.clone(),
         ]
@@ -156,8 +168,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         "--scenario".into(),
         "short".into(),
         "--auto-arm".into(),
-        "--credentials".into(),
-        creds_s.into(),
+        "--certs".into(),
+        certs_s.into(),
         "--endpoint".into(),
         endpoint.clone(),
     ];
@@ -171,7 +183,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     let _observer = rt.block_on(async {
         let loaded = amr_actors::config::load(&ConfigSource::Dir(config.clone())).unwrap();
         let network = amr_net::network::NetworkConfig::from_set(&loaded).unwrap();
-        let mut s = NetSettings::new(network.as_ref(), Some(&creds)).unwrap();
+        let mut s = NetSettings::tls(network.as_ref(), Some(&certs)).unwrap();
         s.connect = Some(vec![endpoint.clone()]);
         // The server may not be listening yet: bounded retries.
         let mut session = None;
@@ -332,8 +344,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
             "robot-a".into(),
             "--config".into(),
             config.display().to_string(),
-            "--credentials".into(),
-            creds_s.into(),
+            "--certs".into(),
+            certs_s.into(),
             "--endpoint".into(),
             endpoint.clone(),
             "--timeout-ms".into(),
@@ -387,7 +399,8 @@ fn credentials_stay_out_of_the_logs_at_trace_level() {
     let args = |what: &str| -> Vec<String> {
         let (cmd, file) =
             if what == "server" { ("server", "server.toml") } else { ("robot", "robot-a.toml") };
-        [cmd, "--config", &config.join(file).display().to_string(), "--credentials", creds.to_str().unwrap()]
+        let config = config.join(file).display().to_string();
+        [cmd, "--config", &config, "--insecure", "--credentials", creds.to_str().unwrap()]
             .iter()
             .map(|s| (*s).to_owned())
             .chain(["--endpoint".to_owned(), endpoint.clone()])

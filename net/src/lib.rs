@@ -28,6 +28,7 @@
 //! it at trace level). This crate itself never logs a password ([`Credential`]'s `Debug` hides it).
 
 pub mod bridge;
+pub mod certs;
 pub mod network;
 pub mod settings;
 pub mod wire;

@@ -2,9 +2,10 @@
 //! processes (Eclipse Zenoh, issue 11). The server listens; every robot connects to it. Discovery is
 //! by these endpoints only: multicast scouting and gossip stay off.
 //!
-//! Credentials are not part of the configuration (it is embedded in the binary and kept in version
-//! control): `credentials_file` names a file of `user:password` lines, Zenoh's dictionary format,
-//! that each machine keeps to itself.
+//! Keys are not part of the configuration (it is embedded in the binary and kept in version
+//! control): `certs_dir` names the directory of the fleet's certificates that each machine keeps
+//! to itself (its own key only), and `credentials_file`, used only with `--insecure`, a file of
+//! `user:password` lines (Zenoh's dictionary format).
 
 use serde::Deserialize;
 
@@ -22,9 +23,13 @@ pub struct NetworkConfig {
     pub lease_ms: Millis,
     /// Keep-alive messages per lease (Zenoh's `keep_alive`, default 4).
     pub keep_alive: u32,
-    /// `user:password` per line. The server reads every line (who may join); a robot reads its own
-    /// (user = its id). `amr robot|server --credentials FILE` overrides it.
-    pub credentials_file: String,
+    /// The fleet's certificates (`amr fleet certs`): `ca.pem` and this machine's `<name>.pem` and
+    /// `<name>.key`. `amr robot|server|estop --certs DIR` overrides it.
+    pub certs_dir: String,
+    /// Only with `--insecure` (plain TCP): `user:password` per line. The server reads every line
+    /// (who may join); a robot reads its own (user = its id). `--credentials FILE` overrides it.
+    #[serde(default)]
+    pub credentials_file: Option<String>,
 }
 
 /// The fusion server's identity and endpoints.
@@ -71,13 +76,18 @@ impl ConfigFileType for NetworkConfig {
         {
             for (i, e) in list.iter().enumerate() {
                 rule(
-                    tcp_endpoint(e),
+                    endpoint(e),
                     format!("{key}[{i}]"),
-                    format!("`{e}`: expected tcp/<host>:<port> (only TCP is built in)"),
+                    format!("`{e}`: expected tls/<host>:<port> (or tcp/, used only with --insecure)"),
                 )?;
             }
         }
-        rule(!self.credentials_file.is_empty(), "credentials_file", "must name a file".to_owned())
+        rule(!self.certs_dir.is_empty(), "certs_dir", "must name a directory".to_owned())?;
+        rule(
+            self.credentials_file.as_ref().is_none_or(|f| !f.is_empty()),
+            "credentials_file",
+            "must name a file".to_owned(),
+        )
     }
 }
 
@@ -88,9 +98,10 @@ impl NetworkConfig {
     }
 }
 
-/// `tcp/<host>:<port>` with a port number.
-fn tcp_endpoint(e: &str) -> bool {
-    e.strip_prefix("tcp/")
+/// `tls/<host>:<port>` or `tcp/<host>:<port>` with a port number.
+fn endpoint(e: &str) -> bool {
+    e.strip_prefix("tls/")
+        .or_else(|| e.strip_prefix("tcp/"))
         .and_then(|rest| rest.rsplit_once(':'))
         .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok())
 }
@@ -102,11 +113,11 @@ mod tests {
     const GOOD: &str = r#"
 lease_ms = 2000
 keep_alive = 4
-credentials_file = "/etc/amr/fleet-credentials"
+certs_dir = "/etc/amr/fleet-certs"
 [server]
 user = "server"
-listen = ["tcp/0.0.0.0:7447"]
-connect = ["tcp/192.168.0.10:7447"]
+listen = ["tls/0.0.0.0:7447"]
+connect = ["tls/192.168.0.10:7447"]
 "#;
 
     #[test]
@@ -120,13 +131,13 @@ connect = ["tcp/192.168.0.10:7447"]
     fn a_long_lease_and_a_non_tcp_endpoint_are_refused() {
         let e = parse_file::<NetworkConfig>("network.toml", &GOOD.replace("2000", "5000")).unwrap_err();
         assert_eq!(e.key, "lease_ms");
-        let e = parse_file::<NetworkConfig>("network.toml", &GOOD.replace("tcp/0.0.0.0", "udp/0.0.0.0"))
+        let e = parse_file::<NetworkConfig>("network.toml", &GOOD.replace("tls/0.0.0.0", "udp/0.0.0.0"))
             .unwrap_err();
         assert_eq!(e.key, "server.listen[0]");
         assert_eq!(e.line, Some(7));
         let e =
             parse_file::<NetworkConfig>("network.toml", &GOOD.replace(":7447\"]\nconnect", "\"]\nconnect"))
                 .unwrap_err();
-        assert!(e.rule.contains("expected tcp/<host>:<port>"), "{e}");
+        assert!(e.rule.contains("expected tls/<host>:<port>"), "{e}");
     }
 }

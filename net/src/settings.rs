@@ -11,6 +11,7 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use crate::certs::TlsFiles;
 use crate::network::NetworkConfig;
 use serde_json::json;
 
@@ -27,6 +28,10 @@ pub enum NetError {
     Credentials { path: PathBuf, reason: String },
     #[error("zenoh configuration `{key}`: {reason}")]
     Config { key: String, reason: String },
+    #[error("{0}")]
+    Insecure(String),
+    #[error("fleet certificates: {0}")]
+    Certificates(String),
     #[error("zenoh: {0}")]
     Zenoh(String),
     #[error("starting the bridge actor: {0}")]
@@ -102,24 +107,54 @@ impl Credentials {
     }
 }
 
-/// Everything a bridge needs: the network section and the credentials.
+/// How the peers of the link prove who they are.
+#[derive(Debug, Clone)]
+pub enum Security {
+    /// Mutual TLS (Zenoh's `tls/` transport): every peer presents a certificate of the fleet's CA
+    /// and verifies the other's; names are the certificates' common names (`amr fleet certs`
+    /// writes the directory, see [`crate::certs`]).
+    Tls { dir: PathBuf },
+    /// Plain TCP (`--insecure`): peers authenticate with user and password, nothing is
+    /// encrypted, and a robot cannot tell the server from whoever answers at its address.
+    Insecure { credentials: Credentials },
+}
+
+/// Everything a bridge needs: the network section and how peers authenticate.
 #[derive(Debug, Clone)]
 pub struct NetSettings {
     pub network: NetworkConfig,
-    pub credentials: Credentials,
+    pub security: Security,
     /// Endpoints that replace `network.toml`'s (tests listen on a free loopback port).
     pub listen: Option<Vec<String>>,
     pub connect: Option<Vec<String>>,
 }
 
 impl NetSettings {
-    /// The configuration's network section with the credentials at `credentials` (default: the
-    /// file `network.toml` names).
-    pub fn new(network: Option<&NetworkConfig>, credentials: Option<&Path>) -> Result<NetSettings, NetError> {
+    /// Mutual TLS with the certificates in `certs` (default: network.toml's `certs_dir`).
+    pub fn tls(network: Option<&NetworkConfig>, certs: Option<&Path>) -> Result<NetSettings, NetError> {
         let network = network.ok_or(NetError::NoNetworkConfig)?.clone();
-        let path = credentials.map_or_else(|| PathBuf::from(&network.credentials_file), Path::to_path_buf);
+        let dir = certs.map_or_else(|| PathBuf::from(&network.certs_dir), Path::to_path_buf);
+        Ok(NetSettings { network, security: Security::Tls { dir }, listen: None, connect: None })
+    }
+
+    /// Plain TCP with the credentials at `credentials` (default: network.toml's
+    /// `credentials_file`): only behind an explicit `--insecure`.
+    pub fn insecure(
+        network: Option<&NetworkConfig>,
+        credentials: Option<&Path>,
+    ) -> Result<NetSettings, NetError> {
+        let network = network.ok_or(NetError::NoNetworkConfig)?.clone();
+        let path =
+            match (credentials, &network.credentials_file) {
+                (Some(p), _) => p.to_path_buf(),
+                (None, Some(f)) => PathBuf::from(f),
+                (None, None) => return Err(NetError::Insecure(
+                    "--insecure needs a credentials file (network.toml's credentials_file or --credentials)"
+                        .into(),
+                )),
+            };
         let credentials = Credentials::load(&path)?;
-        Ok(NetSettings { network, credentials, listen: None, connect: None })
+        Ok(NetSettings { network, security: Security::Insecure { credentials }, listen: None, connect: None })
     }
 
     /// The server's user name.
@@ -140,34 +175,72 @@ impl NetSettings {
         std::iter::once(self.server_user()).chain(self.operators()).map(str::to_owned).collect()
     }
 
-    fn common(&self, mode: &str, me: &Credential) -> Result<zenoh::Config, NetError> {
+    /// The endpoints in the transport of [`Security`]: with TLS a `tcp/` endpoint is refused
+    /// (plain TCP only behind `--insecure`); insecure, `tls/` endpoints become `tcp/` ones.
+    fn endpoints(&self, list: &[String]) -> Result<Vec<String>, NetError> {
+        list.iter()
+            .map(|e| match (&self.security, e.split_once('/')) {
+                (Security::Tls { .. }, Some(("tls", _))) => Ok(e.clone()),
+                (Security::Tls { .. }, Some(("tcp", _))) => Err(NetError::Insecure(format!(
+                    "`{e}` is plain TCP: use tls/ endpoints, or run with --insecure"
+                ))),
+                (Security::Insecure { .. }, Some(("tls" | "tcp", rest))) => Ok(format!("tcp/{rest}")),
+                _ => Err(NetError::Config {
+                    key: "endpoints".into(),
+                    reason: format!("`{e}`: expected tls/<host>:<port>"),
+                }),
+            })
+            .collect()
+    }
+
+    fn common(&self, mode: &str, me: &str, listen: bool) -> Result<zenoh::Config, NetError> {
         let mut c = zenoh::Config::default();
         set(&mut c, "mode", &json!(mode))?;
         set(&mut c, "scouting/multicast/enabled", &json!(false))?;
         set(&mut c, "scouting/gossip/enabled", &json!(false))?;
         set(&mut c, "transport/link/tx/lease", &json!(self.network.lease_ms.ms()))?;
         set(&mut c, "transport/link/tx/keep_alive", &json!(self.network.keep_alive))?;
-        set(&mut c, "transport/auth/usrpwd/user", &json!(me.user))?;
-        set(&mut c, "transport/auth/usrpwd/password", &json!(me.password))?;
+        match &self.security {
+            Security::Insecure { credentials } => {
+                let cred = credentials.of(me)?;
+                set(&mut c, "transport/auth/usrpwd/user", &json!(cred.user))?;
+                set(&mut c, "transport/auth/usrpwd/password", &json!(cred.password))?;
+            }
+            Security::Tls { dir } => {
+                let files = TlsFiles::of(dir, me).map_err(|e| NetError::Certificates(e.to_string()))?;
+                let path = |p: &Path| json!(p.display().to_string());
+                set(&mut c, "transport/link/tls/root_ca_certificate", &path(&files.ca))?;
+                set(&mut c, "transport/link/tls/enable_mtls", &json!(true))?;
+                let side = if listen { "listen" } else { "connect" };
+                set(&mut c, &format!("transport/link/tls/{side}_certificate"), &path(&files.cert))?;
+                set(&mut c, &format!("transport/link/tls/{side}_private_key"), &path(&files.key))?;
+                // A robot checks that the server's certificate is valid for the host it dialled.
+                set(&mut c, "transport/link/tls/verify_name_on_connect", &json!(true))?;
+            }
+        }
         Ok(c)
     }
 
-    /// The server: a router listening on its endpoints, admitting only the users of the credentials
-    /// file, with access control (see [`access_control`]).
+    /// The server: a router listening on its endpoints, admitting only peers that authenticate
+    /// (certificate of the fleet's CA, or a user of the credentials file), with access control
+    /// (see [`access_control`]).
     pub fn server_config(&self, robots: &[String]) -> Result<zenoh::Config, NetError> {
-        let me = self.credentials.of(self.server_user())?;
-        let mut c = self.common("router", me)?;
-        let listen = self.listen.clone().unwrap_or_else(|| self.network.server.listen.clone());
+        let mut c = self.common("router", self.server_user(), true)?;
+        let listen = self.endpoints(self.listen.as_deref().unwrap_or(&self.network.server.listen))?;
         set(&mut c, "listen/endpoints", &json!(listen))?;
         set(&mut c, "connect/endpoints", &json!([]))?;
-        set(
-            &mut c,
-            "transport/auth/usrpwd/dictionary_file",
-            &json!(self.credentials.path.display().to_string()),
-        )?;
-        let users: Vec<&str> = self.credentials.entries.iter().map(|e| e.user.as_str()).collect();
-        let operators = self.operators();
-        set(&mut c, "access_control", &access_control(self.server_user(), &users, robots, &operators))?;
+        let names = match &self.security {
+            Security::Insecure { credentials } => {
+                set(
+                    &mut c,
+                    "transport/auth/usrpwd/dictionary_file",
+                    &json!(credentials.path.display().to_string()),
+                )?;
+                Names::Usernames
+            }
+            Security::Tls { .. } => Names::Certificates,
+        };
+        set(&mut c, "access_control", &access_control(names, robots, &self.operators()))?;
         Ok(c)
     }
 
@@ -176,9 +249,8 @@ impl NetSettings {
     /// publish nothing a robot or the server reads. A Zenoh client's `open` fails while no router
     /// admits it: the robot's bridge retries in the background (see `bridge`).
     pub fn client_config(&self, user: &str) -> Result<zenoh::Config, NetError> {
-        let me = self.credentials.of(user)?;
-        let mut c = self.common("client", me)?;
-        let connect = self.connect.clone().unwrap_or_else(|| self.network.server.connect.clone());
+        let mut c = self.common("client", user, false)?;
+        let connect = self.endpoints(self.connect.as_deref().unwrap_or(&self.network.server.connect))?;
         set(&mut c, "connect/endpoints", &json!(connect))?;
         set(&mut c, "listen/endpoints", &json!([]))?;
         Ok(c)
@@ -190,45 +262,90 @@ fn set(c: &mut zenoh::Config, key: &str, value: &serde_json::Value) -> Result<()
         .map_err(|e| NetError::Config { key: key.to_owned(), reason: e.to_string() })
 }
 
-/// The server's access control: every joined user but the server may not publish commands or the
-/// server's status. A robot or an observer may not publish e-stops, and may publish (and hold a
-/// liveliness token) only under its own robot's keys. An operator may publish e-stops and resets
-/// (`fleet/<robot>/estop`) and nothing a robot publishes. So a robot cannot command or stop another
-/// robot or pose as it, and an observer publishes nothing a robot or the server reads. Rules match
-/// on the authenticated user name (Zenoh "usernames" subjects), and the server's own publications
-/// are local, so no rule stops them.
+/// What the server's access control matches a peer's name on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Names {
+    /// The certificate's common name (mutual TLS).
+    Certificates,
+    /// The user of user/password authentication (`--insecure`).
+    Usernames,
+}
+
+/// Every kind of message the access control knows (zenoh-config 1.10 `AclMessage`).
+const ALL_MESSAGES: [&str; 9] = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+];
+
+/// The server's access control, an allow list: whatever it does not allow is denied.
+///
+/// - Every peer that joined may subscribe to the fleet's keys and receive them (observers, tools).
+/// - A robot may publish only its own scan, odometry and health, and hold only its own liveliness
+///   token.
+/// - An operator may publish e-stops and resets (`fleet/<robot>/estop`), nothing else.
+/// - Nobody but the server publishes commands or the server's status: the server's own
+///   publications are local to its router and pass no ingress rule.
+///
+/// Zenoh allows a message when an allow rule's key expression *includes* the message's key
+/// (zenoh 1.10, `PolicyEnforcer::policy_decision_point`), and a put may carry a wildcard key that
+/// reaches every subscriber it intersects. An allow list is safe against that (`fleet/**` is
+/// included in no robot's keys), where a deny list of other robots' keys is not: `fleet/**`
+/// is included in none of them either, so it would pass.
 #[must_use]
-pub fn access_control(
-    server: &str,
-    users: &[&str],
-    robots: &[String],
-    operators: &[&str],
-) -> serde_json::Value {
-    let mut rules = Vec::new();
-    let mut subjects = Vec::new();
-    let mut policies = Vec::new();
-    for (i, user) in users.iter().filter(|u| **u != server).enumerate() {
-        let mut keys = vec![format!("{PREFIX}/*/cmd"), format!("{PREFIX}/server/**")];
-        if operators.contains(user) {
-            keys.extend(["scan", "odom", "health", "alive"].map(|ch| format!("{PREFIX}/*/{ch}")));
-        } else {
-            keys.push(format!("{PREFIX}/*/estop"));
-            keys.extend(robots.iter().filter(|r| r.as_str() != *user).map(|r| format!("{PREFIX}/{r}/**")));
-        }
-        let (rule, subject) = (format!("r{i}"), format!("s{i}"));
+pub fn access_control(names: Names, robots: &[String], operators: &[&str]) -> serde_json::Value {
+    let name_key = match names {
+        Names::Certificates => "cert_common_names",
+        Names::Usernames => "usernames",
+    };
+    let mut rules = vec![
+        json!({
+            "id": "join-read", "permission": "allow", "flows": ["ingress"],
+            "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"],
+            "key_exprs": [format!("{PREFIX}/**")],
+        }),
+        json!({
+            "id": "join-receive", "permission": "allow", "flows": ["egress"],
+            "messages": ALL_MESSAGES, "key_exprs": [format!("{PREFIX}/**")],
+        }),
+    ];
+    let protocol = match names {
+        Names::Certificates => "tls",
+        Names::Usernames => "tcp",
+    };
+    let mut subjects = vec![json!({ "id": "joined", "link_protocols": [protocol] })];
+    let mut policies = vec![json!({ "rules": ["join-read", "join-receive"], "subjects": ["joined"] })];
+    for (i, r) in robots.iter().enumerate() {
+        let (rule, token, subject) = (format!("robot{i}"), format!("robot{i}-alive"), format!("robot{i}"));
+        let own = ["scan", "odom", "health"].map(|ch| format!("{PREFIX}/{r}/{ch}"));
         rules.push(json!({
-            "id": rule,
-            "permission": "deny",
-            "flows": ["ingress"],
-            "messages": ["put", "delete", "liveliness_token"],
-            "key_exprs": keys,
+            "id": rule, "permission": "allow", "flows": ["ingress"], "messages": ["put", "delete"],
+            "key_exprs": own,
         }));
-        subjects.push(json!({ "id": subject, "usernames": [user] }));
-        policies.push(json!({ "rules": [rule], "subjects": [subject] }));
+        rules.push(json!({
+            "id": token, "permission": "allow", "flows": ["ingress"], "messages": ["liveliness_token"],
+            "key_exprs": [format!("{PREFIX}/{r}/alive")],
+        }));
+        subjects.push(json!({ "id": subject, name_key: [r] }));
+        policies.push(json!({ "rules": [rule, token], "subjects": [subject] }));
+    }
+    if !operators.is_empty() {
+        rules.push(json!({
+            "id": "estop", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
+            "key_exprs": [format!("{PREFIX}/*/estop")],
+        }));
+        subjects.push(json!({ "id": "operators", name_key: operators }));
+        policies.push(json!({ "rules": ["estop"], "subjects": ["operators"] }));
     }
     json!({
-        "enabled": !rules.is_empty(),
-        "default_permission": "allow",
+        "enabled": true,
+        "default_permission": "deny",
         "rules": rules,
         "subjects": subjects,
         "policies": policies,
@@ -261,35 +378,35 @@ mod tests {
     }
 
     #[test]
-    fn access_control_denies_commands_and_other_robots_keys_to_every_user_but_the_server() {
+    fn access_control_is_an_allow_list_keyed_on_the_chosen_names() {
         let robots = vec!["robot-a".to_owned(), "robot-b".to_owned()];
-        let users = ["server", "robot-a", "robot-b", "observer", "operator"];
-        let acl = access_control("server", &users, &robots, &["operator"]);
-        let rules = acl["rules"].as_array().unwrap();
-        assert_eq!(rules.len(), 4, "one per user but the server");
-        let keys = |i: usize| -> Vec<String> {
-            rules[i]["key_exprs"].as_array().unwrap().iter().map(|k| k.as_str().unwrap().to_owned()).collect()
+        let acl = access_control(Names::Certificates, &robots, &["operator"]);
+        assert_eq!(acl["default_permission"], "deny");
+        let rule =
+            |id: &str| acl["rules"].as_array().unwrap().iter().find(|r| r["id"] == id).unwrap().clone();
+        let keys = |id: &str| -> Vec<String> {
+            rule(id)["key_exprs"].as_array().unwrap().iter().map(|k| k.as_str().unwrap().to_owned()).collect()
         };
-        assert_eq!(keys(0), ["fleet/*/cmd", "fleet/server/**", "fleet/*/estop", "fleet/robot-b/**"]);
-        assert_eq!(
-            keys(2),
-            ["fleet/*/cmd", "fleet/server/**", "fleet/*/estop", "fleet/robot-a/**", "fleet/robot-b/**"]
-        );
-        // The operator: e-stops only (nothing a robot publishes, no commands).
-        assert_eq!(
-            keys(3),
-            [
-                "fleet/*/cmd",
-                "fleet/server/**",
-                "fleet/*/scan",
-                "fleet/*/odom",
-                "fleet/*/health",
-                "fleet/*/alive"
-            ]
-        );
-        assert_eq!(acl["subjects"][1]["usernames"][0], "robot-b");
-        // Zenoh accepts it.
-        let mut c = zenoh::Config::default();
-        set(&mut c, "access_control", &acl).unwrap();
+        assert_eq!(keys("robot0"), ["fleet/robot-a/scan", "fleet/robot-a/odom", "fleet/robot-a/health"]);
+        assert_eq!(keys("robot1-alive"), ["fleet/robot-b/alive"]);
+        assert_eq!(keys("estop"), ["fleet/*/estop"]);
+        // Nobody is allowed to publish commands or the server's status (only the server's local
+        // publications make them), and every allow rule but the join rules is ingress only.
+        for r in acl["rules"].as_array().unwrap() {
+            for k in r["key_exprs"].as_array().unwrap() {
+                let k = k.as_str().unwrap();
+                assert!(!k.ends_with("/cmd") && !k.starts_with("fleet/server"), "{r}");
+            }
+        }
+        assert_eq!(rule("join-read")["messages"].as_array().unwrap().len(), 3, "reading only");
+        assert_eq!(acl["subjects"][1]["cert_common_names"][0], "robot-a");
+        assert_eq!(acl["subjects"][0]["link_protocols"][0], "tls");
+        let insecure = access_control(Names::Usernames, &robots, &["operator"]);
+        assert_eq!(insecure["subjects"][3]["usernames"][0], "operator");
+        // Zenoh accepts both.
+        for acl in [acl, insecure] {
+            let mut c = zenoh::Config::default();
+            set(&mut c, "access_control", &acl).unwrap();
+        }
     }
 }

@@ -31,29 +31,51 @@ fn free_port() -> u16 {
 
 fn setup(name: &str) -> Setup {
     let dir = std::env::temp_dir().join(format!("amr-net-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(
         dir.join("creds"),
         "server:pw-server\nrobot-a:pw-a\nrobot-b:pw-b\nobserver:pw-o\noperator:pw-op\n",
     )
     .unwrap();
-    Setup { dir, endpoint: format!("tcp/127.0.0.1:{}", free_port()) }
+    // The fleet's certificates, and another CA's for the same names (an outsider's).
+    for sub in ["certs", "other-ca"] {
+        let req = amr_net::certs::CertRequest {
+            server: Some("server".into()),
+            server_hosts: vec!["127.0.0.1".into()],
+            robots: robots(),
+            others: vec!["observer".into(), "operator".into()],
+            days: 2,
+        };
+        amr_net::certs::make(&dir.join(sub), &req).unwrap();
+    }
+    Setup { dir, endpoint: format!("tls/127.0.0.1:{}", free_port()) }
 }
 
-fn settings(s: &Setup, creds: Option<&str>) -> NetSettings {
+fn network(s: &Setup, server: &str) -> NetworkConfig {
     let text = format!(
-        "lease_ms = 1000\nkeep_alive = 4\ncredentials_file = \"{}\"\n[server]\nuser = \"server\"\n\
-         listen = [\"{e}\"]\nconnect = [\"{e}\"]\noperators = [\"operator\"]\n",
+        "lease_ms = 1000\nkeep_alive = 4\ncerts_dir = \"{}\"\ncredentials_file = \"{}\"\n[server]\n\
+         user = \"{server}\"\nlisten = [\"{e}\"]\nconnect = [\"{e}\"]\noperators = [\"operator\"]\n",
+        s.dir.join("certs").display(),
         s.dir.join("creds").display(),
         e = s.endpoint
     );
-    let network: NetworkConfig = amr_core::config::parse_file("network.toml", &text).unwrap();
+    amr_core::config::parse_file("network.toml", &text).unwrap()
+}
+
+/// The link as shipped: mutual TLS with the fleet's certificates.
+fn settings(s: &Setup) -> NetSettings {
+    NetSettings::tls(Some(&network(s, "server")), None).unwrap()
+}
+
+/// `--insecure`: plain TCP, with the setup's credentials or `creds`.
+fn insecure(s: &Setup, creds: Option<&str>) -> NetSettings {
     let path = creds.map(|c| {
         let p = s.dir.join("other-creds");
         std::fs::write(&p, c).unwrap();
         p
     });
-    NetSettings::new(Some(&network), path.as_deref()).unwrap()
+    NetSettings::insecure(Some(&network(s, "server")), path.as_deref()).unwrap()
 }
 
 fn robots() -> Vec<String> {
@@ -61,7 +83,18 @@ fn robots() -> Vec<String> {
 }
 
 async fn server(s: &Setup) -> (ServerEnd, ServerBridge) {
-    start_server_bridge(&settings(s, None), &robots(), FleetClock::wall()).await.unwrap()
+    start_server_bridge(&settings(s), &robots(), FleetClock::wall()).await.unwrap()
+}
+
+/// Whether a Zenoh client with configuration `c` gets a session (bounded in time).
+async fn joins(c: zenoh::Config) -> bool {
+    match timeout(WAIT, zenoh::open(c)).await.expect("open decides in time") {
+        Ok(session) => {
+            let _ = session.close().await;
+            true
+        }
+        Err(_) => false,
+    }
 }
 
 async fn wait_alive(b: &ServerBridge, robot: &str, present: bool) -> Duration {
@@ -100,8 +133,7 @@ async fn uplink_until_seen(robot: &RobotEnd, server: &mut ServerEnd) -> Uplink {
 async fn a_robot_and_the_server_talk_both_ways_and_the_server_sees_it_come_and_go() {
     let s = setup("both");
     let (mut up, srv) = server(&s).await;
-    let (mut end, bridge) =
-        start_robot_bridge(&settings(&s, None), "robot-a", FleetClock::wall()).await.unwrap();
+    let (mut end, bridge) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
     wait_alive(&srv, "robot-a", true).await;
     // The server tree hears the join as the robot's link health.
     let joined = timeout(WAIT, up.up.recv()).await.unwrap().unwrap();
@@ -133,10 +165,11 @@ async fn a_robot_and_the_server_talk_both_ways_and_the_server_sees_it_come_and_g
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_peer_with_wrong_credentials_cannot_join() {
+async fn on_an_insecure_link_a_peer_with_wrong_credentials_cannot_join() {
     let s = setup("creds");
-    let (mut up, srv) = server(&s).await;
-    let wrong = settings(&s, Some("robot-b:not-the-password\n"));
+    let (mut up, srv) =
+        start_server_bridge(&insecure(&s, None), &robots(), FleetClock::wall()).await.unwrap();
+    let wrong = insecure(&s, Some("robot-b:not-the-password\n"));
     let (end, bridge) = start_robot_bridge(&wrong, "robot-b", FleetClock::wall()).await.unwrap();
     for seq in 1..=20 {
         end.up.send(safety("robot-b", seq));
@@ -147,10 +180,51 @@ async fn a_peer_with_wrong_credentials_cannot_join() {
     assert!(!bridge.stats.connected.load(std::sync::atomic::Ordering::Relaxed));
     // The same robot with the right password joins.
     bridge.shutdown().await;
-    let (_end, ok) = start_robot_bridge(&settings(&s, None), "robot-b", FleetClock::wall()).await.unwrap();
+    let (_end, ok) = start_robot_bridge(&insecure(&s, None), "robot-b", FleetClock::wall()).await.unwrap();
     wait_alive(&srv, "robot-b", true).await;
     ok.shutdown().await;
     srv.bridge.shutdown().await;
+    // Plain TCP endpoints are refused unless --insecure was asked for.
+    let mut tls = settings(&s);
+    tls.connect = Some(vec![s.endpoint.replace("tls/", "tcp/")]);
+    let e = tls.client_config("robot-a").unwrap_err().to_string();
+    assert!(e.contains("--insecure"), "{e}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn only_a_certificate_of_the_fleet_joins_and_a_robot_joins_only_the_real_server() {
+    let s = setup("mtls");
+    let (_up, srv) = server(&s).await;
+    let fleet = s.dir.join("certs");
+    let other = s.dir.join("other-ca");
+    let path = |p: std::path::PathBuf| format!("\"{}\"", p.display());
+    // The fleet's own certificate joins (the control).
+    assert!(joins(settings(&s).client_config("observer").unwrap()).await);
+    // No certificate: the client trusts the server's CA but presents nothing.
+    let mut c = settings(&s).client_config("observer").unwrap();
+    c.insert_json5("transport/link/tls/enable_mtls", "false").unwrap();
+    c.insert_json5("transport/link/tls/connect_certificate", "null").unwrap();
+    c.insert_json5("transport/link/tls/connect_private_key", "null").unwrap();
+    assert!(!joins(c).await, "a peer without a certificate joined");
+    // Another CA's certificate for a fleet name, the client still trusting the fleet's CA.
+    let mut c = settings(&s).client_config("robot-a").unwrap();
+    c.insert_json5("transport/link/tls/connect_certificate", &path(other.join("robot-a.pem"))).unwrap();
+    c.insert_json5("transport/link/tls/connect_private_key", &path(other.join("robot-a.key"))).unwrap();
+    assert!(!joins(c).await, "a certificate of another CA joined");
+    srv.bridge.shutdown().await;
+
+    // Impostors at a robot's server address: a fleet member's certificate (valid for its own name
+    // only), and another CA's server certificate (valid for this address): the robot refuses both.
+    for (dir, name) in [(&fleet, "robot-b"), (&other, "server")] {
+        let port = free_port();
+        let mut fake = NetSettings::tls(Some(&network(&s, name)), Some(dir)).unwrap();
+        fake.listen = Some(vec![format!("tls/127.0.0.1:{port}")]);
+        let impostor = zenoh::open(fake.server_config(&robots()).unwrap()).await.unwrap();
+        let mut robot = settings(&s);
+        robot.connect = Some(vec![format!("tls/127.0.0.1:{port}")]);
+        assert!(!joins(robot.client_config("robot-a").unwrap()).await, "robot-a joined {name} of {dir:?}");
+        let _ = impostor.close().await;
+    }
 }
 
 /// The server and both robots, joined, each robot's uplink seen.
@@ -165,8 +239,8 @@ struct Fleet {
 
 async fn fleet(s: &Setup) -> Fleet {
     let (mut up, srv) = server(s).await;
-    let (a, bridge_a) = start_robot_bridge(&settings(s, None), "robot-a", FleetClock::wall()).await.unwrap();
-    let (b, bridge_b) = start_robot_bridge(&settings(s, None), "robot-b", FleetClock::wall()).await.unwrap();
+    let (a, bridge_a) = start_robot_bridge(&settings(s), "robot-a", FleetClock::wall()).await.unwrap();
+    let (b, bridge_b) = start_robot_bridge(&settings(s), "robot-b", FleetClock::wall()).await.unwrap();
     wait_alive(&srv, "robot-a", true).await;
     wait_alive(&srv, "robot-b", true).await;
     uplink_until_seen(&b, &mut up).await;
@@ -204,11 +278,19 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
         }),
         ..forged.clone()
     };
+    // On the exact keys and on wildcard keys that intersect them.
+    let cmd_keys = ["fleet/robot-a/cmd", "fleet/**", "fleet/*/cmd", "fleet/robot-a/*", "**"];
+    let health_keys = ["fleet/robot-a/health", "fleet/**", "fleet/*/health", "fleet/robot-a/**"];
     for i in 0..10 {
-        let f = amr_net::wire::Envelope { seq: i + 1, ..forged.clone() };
-        bridge_b.session().unwrap().put("fleet/robot-a/cmd", f.encode().unwrap()).await.unwrap();
-        let p = amr_net::wire::Envelope { seq: i + 1, ..posing.clone() };
-        bridge_b.session().unwrap().put("fleet/robot-a/health", p.encode().unwrap()).await.unwrap();
+        let session = bridge_b.session().unwrap();
+        for (k, key) in cmd_keys.iter().enumerate() {
+            let f = amr_net::wire::Envelope { seq: 10 * i + k as u64 + 1, ..forged.clone() };
+            session.put(*key, f.encode().unwrap()).await.unwrap();
+        }
+        for (k, key) in health_keys.iter().enumerate() {
+            let p = amr_net::wire::Envelope { seq: 10 * i + k as u64 + 1, ..posing.clone() };
+            session.put(*key, p.encode().unwrap()).await.unwrap();
+        }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -239,8 +321,7 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
 async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     let s = setup("replay");
     let (up, srv) = server(&s).await;
-    let (mut a, bridge_a) =
-        start_robot_bridge(&settings(&s, None), "robot-a", FleetClock::wall()).await.unwrap();
+    let (mut a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
     wait_alive(&srv, "robot-a", true).await;
     // Capture the server's commands as they cross the network.
     let captured = std::sync::Arc::new(std::sync::Mutex::new(Vec::<Vec<u8>>::new()));
@@ -309,7 +390,7 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
 async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may() {
     let s = setup("estop");
     let Fleet { up, srv, mut a, bridge_a, bridge_b, .. } = fleet(&s).await;
-    let observer = zenoh::open(settings(&s, None).client_config("observer").unwrap()).await.unwrap();
+    let observer = zenoh::open(settings(&s).client_config("observer").unwrap()).await.unwrap();
 
     // Resets on robot-a's e-stop key from robot-b and from an observer, each claiming to be an
     // operator or the server: the access control stops every one. (robot-a's own session would
@@ -350,7 +431,7 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
     while a.down.try_recv().is_ok() {}
 
     // An operator's: `operator_estop` publishes it and waits for the robot's own report.
-    let op_settings = settings(&s, None);
+    let op_settings = settings(&s);
     let operator = tokio::spawn(async move {
         amr_net::operator_estop(
             &op_settings,
