@@ -33,7 +33,12 @@ fn a_recorded_simulation_replays_to_the_same_estimates() {
         // Started before virtual time moves: no scan has been taken yet.
         let sources = RecordSources::server(&sim.server.ports, &setup);
         let recorder = Recorder::start(
-            RecordOptions { file: Some(path.clone()), live: None, flush: FlushPolicy::default() },
+            RecordOptions {
+                file: Some(path.clone()),
+                live: None,
+                flush: FlushPolicy::default(),
+                ros2: false,
+            },
             sources,
         )
         .await

@@ -34,6 +34,12 @@ pub(crate) struct RecordArgs {
     /// Write the recording's chunks uncompressed (default: LZ4).
     #[arg(long)]
     pub record_uncompressed: bool,
+    /// Write the recording as a ROS 2 bag (rosbag2's MCAP profile, CDR): the scans, the virtual
+    /// scan, odometry, estimates, /tf, /tf_static and /map as ROS 2 types, for `ros2 bag play`,
+    /// RViz and nav2 (robot ids become `robot_a`-style topic names). Only those topics: such a
+    /// file does not `amr replay`. The live view stays Foxglove's.
+    #[arg(long, requires = "record")]
+    pub ros2: bool,
 }
 
 /// A running recording and/or live view.
@@ -67,10 +73,10 @@ impl RecordArgs {
             None => (None, None),
         };
         let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
-        let options = RecordOptions { file: self.record.clone(), live: hub, flush };
+        let options = RecordOptions { file: self.record.clone(), live: hub, flush, ros2: self.ros2 };
         let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;
         if let Some(f) = &self.record {
-            tracing::info!(file = %f.display(), "recording");
+            tracing::info!(file = %f.display(), ros2 = self.ros2, "recording");
         }
         Ok(Some(Recording { recorder, _live: live, file: self.record.clone() }))
     }

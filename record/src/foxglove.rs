@@ -202,11 +202,11 @@ pub fn laser_scan(stamp_s: f64, frame: &str, scan: &Scan) -> Value {
 /// Bins of the virtual scan's `foxglove.LaserScan`: 0.5° over the full circle.
 pub const VIRTUAL_BINS: usize = 720;
 
-/// A `foxglove.LaserScan` of a point set (the virtual scan, points in V's frame): each point goes
-/// to the bin of its bearing, the nearest point per bin wins, empty bins are 0. For display; the
-/// exact points are on `/amr/fused`.
+/// The virtual scan's bins: `(start, step, ranges)`, [`VIRTUAL_BINS`] bins of 0.5° from −π; each
+/// point goes to the bin of its bearing, the nearest point per bin wins, empty bins are 0. Shared
+/// by the Foxglove and the ROS 2 views.
 #[must_use]
-pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> Value {
+pub fn virtual_bins(points: &[[f64; 2]]) -> (f64, f64, Vec<f64>) {
     let step = std::f64::consts::TAU / VIRTUAL_BINS as f64;
     let start = -std::f64::consts::PI;
     let mut ranges = vec![0.0f64; VIRTUAL_BINS];
@@ -221,6 +221,14 @@ pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> Value {
             ranges[k] = r;
         }
     }
+    (start, step, ranges)
+}
+
+/// A `foxglove.LaserScan` of a point set (the virtual scan, points in V's frame), binned by
+/// [`virtual_bins`], ranges to 0.1 mm. For display; the exact points are on `/amr/fused`.
+#[must_use]
+pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> Value {
+    let (start, step, mut ranges) = virtual_bins(points);
     for r in &mut ranges {
         *r = short(*r);
     }

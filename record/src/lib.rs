@@ -8,6 +8,8 @@
 //! - [`replay::run`] re-runs fusion + AMCL on a recording's exact uplink channel and compares.
 //! - [`live::serve`] is the Foxglove WebSocket server (`foxglove.websocket.v1`).
 //! - [`read`] reads a recording back, complete or cut short by a crash.
+//! - [`ros2`]: ROS 2 bags: `--record --ros2` writes one (CDR, rosbag2's MCAP profile), and
+//!   [`ros2::bag`] reads a bag's scans and odometry for `amr localize --bag`.
 //!
 //! # Build decisions (measured 2026-12-01 on this 2-core machine, shared with two other builds)
 //!
@@ -54,6 +56,7 @@ pub mod log_layer;
 pub mod read;
 pub mod recorder;
 pub mod replay;
+pub mod ros2;
 pub mod sink;
 pub mod wire;
 

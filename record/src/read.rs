@@ -11,6 +11,8 @@ use mcap::read::Options;
 pub struct Recorded {
     pub topic: String,
     pub schema: String,
+    /// The channel's message encoding (`json` for ours, `cdr` in a ROS 2 bag).
+    pub encoding: String,
     pub log_time_ns: u64,
     pub publish_time_ns: u64,
     pub data: Vec<u8>,
@@ -127,6 +129,7 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
                 Ok(m) => out.messages.push(Recorded {
                     topic: m.channel.topic.clone(),
                     schema: m.channel.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default(),
+                    encoding: m.channel.message_encoding.clone(),
                     log_time_ns: m.log_time,
                     publish_time_ns: m.publish_time,
                     data: m.data.into_owned(),

@@ -17,7 +17,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef, RpcReplyPort};
 
 use crate::encode::{Encoder, Event, Out};
 use crate::live::Hub;
-use crate::sink::{FlushPolicy, McapFile, SinkError, WriteStats};
+use crate::sink::{FlushPolicy, Format, McapFile, SinkError, WriteStats};
 
 /// What to record.
 #[derive(Debug, Clone)]
@@ -78,6 +78,9 @@ pub struct RecordOptions {
     pub file: Option<PathBuf>,
     pub live: Option<Hub>,
     pub flush: FlushPolicy,
+    /// Write the file as a ROS 2 bag (rosbag2's MCAP profile, CDR; [`crate::ros2`]) instead of
+    /// Foxglove's JSON schemas. The live view is Foxglove's either way.
+    pub ros2: bool,
 }
 
 /// Why recording could not start or finish.
@@ -127,6 +130,8 @@ struct Args {
 struct State {
     clock: FleetClock,
     encoder: Encoder,
+    /// Set when the file is a ROS 2 bag: the file's messages come from here.
+    ros2: Option<crate::ros2::Ros2Encoder>,
     file: Option<McapFile>,
     live: Option<Hub>,
     logs: Option<LogTap>,
@@ -136,14 +141,24 @@ struct State {
 
 impl State {
     fn put(&mut self, now_s: f64, ev: &Event) {
-        let outs: Vec<Out> = match self.encoder.encode(now_s, ev) {
-            Ok(o) => o,
-            Err(e) => {
-                tracing::debug!(error = %e, "record: event not encodable");
-                return;
+        // Foxglove's JSON for the live view, and for the file unless it is a ROS 2 bag.
+        let outs: Vec<Out> = if self.live.is_some() || self.ros2.is_none() {
+            match self.encoder.encode(now_s, ev) {
+                Ok(o) => o,
+                Err(e) => {
+                    tracing::debug!(error = %e, "record: event not encodable");
+                    return;
+                }
             }
+        } else {
+            Vec::new()
         };
-        for out in &outs {
+        let file_outs = match &self.ros2 {
+            Some(r) if self.file.is_some() => r.encode(now_s, ev),
+            _ => Vec::new(),
+        };
+        let to_file = if self.ros2.is_some() { &file_outs } else { &outs };
+        for out in to_file {
             if let Some(f) = &mut self.file
                 && let Err(e) = f.write(out)
             {
@@ -151,7 +166,9 @@ impl State {
                 self.failed = Some(e.to_string());
                 self.file = None;
             }
-            if let Some(h) = &self.live {
+        }
+        if let Some(h) = &self.live {
+            for out in &outs {
                 h.publish(out);
             }
         }
@@ -198,8 +215,9 @@ impl Actor for RecorderActor {
 
     async fn pre_start(&self, me: ActorRef<RecMsg>, args: Args) -> Result<State, ActorProcessingErr> {
         let Args { options, sources } = args;
+        let format = if options.ros2 { Format::Ros2 } else { Format::Foxglove };
         let mut file = match &options.file {
-            Some(path) => Some(McapFile::create(path, options.flush)?),
+            Some(path) => Some(McapFile::create_as(path, options.flush, format)?),
             None => None,
         };
         if let Some(f) = &mut file
@@ -210,6 +228,7 @@ impl Actor for RecorderActor {
         let robots = sources.server.as_ref().map(|s| s.robots.clone()).unwrap_or_default();
         let mut state = State {
             clock: sources.clock,
+            ros2: options.ros2.then(|| crate::ros2::Ros2Encoder::new(robots.clone())),
             encoder: Encoder::new(robots),
             file,
             live: options.live,
@@ -324,6 +343,8 @@ pub struct FileRecorder {
     file: Option<McapFile>,
     live: Option<crate::live::Hub>,
     encoder: Encoder,
+    /// Set when the file is a ROS 2 bag.
+    ros2: Option<crate::ros2::Ros2Encoder>,
 }
 
 impl FileRecorder {
@@ -353,14 +374,37 @@ impl FileRecorder {
             }
             None => None,
         };
-        Ok(FileRecorder { file, live, encoder: Encoder::new(robots) })
+        Ok(FileRecorder { file, live, encoder: Encoder::new(robots), ros2: None })
+    }
+
+    /// A ROS 2 bag at `path` ([`crate::ros2`]); `robots` as for [`FileRecorder::create`].
+    pub fn create_ros2(path: &std::path::Path, robots: Vec<String>) -> Result<Self, RecordError> {
+        let file = McapFile::create_as(path, FlushPolicy::default(), Format::Ros2)?;
+        Ok(FileRecorder {
+            file: Some(file),
+            live: None,
+            ros2: Some(crate::ros2::Ros2Encoder::new(robots.clone())),
+            encoder: Encoder::new(robots),
+        })
     }
 
     /// Write `event` as seen at `t_s` (fleet-clock seconds; keep it non-decreasing).
     pub fn put(&mut self, t_s: f64, event: &Event) -> Result<(), RecordError> {
+        if let Some(r) = &self.ros2 {
+            for o in &r.encode(t_s, event) {
+                if let Some(f) = self.file.as_mut() {
+                    f.write(o)?;
+                }
+            }
+            if self.live.is_none() {
+                return Ok(());
+            }
+        }
         let outs = self.encoder.encode(t_s, event)?;
         for o in &outs {
-            if let Some(f) = self.file.as_mut() {
+            if self.ros2.is_none()
+                && let Some(f) = self.file.as_mut()
+            {
                 f.write(o)?;
             }
             if let Some(h) = &self.live {

@@ -46,9 +46,21 @@ pub struct WriteStats {
     pub per_topic: BTreeMap<String, u64>,
 }
 
+/// What a file's channels carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Format {
+    /// Foxglove's and our JSON schemas (schema encoding `jsonschema`, message encoding `json`).
+    #[default]
+    Foxglove,
+    /// rosbag2's profile `ros2`: `ros2msg` schemas, CDR messages, QoS per channel
+    /// ([`crate::ros2`]).
+    Ros2,
+}
+
 /// An MCAP file being written.
 pub struct McapFile {
     writer: mcap::Writer<BufWriter<File>>,
+    format: Format,
     channels: BTreeMap<String, u16>,
     sequence: u32,
     policy: FlushPolicy,
@@ -68,16 +80,32 @@ impl McapFile {
     /// open chunk in memory and never goes back to patch a header), LZ4-compressed if the policy
     /// says so (see the crate docs for the sizes), with message indexes and a summary when finished.
     pub fn create(path: &Path, policy: FlushPolicy) -> Result<Self, SinkError> {
+        Self::create_as(path, policy, Format::Foxglove)
+    }
+
+    /// Create (truncate) `path` for channels of `format`. A ROS 2 file has the profile `ros2` and
+    /// a metadata record `rosbag2` without `serialized_metadata`, which rosbag2 reads as metadata
+    /// version 8, the version of the QoS form written ([`crate::ros2`]).
+    pub fn create_as(path: &Path, policy: FlushPolicy, format: Format) -> Result<Self, SinkError> {
         let file = File::create(path)
             .map_err(|source| SinkError::Io { path: path.display().to_string(), source })?;
         let writer = mcap::WriteOptions::new()
             .compression(policy.lz4.then_some(mcap::Compression::Lz4))
-            .profile("")
+            .profile(match format {
+                Format::Foxglove => "",
+                Format::Ros2 => "ros2",
+            })
             .library(concat!("amr-record ", env!("CARGO_PKG_VERSION")))
             .disable_seeking(true)
             .create(BufWriter::new(file))?;
+        let mut writer = writer;
+        if format == Format::Ros2 {
+            let record = BTreeMap::from([("writer".to_owned(), "amr-record".to_owned())]);
+            writer.write_metadata(&mcap::records::Metadata { name: "rosbag2".into(), metadata: record })?;
+        }
         Ok(McapFile {
             writer,
+            format,
             channels: BTreeMap::new(),
             sequence: 0,
             policy,
@@ -97,12 +125,19 @@ impl McapFile {
         if let Some(id) = self.channels.get(&out.topic) {
             return Ok(*id);
         }
-        let schema = self.writer.add_schema(
-            out.schema,
-            "jsonschema",
-            crate::encode::schema_text(out.schema).as_bytes(),
-        )?;
-        let id = self.writer.add_channel(schema, &out.topic, "json", &BTreeMap::new())?;
+        let id = match self.format {
+            Format::Foxglove => {
+                let text = crate::encode::schema_text(out.schema);
+                let schema = self.writer.add_schema(out.schema, "jsonschema", text.as_bytes())?;
+                self.writer.add_channel(schema, &out.topic, "json", &BTreeMap::new())?
+            }
+            Format::Ros2 => {
+                let text = crate::ros2::schema_text(out.schema);
+                let schema = self.writer.add_schema(out.schema, "ros2msg", text.as_bytes())?;
+                let metadata = crate::ros2::channel_metadata(&out.topic);
+                self.writer.add_channel(schema, &out.topic, "cdr", &metadata)?
+            }
+        };
         self.channels.insert(out.topic.clone(), id);
         Ok(id)
     }

@@ -103,7 +103,12 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
         sources.robots = robot_ports.clone();
         sources.metadata.insert("command".into(), "test".into());
         sources.logs = Some(tap.clone());
-        let options = RecordOptions { file: Some(path.clone()), live: None, flush: FlushPolicy::default() };
+        let options = RecordOptions {
+            file: Some(path.clone()),
+            live: None,
+            flush: FlushPolicy::default(),
+            ros2: false,
+        };
         let recorder = Recorder::start(options, sources).await.unwrap();
         tracing::info!(robots = ids.len(), "test: recording started");
 

@@ -1,0 +1,412 @@
+//! ROS 2 data in and out: rosbag2's MCAP files with CDR-encoded messages.
+//!
+//! - [`cdr`]: the CDR encoding, one implementation for the writer and the reader;
+//! - [`msg`]: the message types (`sensor_msgs/LaserScan`, `nav_msgs/Odometry`,
+//!   `geometry_msgs/PoseWithCovarianceStamped`, `tf2_msgs/TFMessage`, `nav_msgs/OccupancyGrid`)
+//!   with their schema text;
+//! - [`Ros2Encoder`]: what `--record FILE --ros2` writes for each event (topics below);
+//! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`.
+//!
+//! # rosbag2's MCAP profile
+//!
+//! As rosbag2_storage_mcap writes and reads it (ros2/rosbag2, `rosbag2_storage_mcap/src/
+//! mcap_storage.cpp`; the MCAP well-known profile, <https://mcap.dev/spec/registry#ros2>): header
+//! profile `ros2`; one schema per type, named `pkg/msg/Type`, encoding `ros2msg` (the `.msg` text,
+//! each dependency after a line of 80 `=` and `MSG: pkg/Type`); channels with message encoding
+//! `cdr` and the metadata key `offered_qos_profiles`, a YAML list of QoS profiles (below).
+//!
+//! **QoS.** rosbag2 reads `offered_qos_profiles` by the bag's metadata version
+//! (`rosbag2_storage/src/rosbag2_storage/qos.cpp`): up to version 8 the policies are integers
+//! (rmw's enums: history keep_last 1; reliability reliable 1; durability transient_local 1,
+//! volatile 2; liveliness automatic 1), from 9 names. An MCAP file's version is taken from its
+//! `rosbag2` metadata record; one without the key `serialized_metadata` is read as version 8
+//! (`MCAPStorage::read_metadata`). So the writer writes the integer form and a `rosbag2` metadata
+//! record without `serialized_metadata`: the form Humble reads, and the one later releases read
+//! for such a file. `/map` and `/tf_static` are offered transient_local (depth 1), so that a
+//! subscriber started after the one message (RViz, nav2's costmaps) still gets it; every topic is
+//! offered reliable (a reliable offer matches reliable and best-effort subscribers alike).
+//!
+//! # Topics of `--record FILE --ros2`
+//!
+//! ROS 2 topic names allow only letters, digits, `_` and `/` (a token not starting with a digit;
+//! rcl's topic name validation), so a robot id like `robot-a` becomes `robot_a` in topic names
+//! ([`topic_name`]); frame ids keep the id (tf2 accepts any frame id without a leading `/`).
+//!
+//! | topic | type | what |
+//! |---|---|---|
+//! | `/<robot>/scan` | `sensor_msgs/msg/LaserScan` | each robot's scans, frame `<robot>/laser`; invalid beams NaN |
+//! | `/virtual/scan` | `sensor_msgs/msg/LaserScan` | the virtual scan, frame `V`: 720 bins of 0.5° from −π, the nearest point per bin, empty bins NaN |
+//! | `/<robot>/odom` | `nav_msgs/msg/Odometry` | odometry, frame `<robot>/odom`, child `<robot>` |
+//! | `/amcl/V`, `/amcl/<robot>`, `/amcl/<robot>/own`, `/truth/...` | `geometry_msgs/msg/PoseWithCovarianceStamped` | as in the Foxglove recording, frame `map`; the covariance is zero (the estimates carry none) |
+//! | `/tf` | `tf2_msgs/msg/TFMessage` | map→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>` (and map→`truth/...`) |
+//! | `/tf_static` | `tf2_msgs/msg/TFMessage` | `<robot>`→`<robot>/laser`, once |
+//! | `/map` | `nav_msgs/msg/OccupancyGrid` | the map, once, frame `map` |
+//!
+//! The other channels of a Foxglove recording (`/amr/...` exact records, particles, commands,
+//! health, logs) have no ROS 2 type here and are not written: such a file is for `ros2 bag play`,
+//! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
+
+pub mod bag;
+pub mod cdr;
+pub mod msg;
+
+use std::collections::BTreeMap;
+
+use amr_core::map::OccupancyGrid as Grid;
+use amr_core::scan::Scan;
+use amr_core::se2::Se2;
+use amr_msgs::{EstimateSource, Uplink};
+
+use crate::encode::{Event, Out};
+use crate::foxglove::nanos;
+use msg::{
+    Header, LaserScan, OccupancyGrid, Odometry, Pose, PoseWithCovariance, PoseWithCovarianceStamped,
+    Ros2Message, TfMessage, TransformStamped, TwistWithCovariance,
+};
+
+/// A name usable as a ROS 2 topic: every character other than a letter, digit, `_` or `/`
+/// becomes `_`, and a token starting with a digit gets a leading `_`.
+#[must_use]
+pub fn topic_name(name: &str) -> String {
+    let mut out = String::with_capacity(name.len() + 2);
+    let mut token_start = true;
+    for c in name.chars() {
+        if c == '/' {
+            out.push('/');
+            token_start = true;
+            continue;
+        }
+        if token_start && c.is_ascii_digit() {
+            out.push('_');
+        }
+        token_start = false;
+        out.push(if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' });
+    }
+    out
+}
+
+/// Topics whose one message a late subscriber must still get (offered transient_local).
+#[must_use]
+pub fn is_latched(topic: &str) -> bool {
+    matches!(topic, "/map" | "/tf_static")
+}
+
+/// `offered_qos_profiles` of a topic we write, in the integer form of rosbag2's metadata version
+/// 8 (see the module docs): one profile, reliable; keep-last 1 and transient_local for latched
+/// topics, keep-last 100 (tf2's broadcaster depth) and volatile for the others. Durations `0 0`
+/// are rmw's "unspecified" (the middleware's default, infinite).
+#[must_use]
+pub fn qos_yaml(topic: &str) -> String {
+    let (depth, durability) = if is_latched(topic) { (1, 1) } else { (100, 2) };
+    format!(
+        "- history: 1\n  depth: {depth}\n  reliability: 1\n  durability: {durability}\n  \
+         deadline:\n    sec: 0\n    nsec: 0\n  lifespan:\n    sec: 0\n    nsec: 0\n  \
+         liveliness: 1\n  liveliness_lease_duration:\n    sec: 0\n    nsec: 0\n  \
+         avoid_ros_namespace_conventions: false\n"
+    )
+}
+
+/// Channel metadata of a topic (MCAP channel `metadata`).
+#[must_use]
+pub fn channel_metadata(topic: &str) -> BTreeMap<String, String> {
+    BTreeMap::from([("offered_qos_profiles".to_owned(), qos_yaml(topic))])
+}
+
+/// A `sensor_msgs/LaserScan` of a device scan: its own geometry, invalid beams NaN (REP 117's
+/// "erroneous or invalid"; the scan does not say which were no-returns).
+#[must_use]
+pub fn laser_scan(stamp_s: f64, frame: &str, scan: &Scan) -> LaserScan {
+    let n = scan.len();
+    LaserScan {
+        header: Header::new(stamp_s, frame),
+        angle_min: scan.angle_min_rad as f32,
+        angle_max: (scan.angle_min_rad + scan.angle_increment_rad * n.saturating_sub(1) as f64) as f32,
+        angle_increment: scan.angle_increment_rad as f32,
+        time_increment: 0.0,
+        scan_time: 0.0,
+        range_min: scan.range_min_m as f32,
+        range_max: scan.range_max_m as f32,
+        ranges: scan.ranges_m().iter().map(|r| *r as f32).collect(),
+        intensities: Vec::new(),
+    }
+}
+
+/// The virtual scan as a `sensor_msgs/LaserScan`: the Foxglove view's bins
+/// ([`crate::foxglove::virtual_bins`]), empty bins NaN, `range_max` the farthest bin.
+#[must_use]
+pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> LaserScan {
+    let (start, step, bins) = crate::foxglove::virtual_bins(points);
+    let n = bins.len();
+    let far = bins.iter().copied().fold(0.0f64, f64::max);
+    LaserScan {
+        header: Header::new(stamp_s, frame),
+        angle_min: start as f32,
+        angle_max: (start + step * n.saturating_sub(1) as f64) as f32,
+        angle_increment: step as f32,
+        time_increment: 0.0,
+        scan_time: 0.0,
+        range_min: 0.0,
+        range_max: far.max(1.0) as f32,
+        ranges: bins.iter().map(|r| if *r > 0.0 { *r as f32 } else { f32::NAN }).collect(),
+        intensities: Vec::new(),
+    }
+}
+
+fn pose_stamped(stamp_s: f64, frame: &str, p: &Se2) -> PoseWithCovarianceStamped {
+    PoseWithCovarianceStamped {
+        header: Header::new(stamp_s, frame),
+        pose: PoseWithCovariance { pose: Pose::planar(p.x, p.y, p.theta), covariance: [0.0; 36] },
+    }
+}
+
+fn tf(stamp_s: f64, parent: &str, child: &str, p: &Se2) -> TransformStamped {
+    TransformStamped::planar(stamp_s, parent, child, p.x, p.y, p.theta)
+}
+
+/// The map as a `nav_msgs/OccupancyGrid`: same cell order (row-major from the origin's row).
+#[must_use]
+pub fn occupancy_grid(stamp_s: f64, map: &Grid) -> OccupancyGrid {
+    OccupancyGrid {
+        header: Header::new(stamp_s, "map"),
+        map_load_time: msg::Time::from_secs(stamp_s),
+        resolution: map.resolution_m as f32,
+        width: u32::try_from(map.width).unwrap_or(u32::MAX),
+        height: u32::try_from(map.height).unwrap_or(u32::MAX),
+        origin: Pose::planar(map.origin.x, map.origin.y, map.origin.theta),
+        data: map.cells.clone(),
+    }
+}
+
+/// Turns events into ROS 2 messages (the table in the module docs).
+#[derive(Debug, Clone)]
+pub struct Ros2Encoder {
+    robots: Vec<String>,
+}
+
+impl Ros2Encoder {
+    /// `robots`: the formation's ids in order (names the estimates' robots).
+    #[must_use]
+    pub fn new(robots: Vec<String>) -> Self {
+        Ros2Encoder { robots }
+    }
+
+    fn robot_name(&self, i: usize) -> String {
+        self.robots.get(i).cloned().unwrap_or_else(|| format!("robot{i}"))
+    }
+
+    /// The messages for `event`, seen at `now_s` on the fleet clock.
+    #[must_use]
+    pub fn encode(&self, now_s: f64, event: &Event) -> Vec<Out> {
+        let mut b = Batch { log_time_ns: nanos(now_s), out: Vec::new() };
+        match event {
+            Event::Uplink(Uplink::Scan(s), _) | Event::Scan(s) => {
+                let frame = format!("{}/laser", s.robot);
+                b.emit(&format!("/{}/scan", s.robot), s.stamp_s, &laser_scan(s.stamp_s, &frame, &s.scan));
+            }
+            Event::Uplink(Uplink::Odom { robot, msg: o }, _) | Event::Odom(robot, o) => {
+                let frame = format!("{robot}/odom");
+                let odom = Odometry {
+                    header: Header::new(o.stamp_s, &frame),
+                    child_frame_id: robot.clone(),
+                    pose: PoseWithCovariance {
+                        pose: Pose::planar(o.pose.x, o.pose.y, o.pose.theta),
+                        covariance: [0.0; 36],
+                    },
+                    twist: TwistWithCovariance {
+                        linear: [o.twist.0, 0.0, 0.0],
+                        angular: [0.0, 0.0, o.twist.1],
+                        covariance: [0.0; 36],
+                    },
+                };
+                b.emit(&format!("/{robot}/odom"), o.stamp_s, &odom);
+                let transforms = vec![tf(o.stamp_s, &frame, robot, &o.pose)];
+                b.emit("/tf", o.stamp_s, &TfMessage { transforms });
+            }
+            Event::Fused(f) => {
+                if let Some(points) = &f.points {
+                    b.emit("/virtual/scan", f.stamp_s, &points_scan(f.stamp_s, "V", points));
+                }
+            }
+            Event::Estimate(e) => match e.source {
+                EstimateSource::Fused(_) => {
+                    let mut transforms = Vec::new();
+                    if let Some(vm) = &e.v {
+                        b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm));
+                        transforms.push(tf(e.stamp_s, "map", "V", vm));
+                    }
+                    for (i, a) in e.robots.iter().enumerate() {
+                        let Some(a) = a else { continue };
+                        let name = self.robot_name(i);
+                        b.emit(&format!("/amcl/{name}"), e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map));
+                        let map_odom = a.map * a.odom.inverse();
+                        transforms.push(tf(e.stamp_s, "map", &format!("{name}/odom"), &map_odom));
+                    }
+                    if !transforms.is_empty() {
+                        b.emit("/tf", e.stamp_s, &TfMessage { transforms });
+                    }
+                }
+                EstimateSource::Robot(i) => {
+                    if let Some(Some(a)) = e.robots.get(i) {
+                        let topic = format!("/amcl/{}/own", self.robot_name(i));
+                        b.emit(&topic, e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map));
+                    }
+                }
+            },
+            Event::Truth { stamp_s, v: vt, robots } => {
+                b.emit("/truth/V", *stamp_s, &pose_stamped(*stamp_s, "map", vt));
+                let mut transforms = vec![tf(*stamp_s, "map", "truth/V", vt)];
+                for (i, p) in robots.iter().enumerate() {
+                    let name = self.robot_name(i);
+                    b.emit(&format!("/truth/{name}"), *stamp_s, &pose_stamped(*stamp_s, "map", p));
+                    transforms.push(tf(*stamp_s, "map", &format!("truth/{name}"), p));
+                }
+                b.emit("/tf", *stamp_s, &TfMessage { transforms });
+            }
+            Event::Map(g) => b.emit("/map", now_s, &occupancy_grid(now_s, g)),
+            Event::Mounts(mounts) => {
+                let transforms = mounts.iter().map(|(r, p)| tf(now_s, r, &format!("{r}/laser"), p)).collect();
+                b.emit("/tf_static", now_s, &TfMessage { transforms });
+            }
+            // No ROS 2 type here: see the module docs.
+            Event::Uplink(..)
+            | Event::Status(_)
+            | Event::Particles(_)
+            | Event::Command(..)
+            | Event::Imu(..)
+            | Event::Wheels(..)
+            | Event::Health(..)
+            | Event::Safety(..)
+            | Event::Downlink(..)
+            | Event::Log(_)
+            | Event::EvalEstimate { .. }
+            | Event::EvalVirtualScan { .. } => {}
+        }
+        b.out
+    }
+}
+
+/// The messages of one event.
+struct Batch {
+    log_time_ns: u64,
+    out: Vec<Out>,
+}
+
+impl Batch {
+    fn emit<M: Ros2Message>(&mut self, topic: &str, stamp_s: f64, msg: &M) {
+        self.out.push(Out {
+            topic: topic_name(topic),
+            schema: M::TYPE,
+            log_time_ns: self.log_time_ns,
+            publish_time_ns: nanos(stamp_s),
+            data: msg.to_cdr(),
+        });
+    }
+}
+
+/// The `ros2msg` schema text of a type name we write.
+#[must_use]
+pub fn schema_text(type_name: &str) -> String {
+    msg::schema_text(type_name).unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+    use super::*;
+
+    #[test]
+    fn topic_names_are_valid_ros2_names() {
+        assert_eq!(topic_name("/robot-a/scan"), "/robot_a/scan");
+        assert_eq!(topic_name("/amcl/robot-b/own"), "/amcl/robot_b/own");
+        assert_eq!(topic_name("/2d/scan.x"), "/_2d/scan_x");
+        assert_eq!(topic_name("/virtual/scan"), "/virtual/scan");
+    }
+
+    #[test]
+    fn latched_topics_are_offered_transient_local() {
+        assert!(qos_yaml("/map").contains("durability: 1\n"));
+        assert!(qos_yaml("/tf_static").contains("durability: 1\n"));
+        assert!(qos_yaml("/robot_a/scan").contains("durability: 2\n"));
+        assert!(qos_yaml("/map").starts_with("- history: 1\n  depth: 1\n  reliability: 1\n"));
+    }
+
+    #[test]
+    fn a_scan_keeps_its_geometry_and_invalid_beams() {
+        let s = Scan::new(-1.0, 0.25, 0.05, 10.0, vec![1.0, f64::NAN, 20.0, 2.0]);
+        let m = LaserScan::from_cdr(&laser_scan(3.5, "a/laser", &s).to_cdr()).unwrap();
+        assert_eq!(m.angle_min, -1.0);
+        assert_eq!(m.angle_increment, 0.25);
+        assert_eq!(m.angle_max, -0.25);
+        assert_eq!(m.ranges[0], 1.0);
+        assert!(m.ranges[1].is_nan() && m.ranges[2].is_nan());
+        assert_eq!(m.header.frame_id, "a/laser");
+    }
+}
+
+#[cfg(test)]
+mod fuzz {
+    #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+    use super::msg::{LaserScan, OccupancyGrid, Odometry, PoseWithCovarianceStamped, Ros2Message, TfMessage};
+    use super::*;
+    use proptest::prelude::*;
+
+    fn all_decoders(bytes: &[u8]) {
+        let _ = LaserScan::from_cdr(bytes);
+        let _ = Odometry::from_cdr(bytes);
+        let _ = TfMessage::from_cdr(bytes);
+        let _ = OccupancyGrid::from_cdr(bytes);
+        let _ = PoseWithCovarianceStamped::from_cdr(bytes);
+        let messages: Vec<crate::read::Recorded> = [
+            ("/scan", LaserScan::TYPE),
+            ("/odom", Odometry::TYPE),
+            ("/tf", TfMessage::TYPE),
+            ("/tf_static", TfMessage::TYPE),
+        ]
+        .iter()
+        .map(|(topic, schema)| crate::read::Recorded {
+            topic: (*topic).into(),
+            schema: (*schema).into(),
+            encoding: "cdr".into(),
+            log_time_ns: 0,
+            publish_time_ns: 0,
+            data: bytes.to_vec(),
+        })
+        .collect();
+        let _ = bag::read(&messages, &bag::BagOptions::default());
+        let _ = bag::read(&messages, &bag::BagOptions { odom_from_tf: true, ..Default::default() });
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+
+        /// Any bytes: an error or a message, never a panic (nor a huge allocation).
+        #[test]
+        fn arbitrary_bytes_never_panic_a_decoder(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
+            all_decoders(&bytes);
+        }
+
+        /// Past the header too: a valid encapsulation (either byte order) before arbitrary bytes.
+        #[test]
+        fn arbitrary_payloads_never_panic_a_decoder(
+            big in any::<bool>(),
+            payload in proptest::collection::vec(any::<u8>(), 0..400),
+        ) {
+            let mut bytes = vec![0, u8::from(!big), 0, 0];
+            bytes.extend_from_slice(&payload);
+            all_decoders(&bytes);
+        }
+
+        /// A real message damaged at one place.
+        #[test]
+        fn damaged_messages_never_panic_a_decoder(at in 0usize..2000, value in any::<u8>(), cut in 0usize..2000) {
+            let s = Scan::new(-1.0, 0.1, 0.05, 10.0, (0..20).map(f64::from).collect());
+            let tf = TfMessage { transforms: vec![TransformStamped::planar(1.0, "odom", "base_link", 1.0, 2.0, 3.0)] };
+            for mut b in [laser_scan(1.0, "laser", &s).to_cdr(), tf.to_cdr()] {
+                let i = at % b.len();
+                b[i] = value;
+                b.truncate(cut.min(b.len()));
+                all_decoders(&b);
+            }
+        }
+    }
+}

@@ -1,0 +1,574 @@
+//! The ROS 2 messages this crate writes and reads, their CDR encoding ([`super::cdr`]) and their
+//! `ros2msg` schema text.
+//!
+//! Field lists as in the `.msg` files of ros2/common_interfaces (`std_msgs`, `sensor_msgs`,
+//! `geometry_msgs`, `nav_msgs`), ros2/geometry2 (`tf2_msgs/TFMessage`) and ros2/rcl_interfaces
+//! (`builtin_interfaces/Time`); fields are encoded in declaration order, nested messages inline.
+//! The schema text is rosbag2's: the message's own definition, then every type it uses once, each
+//! after a line of 80 `=` and a line `MSG: pkg/Type` (rosbag2_storage_mcap's
+//! message_definition_cache; the MCAP spec's "ros2msg" schema encoding,
+//! <https://mcap.dev/spec/registry#ros2msg>).
+
+use super::cdr::{CdrError, CdrReader, CdrWriter};
+
+/// `builtin_interfaces/Time`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Time {
+    pub sec: i32,
+    pub nanosec: u32,
+}
+
+impl Time {
+    /// Seconds to `sec` + `nanosec` (nanosec < 10⁹), clamped to what `sec` holds; NaN is 0.
+    #[must_use]
+    pub fn from_secs(t: f64) -> Self {
+        if t.is_nan() {
+            return Time::default();
+        }
+        let t = t.clamp(f64::from(i32::MIN), f64::from(i32::MAX));
+        let sec = t.floor();
+        let mut nanosec = ((t - sec) * 1e9).round();
+        let mut sec = sec as i64;
+        if nanosec >= 1e9 {
+            nanosec -= 1e9;
+            sec += 1;
+        }
+        Time { sec: i32::try_from(sec).unwrap_or(i32::MAX), nanosec: nanosec as u32 }
+    }
+
+    #[must_use]
+    pub fn secs(&self) -> f64 {
+        f64::from(self.sec) + f64::from(self.nanosec) * 1e-9
+    }
+
+    fn write(&self, w: &mut CdrWriter) {
+        w.i32(self.sec);
+        w.u32(self.nanosec);
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(Time { sec: r.i32()?, nanosec: r.u32()? })
+    }
+}
+
+/// `std_msgs/Header`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Header {
+    pub stamp: Time,
+    pub frame_id: String,
+}
+
+impl Header {
+    #[must_use]
+    pub fn new(stamp_s: f64, frame_id: &str) -> Self {
+        Header { stamp: Time::from_secs(stamp_s), frame_id: frame_id.to_owned() }
+    }
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.stamp.write(w);
+        w.string(&self.frame_id);
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(Header { stamp: Time::read(r)?, frame_id: r.string()? })
+    }
+}
+
+/// `geometry_msgs/Pose`: position (x, y, z), orientation quaternion (x, y, z, w).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose { position: [0.0; 3], orientation: [0.0, 0.0, 0.0, 1.0] }
+    }
+}
+
+impl Pose {
+    /// A planar pose: z = 0, rotation about z by θ (q = (0, 0, sin θ/2, cos θ/2)).
+    #[must_use]
+    pub fn planar(x: f64, y: f64, theta: f64) -> Self {
+        let (s, c) = (theta / 2.0).sin_cos();
+        Pose { position: [x, y, 0.0], orientation: [0.0, 0.0, s, c] }
+    }
+
+    /// x, y and the yaw of the orientation.
+    #[must_use]
+    pub fn planar_parts(&self) -> (f64, f64, f64) {
+        (self.position[0], self.position[1], yaw(self.orientation))
+    }
+
+    fn write(&self, w: &mut CdrWriter) {
+        for v in self.position.iter().chain(&self.orientation) {
+            w.f64(*v);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(Pose { position: r.f64_array()?, orientation: r.f64_array()? })
+    }
+}
+
+/// The yaw (rotation about z, ZYX convention) of a quaternion (x, y, z, w), normalised or not:
+/// atan2(2(wz + xy), 1 − 2(y² + z²)) on the unit quaternion.
+#[must_use]
+pub fn yaw(q: [f64; 4]) -> f64 {
+    let [x, y, z, w] = q;
+    let n = x * x + y * y + z * z + w * w;
+    (2.0 * (w * z + x * y)).atan2(n - 2.0 * (y * y + z * z))
+}
+
+/// `sensor_msgs/LaserScan`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct LaserScan {
+    pub header: Header,
+    pub angle_min: f32,
+    pub angle_max: f32,
+    pub angle_increment: f32,
+    pub time_increment: f32,
+    pub scan_time: f32,
+    pub range_min: f32,
+    pub range_max: f32,
+    pub ranges: Vec<f32>,
+    pub intensities: Vec<f32>,
+}
+
+/// `geometry_msgs/PoseWithCovariance` (row-major 6×6 covariance over x, y, z, roll, pitch, yaw).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseWithCovariance {
+    pub pose: Pose,
+    pub covariance: [f64; 36],
+}
+
+impl Default for PoseWithCovariance {
+    fn default() -> Self {
+        PoseWithCovariance { pose: Pose::default(), covariance: [0.0; 36] }
+    }
+}
+
+impl PoseWithCovariance {
+    fn write(&self, w: &mut CdrWriter) {
+        self.pose.write(w);
+        for v in &self.covariance {
+            w.f64(*v);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(PoseWithCovariance { pose: Pose::read(r)?, covariance: r.f64_array()? })
+    }
+}
+
+/// `geometry_msgs/PoseWithCovarianceStamped`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PoseWithCovarianceStamped {
+    pub header: Header,
+    pub pose: PoseWithCovariance,
+}
+
+/// `geometry_msgs/TwistWithCovariance`: linear, angular (each x, y, z), covariance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TwistWithCovariance {
+    pub linear: [f64; 3],
+    pub angular: [f64; 3],
+    pub covariance: [f64; 36],
+}
+
+impl Default for TwistWithCovariance {
+    fn default() -> Self {
+        TwistWithCovariance { linear: [0.0; 3], angular: [0.0; 3], covariance: [0.0; 36] }
+    }
+}
+
+/// `nav_msgs/Odometry`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Odometry {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub pose: PoseWithCovariance,
+    pub twist: TwistWithCovariance,
+}
+
+/// `geometry_msgs/TransformStamped`: `child_frame_id` in `header.frame_id`; translation (x, y, z)
+/// and rotation (x, y, z, w) of `geometry_msgs/Transform`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TransformStamped {
+    pub header: Header,
+    pub child_frame_id: String,
+    pub translation: [f64; 3],
+    pub rotation: [f64; 4],
+}
+
+impl TransformStamped {
+    /// A planar transform from `parent` to `child`.
+    #[must_use]
+    pub fn planar(stamp_s: f64, parent: &str, child: &str, x: f64, y: f64, theta: f64) -> Self {
+        let p = Pose::planar(x, y, theta);
+        TransformStamped {
+            header: Header::new(stamp_s, parent),
+            child_frame_id: child.to_owned(),
+            translation: p.position,
+            rotation: p.orientation,
+        }
+    }
+}
+
+/// `tf2_msgs/TFMessage`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TfMessage {
+    pub transforms: Vec<TransformStamped>,
+}
+
+/// `nav_msgs/OccupancyGrid` with its `nav_msgs/MapMetaData` inline; `data` row-major from
+/// the origin's row, −1 unknown, 0–100 occupancy.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct OccupancyGrid {
+    pub header: Header,
+    pub map_load_time: Time,
+    pub resolution: f32,
+    pub width: u32,
+    pub height: u32,
+    pub origin: Pose,
+    pub data: Vec<i8>,
+}
+
+/// A ROS 2 message type: its name, schema and CDR body.
+pub trait Ros2Message: Sized {
+    /// The full type name, `pkg/msg/Type` (the MCAP schema name rosbag2 writes).
+    const TYPE: &'static str;
+    fn write(&self, w: &mut CdrWriter);
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError>;
+
+    /// The CDR message, little endian, with its encapsulation header.
+    fn to_cdr(&self) -> Vec<u8> {
+        let mut w = CdrWriter::new();
+        self.write(&mut w);
+        w.finish()
+    }
+
+    /// Decode a CDR message (either byte order). Never panics.
+    fn from_cdr(bytes: &[u8]) -> Result<Self, CdrError> {
+        Self::read(&mut CdrReader::new(bytes)?)
+    }
+}
+
+impl Ros2Message for LaserScan {
+    const TYPE: &'static str = "sensor_msgs/msg/LaserScan";
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        for v in [
+            self.angle_min,
+            self.angle_max,
+            self.angle_increment,
+            self.time_increment,
+            self.scan_time,
+            self.range_min,
+            self.range_max,
+        ] {
+            w.f32(v);
+        }
+        w.f32s(&self.ranges);
+        w.f32s(&self.intensities);
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(LaserScan {
+            header: Header::read(r)?,
+            angle_min: r.f32()?,
+            angle_max: r.f32()?,
+            angle_increment: r.f32()?,
+            time_increment: r.f32()?,
+            scan_time: r.f32()?,
+            range_min: r.f32()?,
+            range_max: r.f32()?,
+            ranges: r.f32s()?,
+            intensities: r.f32s()?,
+        })
+    }
+}
+
+impl Ros2Message for PoseWithCovarianceStamped {
+    const TYPE: &'static str = "geometry_msgs/msg/PoseWithCovarianceStamped";
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        self.pose.write(w);
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(PoseWithCovarianceStamped { header: Header::read(r)?, pose: PoseWithCovariance::read(r)? })
+    }
+}
+
+impl Ros2Message for Odometry {
+    const TYPE: &'static str = "nav_msgs/msg/Odometry";
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        w.string(&self.child_frame_id);
+        self.pose.write(w);
+        for v in self.twist.linear.iter().chain(&self.twist.angular).chain(&self.twist.covariance) {
+            w.f64(*v);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(Odometry {
+            header: Header::read(r)?,
+            child_frame_id: r.string()?,
+            pose: PoseWithCovariance::read(r)?,
+            twist: TwistWithCovariance {
+                linear: r.f64_array()?,
+                angular: r.f64_array()?,
+                covariance: r.f64_array()?,
+            },
+        })
+    }
+}
+
+impl TransformStamped {
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        w.string(&self.child_frame_id);
+        for v in self.translation.iter().chain(&self.rotation) {
+            w.f64(*v);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(TransformStamped {
+            header: Header::read(r)?,
+            child_frame_id: r.string()?,
+            translation: r.f64_array()?,
+            rotation: r.f64_array()?,
+        })
+    }
+}
+
+/// Smallest CDR size of a `TransformStamped` (header with empty frame, empty child, 7 doubles).
+const MIN_TRANSFORM_BYTES: usize = 8 + 5 + 5 + 7 * 8;
+
+impl Ros2Message for TfMessage {
+    const TYPE: &'static str = "tf2_msgs/msg/TFMessage";
+
+    fn write(&self, w: &mut CdrWriter) {
+        w.len(self.transforms.len());
+        for t in &self.transforms {
+            t.write(w);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        let n = r.len(MIN_TRANSFORM_BYTES)?;
+        let transforms = (0..n).map(|_| TransformStamped::read(r)).collect::<Result<_, _>>()?;
+        Ok(TfMessage { transforms })
+    }
+}
+
+impl Ros2Message for OccupancyGrid {
+    const TYPE: &'static str = "nav_msgs/msg/OccupancyGrid";
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        self.map_load_time.write(w);
+        w.f32(self.resolution);
+        w.u32(self.width);
+        w.u32(self.height);
+        self.origin.write(w);
+        w.i8s(&self.data);
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(OccupancyGrid {
+            header: Header::read(r)?,
+            map_load_time: Time::read(r)?,
+            resolution: r.f32()?,
+            width: r.u32()?,
+            height: r.u32()?,
+            origin: Pose::read(r)?,
+            data: r.i8s()?,
+        })
+    }
+}
+
+/// Each type's own definition (fields only) and the types it uses, `pkg/Type` as `.msg` files
+/// name them.
+fn definition(name: &str) -> Option<(&'static str, &'static [&'static str])> {
+    Some(match name {
+        "builtin_interfaces/Time" => ("int32 sec\nuint32 nanosec\n", &[]),
+        "std_msgs/Header" => {
+            ("builtin_interfaces/Time stamp\nstring frame_id\n", &["builtin_interfaces/Time"])
+        }
+        "geometry_msgs/Point" | "geometry_msgs/Vector3" => ("float64 x\nfloat64 y\nfloat64 z\n", &[]),
+        "geometry_msgs/Quaternion" => ("float64 x\nfloat64 y\nfloat64 z\nfloat64 w\n", &[]),
+        "geometry_msgs/Pose" => (
+            "geometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+            &["geometry_msgs/Point", "geometry_msgs/Quaternion"],
+        ),
+        "geometry_msgs/PoseWithCovariance" => {
+            ("geometry_msgs/Pose pose\nfloat64[36] covariance\n", &["geometry_msgs/Pose"])
+        }
+        "geometry_msgs/PoseWithCovarianceStamped" => (
+            "std_msgs/Header header\ngeometry_msgs/PoseWithCovariance pose\n",
+            &["std_msgs/Header", "geometry_msgs/PoseWithCovariance"],
+        ),
+        "geometry_msgs/Twist" => {
+            ("geometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n", &["geometry_msgs/Vector3"])
+        }
+        "geometry_msgs/TwistWithCovariance" => {
+            ("geometry_msgs/Twist twist\nfloat64[36] covariance\n", &["geometry_msgs/Twist"])
+        }
+        "geometry_msgs/Transform" => (
+            "geometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation\n",
+            &["geometry_msgs/Vector3", "geometry_msgs/Quaternion"],
+        ),
+        "geometry_msgs/TransformStamped" => (
+            "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Transform transform\n",
+            &["std_msgs/Header", "geometry_msgs/Transform"],
+        ),
+        "tf2_msgs/TFMessage" => {
+            ("geometry_msgs/TransformStamped[] transforms\n", &["geometry_msgs/TransformStamped"])
+        }
+        "sensor_msgs/LaserScan" => (
+            "std_msgs/Header header\nfloat32 angle_min\nfloat32 angle_max\nfloat32 angle_increment\n\
+             float32 time_increment\nfloat32 scan_time\nfloat32 range_min\nfloat32 range_max\n\
+             float32[] ranges\nfloat32[] intensities\n",
+            &["std_msgs/Header"],
+        ),
+        "nav_msgs/Odometry" => (
+            "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\n\
+             geometry_msgs/TwistWithCovariance twist\n",
+            &["std_msgs/Header", "geometry_msgs/PoseWithCovariance", "geometry_msgs/TwistWithCovariance"],
+        ),
+        "nav_msgs/MapMetaData" => (
+            "builtin_interfaces/Time map_load_time\nfloat32 resolution\nuint32 width\nuint32 height\n\
+             geometry_msgs/Pose origin\n",
+            &["builtin_interfaces/Time", "geometry_msgs/Pose"],
+        ),
+        "nav_msgs/OccupancyGrid" => (
+            "std_msgs/Header header\nnav_msgs/MapMetaData info\nint8[] data\n",
+            &["std_msgs/Header", "nav_msgs/MapMetaData"],
+        ),
+        _ => return None,
+    })
+}
+
+/// The `ros2msg` schema text of a type (`pkg/msg/Type` or `pkg/Type`) we know, else `None`.
+#[must_use]
+pub fn schema_text(type_name: &str) -> Option<String> {
+    let short = type_name.replacen("/msg/", "/", 1);
+    let (own, deps) = definition(&short)?;
+    let mut text = own.to_owned();
+    // Every type used, directly or not, once, in the order first met (depth first).
+    let mut seen: Vec<&str> = Vec::new();
+    let mut stack: Vec<&str> = deps.iter().rev().copied().collect();
+    while let Some(d) = stack.pop() {
+        if seen.contains(&d) {
+            continue;
+        }
+        seen.push(d);
+        let (body, sub) = definition(d)?;
+        text.push_str(&"=".repeat(80));
+        text.push_str("\nMSG: ");
+        text.push_str(d);
+        text.push('\n');
+        text.push_str(body);
+        stack.extend(sub.iter().rev());
+    }
+    Some(text)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
+    use super::*;
+
+    #[test]
+    fn messages_round_trip() {
+        let scan = LaserScan {
+            header: Header::new(12.25, "robot-a/laser"),
+            angle_min: -2.0,
+            angle_max: 2.0,
+            angle_increment: 0.5,
+            range_max: 10.0,
+            ranges: vec![1.0, f32::INFINITY, 2.5, f32::NAN, 3.0, 0.0, 4.0, 5.0, 6.0],
+            ..Default::default()
+        };
+        let back = LaserScan::from_cdr(&scan.to_cdr()).unwrap();
+        assert_eq!(back.header, scan.header);
+        assert_eq!(back.header.stamp, Time { sec: 12, nanosec: 250_000_000 });
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&back.ranges), bits(&scan.ranges));
+        let odom = Odometry {
+            header: Header::new(1.0, "odom"),
+            child_frame_id: "base_link".into(),
+            pose: PoseWithCovariance { pose: Pose::planar(1.0, -2.0, 0.5), covariance: [0.25; 36] },
+            twist: TwistWithCovariance { linear: [0.2, 0.0, 0.0], ..Default::default() },
+        };
+        assert_eq!(Odometry::from_cdr(&odom.to_cdr()).unwrap(), odom);
+        let tf = TfMessage {
+            transforms: vec![
+                TransformStamped::planar(3.0, "map", "V", 1.0, 2.0, 3.0),
+                TransformStamped::planar(3.5, "odom", "base_link", -1.0, 0.0, -0.1),
+            ],
+        };
+        assert_eq!(TfMessage::from_cdr(&tf.to_cdr()).unwrap(), tf);
+        let grid = OccupancyGrid {
+            header: Header::new(0.0, "map"),
+            resolution: 0.05,
+            width: 3,
+            height: 2,
+            origin: Pose::planar(-1.0, -2.0, 0.0),
+            data: vec![-1, 0, 100, 50, 0, 0],
+            ..Default::default()
+        };
+        assert_eq!(OccupancyGrid::from_cdr(&grid.to_cdr()).unwrap(), grid);
+        let p = PoseWithCovarianceStamped {
+            header: Header::new(2.0, "map"),
+            pose: PoseWithCovariance { pose: Pose::planar(4.0, 5.0, -3.0), covariance: [1.0; 36] },
+        };
+        assert_eq!(PoseWithCovarianceStamped::from_cdr(&p.to_cdr()).unwrap(), p);
+    }
+
+    #[test]
+    fn times_and_yaw() {
+        assert_eq!(Time::from_secs(1.999_999_999_9), Time { sec: 2, nanosec: 0 });
+        assert_eq!(Time::from_secs(-0.5), Time { sec: -1, nanosec: 500_000_000 });
+        assert_eq!(Time::from_secs(f64::NAN), Time::default());
+        assert_eq!(Time::from_secs(1e12).sec, i32::MAX);
+        for t in [-3.0, -1.0, 0.0, 0.7, 3.1] {
+            let (_, _, y) = Pose::planar(0.0, 0.0, t).planar_parts();
+            assert!((y - t).abs() < 1e-12, "{t} → {y}");
+        }
+        // Not normalised: the same yaw.
+        let q = Pose::planar(0.0, 0.0, 1.0).orientation.map(|v| v * 3.0);
+        assert!((yaw(q) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn schema_text_lists_each_dependency_once_after_its_separator() {
+        let s = schema_text("nav_msgs/msg/Odometry").unwrap();
+        assert!(s.starts_with("std_msgs/Header header\nstring child_frame_id\n"));
+        let sep = format!("{}\nMSG: ", "=".repeat(80));
+        let deps: Vec<&str> = s.split(&sep).skip(1).map(|b| b.lines().next().unwrap()).collect();
+        assert_eq!(
+            deps,
+            [
+                "std_msgs/Header",
+                "builtin_interfaces/Time",
+                "geometry_msgs/PoseWithCovariance",
+                "geometry_msgs/Pose",
+                "geometry_msgs/Point",
+                "geometry_msgs/Quaternion",
+                "geometry_msgs/TwistWithCovariance",
+                "geometry_msgs/Twist",
+                "geometry_msgs/Vector3"
+            ]
+        );
+        assert!(schema_text("sensor_msgs/msg/Imu").is_none());
+    }
+}
