@@ -1,7 +1,7 @@
-//! `amr localize`: AMCL over a CARMEN log on a ROS map, one pose per scan as CSV.
+//! `amr localize`: AMCL over a CARMEN log or a ROS 2 bag on a ROS map, one pose per scan as CSV.
 
 use amr_core::amcl::log::{Fed, LogLocalizer, Start};
-use amr_core::carmen::parse_line;
+use amr_core::carmen::{Record, parse_line};
 use amr_core::config::{AmclParams, parse_file};
 use amr_core::map::{MapYaml, OccupancyGrid, load_map};
 use amr_core::se2::Se2;
@@ -10,11 +10,55 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
+/// What to localise.
+#[derive(Debug)]
+pub(crate) enum Input {
+    /// A CARMEN log (.log, .clf).
+    Carmen(PathBuf),
+    /// A ROS 2 bag: an MCAP file, or a bag directory (its .mcap files in order).
+    Bag(PathBuf, amr_record::ros2::bag::BagOptions),
+}
+
+/// `amr localize --bag`'s topics and frames.
+#[derive(Debug, Clone, clap::Args)]
+pub(crate) struct BagArgs {
+    /// With --bag: the scan topic (sensor_msgs/msg/LaserScan).
+    #[arg(long, default_value = "/scan", value_name = "TOPIC")]
+    pub scan_topic: String,
+    /// With --bag: the odometry topic (nav_msgs/msg/Odometry); if the bag has no such topic, the
+    /// odometry is the transform --odom-frame → --base-frame on /tf.
+    #[arg(long, default_value = "/odom", value_name = "TOPIC")]
+    pub odom_topic: String,
+    /// With --bag: take the odometry from /tf even if the odometry topic is there.
+    #[arg(long)]
+    pub odom_from_tf: bool,
+    /// With --bag: the odometry frame of /tf.
+    #[arg(long, default_value = "odom", value_name = "FRAME")]
+    pub odom_frame: String,
+    /// With --bag: the robot's base frame (/tf's odometry child; the laser's mounting is
+    /// base → the scan's frame on /tf_static, else the scan's frame is taken as the base).
+    #[arg(long, default_value = "base_link", value_name = "FRAME")]
+    pub base_frame: String,
+}
+
+impl BagArgs {
+    pub(crate) fn options(self) -> amr_record::ros2::bag::BagOptions {
+        amr_record::ros2::bag::BagOptions {
+            scan_topic: self.scan_topic,
+            odom_topic: self.odom_topic,
+            odom_from_tf: self.odom_from_tf,
+            odom_frame: self.odom_frame,
+            base_frame: self.base_frame,
+            ..Default::default()
+        }
+    }
+}
+
 /// Options of one run.
 #[derive(Debug)]
 pub(crate) struct Options {
     pub map: PathBuf,
-    pub log: PathBuf,
+    pub input: Input,
     pub initial: Option<Se2>,
     pub params: AmclParams,
     pub out: Option<PathBuf>,
@@ -61,30 +105,87 @@ const HEADER: &str = "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy
 pub(crate) struct Summary {
     pub scans: usize,
     pub poses: usize,
-    pub bad_lines: usize,
+    /// Lines (CARMEN) or messages (bag) that could not be read, skipped.
+    pub skipped: usize,
     pub scans_without_odometry: usize,
+}
+
+/// The .mcap files of a bag: the file itself, or a bag directory's files in name order (rosbag2
+/// splits as `<name>_0.mcap`, `<name>_1.mcap`, …: shorter names first, so `_10` after `_9`).
+fn bag_files(path: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    if !path.is_dir() {
+        return Ok(vec![path.to_owned()]);
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+        .with_context(|| format!("cannot read the bag directory {}", path.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    files.sort_by_key(|p| (p.as_os_str().len(), p.clone()));
+    anyhow::ensure!(!files.is_empty(), "no .mcap file in the bag directory {}", path.display());
+    Ok(files)
+}
+
+/// A bag's scans as records, skipped messages logged and counted.
+fn bag_records(
+    path: &Path,
+    opts: &amr_record::ros2::bag::BagOptions,
+    summary: &mut Summary,
+) -> anyhow::Result<Vec<Record>> {
+    let mut messages = Vec::new();
+    for file in bag_files(path)? {
+        let rec =
+            amr_record::read::read_file(&file).with_context(|| format!("cannot read {}", file.display()))?;
+        if let Some(why) = &rec.stopped {
+            tracing::warn!(file = %file.display(), reason = %why, "the bag is not whole; reading what is there");
+        }
+        messages.extend(rec.messages);
+    }
+    let log = amr_record::ros2::bag::read(&messages, opts).with_context(|| path.display().to_string())?;
+    for s in &log.skipped {
+        tracing::warn!(topic = %s.topic, log_time_ns = s.log_time_ns, error = %s.reason, "skipping a message the bag reader cannot use");
+    }
+    summary.skipped = log.skipped.len();
+    for (frame, (mount, from_tf)) in &log.mounts {
+        if *from_tf {
+            tracing::info!(frame = %frame, x = mount.x, y = mount.y, theta = mount.theta, "laser mounting from /tf_static");
+        } else {
+            tracing::warn!(frame = %frame, base = %opts.base_frame, "no transform from the base to the scan's frame on /tf_static: the scan's frame is taken as the base");
+        }
+    }
+    tracing::info!(odometry = %log.odometry, samples = log.odometry_samples, scans = log.records.len(), "read the bag");
+    Ok(log.records)
 }
 
 pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
     let grid = read_map(&opts.map)?;
-    let log =
-        std::fs::read_to_string(&opts.log).with_context(|| format!("cannot read {}", opts.log.display()))?;
+    let mut summary = Summary::default();
+    let records = match &opts.input {
+        Input::Carmen(path) => {
+            let log =
+                std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let mut records = Vec::new();
+            for (n, line) in log.lines().enumerate() {
+                match parse_line(line) {
+                    Ok(Some(r)) => records.push(r),
+                    Ok(None) => {}
+                    Err(e) => {
+                        summary.skipped += 1;
+                        tracing::warn!(line = n + 1, error = %e, "skipping a line the log reader cannot use");
+                    }
+                }
+            }
+            records
+        }
+        Input::Bag(path, bag) => bag_records(path, bag, &mut summary)?,
+    };
     let mut out = String::from(HEADER);
     out.push('\n');
-    let mut summary = Summary::default();
     let start = Start::resolve(opts.initial, &opts.params);
     let mut localizer = LogLocalizer::new(&grid, opts.params.clone(), start, opts.seed);
-    for (n, line) in log.lines().enumerate() {
-        let record = match parse_line(line) {
-            Ok(Some(r)) => r,
-            Ok(None) => continue,
-            Err(e) => {
-                summary.bad_lines += 1;
-                tracing::warn!(line = n + 1, error = %e, "skipping a line the log reader cannot use");
-                continue;
-            }
-        };
-        if let Some(Fed { pose: Some(p), .. }) = localizer.feed(&record) {
+    for record in &records {
+        if let Some(Fed { pose: Some(p), .. }) = localizer.feed(record) {
             let _ = write!(out, "{:.6},{:.6},{:.6},{:.6}", p.timestamp_s, p.pose.x, p.pose.y, p.pose.theta);
             for row in p.covariance {
                 for v in row {

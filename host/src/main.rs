@@ -44,19 +44,30 @@ enum Command {
     /// Inspect the configuration (robots, devices, server, algorithm parameters).
     #[command(subcommand)]
     Config(ConfigCommand),
-    /// Localise a recorded 2D LiDAR log (CARMEN .log/.clf) with AMCL on a ROS map and write one pose
-    /// per scan as CSV (timestamp, x, y, theta, then the 3×3 covariance row by row).
+    /// Localise a recorded 2D LiDAR log (CARMEN .log/.clf, or a ROS 2 bag) with AMCL on a ROS map
+    /// and write one pose per scan as CSV (timestamp, x, y, theta, then the 3×3 covariance row by
+    /// row).
     ///
-    /// Lines are processed in file order with the log's own timestamps; each scan uses the odometry
-    /// of its own line (FLASER, ROBOTLASER1) or else the latest ODOM line. Lines that cannot be read
-    /// are skipped with a warning naming the line.
+    /// CARMEN: lines are processed in file order with the log's own timestamps; each scan uses the
+    /// odometry of its own line (FLASER, ROBOTLASER1) or else the latest ODOM line. Lines that
+    /// cannot be read are skipped with a warning naming the line.
+    ///
+    /// ROS 2 bag (rosbag2 MCAP, CDR): scans (sensor_msgs/msg/LaserScan) in stamp order, each with
+    /// the odometry interpolated at its stamp, from nav_msgs/msg/Odometry or else /tf's odometry
+    /// frame → base frame; the laser's mounting from /tf_static. Messages that cannot be decoded
+    /// are skipped with a warning.
     Localize {
         /// The map's YAML (ROS map_server format); its image path is relative to it.
         #[arg(long)]
         map: PathBuf,
         /// The CARMEN log.
-        #[arg(long)]
-        log: PathBuf,
+        #[arg(long, required_unless_present = "bag", conflicts_with = "bag")]
+        log: Option<PathBuf>,
+        /// A ROS 2 bag: a rosbag2 MCAP file, or its directory.
+        #[arg(long, value_name = "FILE.mcap")]
+        bag: Option<PathBuf>,
+        #[command(flatten)]
+        ros2: localize::BagArgs,
         /// Initial pose `x,y,theta` (m, m, rad), spread as amcl.toml's initial_pose says, else as
         /// RViz's "2D Pose Estimate" (0.5 m, 15°); without it: amcl.toml's initial_pose, else global
         /// localisation.
@@ -549,13 +560,18 @@ fn main() -> ExitCode {
             Ok(())
         })(
         ),
-        Command::Localize { map, log, initial, params, out, seed } => (|| {
+        Command::Localize { map, log, bag, ros2, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
-            let s = localize::run(&localize::Options { map, log, initial, params, out, seed })?;
+            let input = match (log, bag) {
+                (_, Some(bag)) => localize::Input::Bag(bag, ros2.options()),
+                (Some(log), None) => localize::Input::Carmen(log),
+                (None, None) => anyhow::bail!("give --log or --bag"),
+            };
+            let s = localize::run(&localize::Options { map, input, initial, params, out, seed })?;
             tracing::info!(
                 scans = s.scans,
                 poses = s.poses,
-                bad_lines = s.bad_lines,
+                skipped = s.skipped,
                 without_odometry = s.scans_without_odometry,
                 "localised the log"
             );

@@ -270,3 +270,91 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
     assert!((bins[0] - 3.0).abs() < 1e-6, "bearing 180° is bin 0");
     assert_eq!(bins.iter().filter(|b| !b.is_nan()).count(), 3);
 }
+
+/// A small bag from `rosbags`' own writer and serializer: two scans (one big endian), odometry at
+/// 10 Hz, the mounting on /tf_static.
+const BAG_WRITER: &str = r#"
+import math, sys
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+ts = get_typestore(Stores.ROS2_HUMBLE)
+T = ts.types
+Time, Header = T['builtin_interfaces/msg/Time'], T['std_msgs/msg/Header']
+V3, Q = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']
+def quat(th):
+    return Q(x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2))
+w = Writer(sys.argv[1], version=9, storage_plugin=StoragePlugin.MCAP)
+w.open()
+TF, LS, OD = 'tf2_msgs/msg/TFMessage', 'sensor_msgs/msg/LaserScan', 'nav_msgs/msg/Odometry'
+c_static = w.add_connection('/tf_static', TF, typestore=ts)
+c_scan = w.add_connection('/scan', LS, typestore=ts)
+c_odom = w.add_connection('/odom', OD, typestore=ts)
+mount = T['geometry_msgs/msg/TransformStamped'](
+    header=Header(stamp=Time(sec=0, nanosec=0), frame_id='base_link'), child_frame_id='laser',
+    transform=T['geometry_msgs/msg/Transform'](translation=V3(x=0.25, y=-0.125, z=0.3), rotation=quat(0.5)))
+w.write(c_static, 0, ts.serialize_cdr(T[TF](transforms=[mount]), TF))
+for k in range(3):
+    t = 1.0 + 0.1 * k
+    pose = T['geometry_msgs/msg/Pose'](position=T['geometry_msgs/msg/Point'](x=2.0 + k, y=-1.0 * k, z=0.0), orientation=quat(0.25 * k))
+    msg = T[OD](header=Header(stamp=Time(sec=1, nanosec=100000000 * k), frame_id='odom'), child_frame_id='base_link',
+        pose=T['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=np.zeros(36)),
+        twist=T['geometry_msgs/msg/TwistWithCovariance'](twist=T['geometry_msgs/msg/Twist'](linear=V3(x=0.0, y=0.0, z=0.0), angular=V3(x=0.0, y=0.0, z=0.0)), covariance=np.zeros(36)))
+    w.write(c_odom, int(t * 1e9), ts.serialize_cdr(msg, OD))
+ranges = np.array([0.5 + 0.01 * i for i in range(201)], dtype=np.float32)
+ranges[3], ranges[4], ranges[5], ranges[6] = np.inf, np.nan, 0.05, 25.0
+for k, big in enumerate([False, True]):
+    msg = T[LS](header=Header(stamp=Time(sec=1, nanosec=50000000 + 100000000 * k), frame_id='laser'),
+        angle_min=-1.0, angle_max=1.0, angle_increment=0.01, time_increment=0.0, scan_time=0.1,
+        range_min=0.1, range_max=20.0, ranges=ranges, intensities=np.array([], dtype=np.float32))
+    w.write(c_scan, int((1.06 + 0.1 * k) * 1e9), ts.serialize_cdr(msg, LS, little_endian=not big))
+w.close()
+"#;
+
+#[test]
+fn a_bag_written_by_rosbags_reads_back_exactly() {
+    use amr_core::carmen::Record;
+    use amr_record::ros2::bag::{BagOptions, OdomSource, read};
+
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("bag");
+    let out = std::process::Command::new("python3").args(["-c", BAG_WRITER]).arg(&bag).output().unwrap();
+    assert!(
+        out.status.success(),
+        "rosbags writer (pip install rosbags): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let file = std::fs::read_dir(&bag)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .unwrap();
+    let rec = amr_record::read::read_file(&file).unwrap();
+    assert!(rec.stopped.is_none(), "{:?}", rec.stopped);
+    let log = read(&rec.messages, &BagOptions::default()).unwrap();
+    assert_eq!(log.odometry, OdomSource::Topic("/odom".into()));
+    assert_eq!(log.odometry_samples, 3);
+    assert!(log.skipped.is_empty(), "{:?}", log.skipped);
+    assert_eq!(log.records.len(), 2);
+    for (k, r) in log.records.iter().enumerate() {
+        let Record::Laser(l) = r else { panic!("a laser record") };
+        // Stamps, beam geometry and ranges exactly as written (f32 widened), either byte order.
+        assert!((l.timestamp_s - (1.05 + 0.1 * k as f64)).abs() < 1e-9, "{}", l.timestamp_s);
+        assert_eq!(l.scan.angle_min_rad, -1.0);
+        assert_eq!(l.scan.angle_increment_rad, f64::from(0.01f32));
+        assert_eq!((l.scan.range_min_m, l.scan.range_max_m), (f64::from(0.1f32), 20.0));
+        let r = l.scan.ranges_m();
+        assert_eq!(r.len(), 201);
+        assert!(r[3..7].iter().all(|x| x.is_nan()), "inf, NaN, below and above the limits: invalid");
+        for i in (0..201).filter(|i| !(3..7).contains(i)) {
+            assert_eq!(r[i], f64::from((0.5 + 0.01 * i as f64) as f32), "beam {i}");
+        }
+        // The odometry halfway between two samples.
+        let o = l.odometry.unwrap();
+        let expected = Se2::new(2.5 + k as f64, -0.5 - k as f64, 0.125 + 0.25 * k as f64);
+        assert!(close(o, expected), "scan {k}: {o:?} vs {expected:?}");
+        // The mounting, on the plane.
+        assert!(close(l.laser_in_robot, Se2::new(0.25, -0.125, 0.5)), "{:?}", l.laser_in_robot);
+    }
+}
