@@ -134,13 +134,18 @@ fn bag_records(
     summary: &mut Summary,
 ) -> anyhow::Result<Vec<Record>> {
     let mut messages = Vec::new();
+    let mut stopped = None;
     for file in bag_files(path)? {
         let rec =
             amr_record::read::read_file(&file).with_context(|| format!("cannot read {}", file.display()))?;
         if let Some(why) = &rec.stopped {
             tracing::warn!(file = %file.display(), reason = %why, "the bag is not whole; reading what is there");
+            stopped.get_or_insert_with(|| format!("{}: {why}", file.display()));
         }
         messages.extend(rec.messages);
+    }
+    if let (true, Some(why)) = (messages.is_empty(), stopped) {
+        anyhow::bail!("no message of the bag could be read: {why}");
     }
     let log = amr_record::ros2::bag::read(&messages, opts).with_context(|| path.display().to_string())?;
     for s in &log.skipped {

@@ -97,6 +97,12 @@ fn chunk_ok(body: &[u8]) -> bool {
     check().unwrap_or(false)
 }
 
+/// A chunk's compression name (after start, end, uncompressed size and crc), if readable.
+fn chunk_compression(body: &[u8]) -> Option<&[u8]> {
+    let len = usize::try_from(u32_at(body, 28)?).ok()?;
+    body.get(32..32usize.checked_add(len)?)
+}
+
 /// The longest prefix of `bytes` made of the magic and whole top-level records, every chunk's
 /// records whole too. mcap 0.26's reader overflows (a panic in a debug build) on a record length
 /// near `u64::MAX`, at the top level and inside a chunk: cut before it sees one.
@@ -152,6 +158,16 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
     }
     if whole.len() + MAGIC.len() < bytes.len() && out.stopped.is_none() {
         out.stopped = Some(format!("damaged record at byte {}", whole.len()));
+    }
+    // Not damaged but not readable here: say so (rosbag2's `zstd_*` presets write such chunks).
+    let zstd = bytes.get(whole.len()) == Some(&0x06)
+        && bytes.get(whole.len() + 9..).is_some_and(|chunk| chunk_compression(chunk) == Some(b"zstd"));
+    if zstd {
+        out.stopped = Some(format!(
+            "a zstd-compressed chunk at byte {}: this build reads uncompressed and LZ4 chunks only \
+             (decompress the file first, e.g. with the mcap command-line tool)",
+            whole.len()
+        ));
     }
     Ok(out)
 }

@@ -276,7 +276,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
 const BAG_WRITER: &str = r#"
 import math, sys
 import numpy as np
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 ts = get_typestore(Stores.ROS2_HUMBLE)
@@ -286,6 +286,8 @@ V3, Q = T['geometry_msgs/msg/Vector3'], T['geometry_msgs/msg/Quaternion']
 def quat(th):
     return Q(x=0.0, y=0.0, z=math.sin(th / 2), w=math.cos(th / 2))
 w = Writer(sys.argv[1], version=9, storage_plugin=StoragePlugin.MCAP)
+if len(sys.argv) > 2:
+    w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
 w.open()
 TF, LS, OD = 'tf2_msgs/msg/TFMessage', 'sensor_msgs/msg/LaserScan', 'nav_msgs/msg/Odometry'
 c_static = w.add_connection('/tf_static', TF, typestore=ts)
@@ -312,24 +314,43 @@ for k, big in enumerate([False, True]):
 w.close()
 "#;
 
+/// Writes the bag (zstd-compressed chunks if `zstd`) into `dir`, returns its .mcap file.
+fn rosbags_bag(dir: &std::path::Path, zstd: bool) -> std::path::PathBuf {
+    let bag = dir.join("bag");
+    let mut cmd = std::process::Command::new("python3");
+    cmd.args(["-c", BAG_WRITER]).arg(&bag);
+    if zstd {
+        cmd.arg("zstd");
+    }
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "rosbags writer (pip install rosbags): {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::read_dir(&bag)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .unwrap()
+}
+
+#[test]
+fn a_zstd_compressed_bag_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = amr_record::read::read_file(&rosbags_bag(dir.path(), true)).unwrap();
+    assert!(rec.messages.is_empty());
+    let why = rec.stopped.unwrap();
+    assert!(why.contains("zstd-compressed chunk"), "{why}");
+}
+
 #[test]
 fn a_bag_written_by_rosbags_reads_back_exactly() {
     use amr_core::carmen::Record;
     use amr_record::ros2::bag::{BagOptions, OdomSource, read};
 
     let dir = tempfile::tempdir().unwrap();
-    let bag = dir.path().join("bag");
-    let out = std::process::Command::new("python3").args(["-c", BAG_WRITER]).arg(&bag).output().unwrap();
-    assert!(
-        out.status.success(),
-        "rosbags writer (pip install rosbags): {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let file = std::fs::read_dir(&bag)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .find(|p| p.extension().is_some_and(|e| e == "mcap"))
-        .unwrap();
+    let file = rosbags_bag(dir.path(), false);
     let rec = amr_record::read::read_file(&file).unwrap();
     assert!(rec.stopped.is_none(), "{:?}", rec.stopped);
     let log = read(&rec.messages, &BagOptions::default()).unwrap();
