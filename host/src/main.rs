@@ -328,6 +328,24 @@ enum ToolsCommand {
         /// The captured bytes.
         file: PathBuf,
     },
+    /// The robot on a kernel CAN interface (SocketCAN, e.g. a vcan): mock drives and the robot's
+    /// CANopen master on sockets of their own, a velocity move, a quick stop, then malformed and
+    /// error frames written by can-utils' `cansend`. One PASS/FAIL line per check; `tests/vm/run`
+    /// runs it in a Linux VM.
+    #[cfg(feature = "drills")]
+    CanCheck {
+        /// The interface.
+        #[arg(long, default_value = "vcan0")]
+        iface: String,
+        /// can-utils' cansend.
+        #[arg(long, default_value = "cansend")]
+        cansend: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Configuration directory (default: ./config if present, else the embedded defaults).
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
 }
 
 fn parse_dialect(s: &str) -> Result<amr_drivers::sopas::Dialect, String> {
@@ -479,6 +497,10 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
+        #[cfg(feature = "drills")]
+        Command::Tools(ToolsCommand::CanCheck { iface, cansend, seed, config }) => {
+            sim_cmd::can_check(&iface, &cansend, seed, config)
+        }
         Command::Sim { scenario, seed, config, world_only: true, manifest, .. } => fleet_cmd::world_only(
             config,
             &scenario,

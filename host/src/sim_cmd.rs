@@ -159,3 +159,23 @@ pub(crate) fn drill(
     anyhow::ensure!(failed.is_empty(), "drills failed: {}", failed.join(", "));
     Ok(())
 }
+
+/// `amr tools can-check --iface vcan0`: the robot on a kernel CAN interface, with can-utils'
+/// `cansend` as a third party (`amr_sim::kernel_can`); one PASS/FAIL line per check.
+#[cfg(feature = "drills")]
+pub(crate) fn can_check(
+    iface: &str,
+    cansend: &std::path::Path,
+    seed: u64,
+    config: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    let config = load(&crate::config_cmd::source_for(config))?;
+    let lines = runtime()?.block_on(amr_sim::kernel_can::run(&config, seed, iface, cansend));
+    #[allow(clippy::print_stdout, reason = "the command's report")]
+    for l in &lines {
+        println!("{} {}: {}", if l.passed { "PASS" } else { "FAIL" }, l.name, l.detail);
+    }
+    let failed: Vec<&str> = lines.iter().filter(|l| !l.passed).map(|l| l.name.as_str()).collect();
+    anyhow::ensure!(failed.is_empty(), "kernel CAN checks failed: {}", failed.join(", "));
+    Ok(())
+}

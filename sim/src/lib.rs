@@ -12,6 +12,8 @@
 #[cfg(feature = "drills")]
 pub mod drills;
 pub mod eval;
+#[cfg(feature = "drills")]
+pub mod kernel_can;
 pub mod report;
 pub mod served;
 pub mod truth;

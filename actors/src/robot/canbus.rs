@@ -6,7 +6,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use amr_drivers::canopen::error::{CanopenError, LinkError};
+use amr_drivers::canopen::error::{BusState, CanopenError, LinkError, TransportError};
 use amr_drivers::canopen::master::{Master, MasterConfig, MasterEvent};
 use amr_drivers::canopen::shell::spawn_master;
 use amr_drivers::canopen::transport::CanTransport;
@@ -45,6 +45,8 @@ pub enum CanBusMsg {
         reason: String,
         retry_in: Duration,
     },
+    /// The controller's error state changed (SocketCAN error frames).
+    BusState(BusState),
     /// Fail now, as a bug would (drills).
     #[cfg(feature = "fault-injection")]
     InjectFailure(String),
@@ -102,6 +104,24 @@ impl Actor for CanBusActor {
         match msg {
             CanBusMsg::Up { generation } => {
                 state.health.set(&self.ports, Health::Ok, format!("connected (connection {generation})"));
+            }
+            CanBusMsg::BusState(s) => {
+                self.counters.count(match s {
+                    BusState::ErrorActive => "can.error_active",
+                    BusState::ErrorWarning => "can.error_warning",
+                    BusState::ErrorPassive => "can.error_passive",
+                });
+                // Error passive: the controller may no longer signal errors it sees, and one step
+                // on is bus-off; the robot may still move (the drives' heartbeats guard the link).
+                match s {
+                    BusState::ErrorPassive => {
+                        state.health.set(&self.ports, Health::Degraded, "CAN controller error passive");
+                    }
+                    BusState::ErrorActive if state.health.get() == Some(Health::Degraded) => {
+                        state.health.set(&self.ports, Health::Ok, "CAN controller error active again");
+                    }
+                    BusState::ErrorActive | BusState::ErrorWarning => {}
+                }
             }
             CanBusMsg::Down { reason, retry_in } => {
                 self.counters.count("can.link_lost");
@@ -172,8 +192,21 @@ async fn run_connection<T: CanTransport + 'static>(
     let _ = myself.cast(CanBusMsg::Up { generation: *generation });
     let mut reason = String::from("the master stopped");
     while let Some(ev) = handle.events.recv().await {
-        if let MasterEvent::Error(e @ CanopenError::Link(LinkError::Transport(_))) = &ev {
-            reason = e.to_string();
+        match &ev {
+            MasterEvent::Error(e @ CanopenError::Link(LinkError::Transport(t))) => {
+                if *t == TransportError::BusOff {
+                    actor.counters.count("can.bus_off");
+                }
+                reason = e.to_string();
+            }
+            MasterEvent::BusError { class, state } => {
+                tracing::warn!(robot = %actor.ports.robot, class = format!("{class:#x}"), ?state, "CAN error frame");
+                actor.counters.count("can.error_frames");
+                if let Some(s) = state {
+                    let _ = myself.cast(CanBusMsg::BusState(*s));
+                }
+            }
+            _ => {}
         }
         actor.ports.bus_events.push(ev);
     }

@@ -291,9 +291,11 @@ impl DriveActor {
                         self.send(state, MasterCommand::QuickStop);
                     }
                 }
+                // The bus's error state is the CAN bus actor's health.
                 MasterEvent::Configured { .. }
                 | MasterEvent::EmcyReset { .. }
-                | MasterEvent::SdoDone { .. } => {}
+                | MasterEvent::SdoDone { .. }
+                | MasterEvent::BusError { .. } => {}
             },
             DriveMsg::Wheels(c) => {
                 if c.quick_stop != state.quick_stopped {

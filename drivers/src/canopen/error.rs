@@ -112,11 +112,19 @@ pub enum TransportError {
         /// The error text.
         message: String,
     },
-    /// The controller reported an error frame (bus-off, error passive, …) with this class word.
-    #[error("CAN error frame, class {class:#x}")]
+    /// The controller went bus-off (an error frame of class `CAN_ERR_BUSOFF`): it sends nothing
+    /// until it is restarted. The connection ends; the caller reopens it (with the interface's
+    /// `restart-ms` set, the kernel restarts the controller by itself).
+    #[error("CAN controller bus-off")]
+    BusOff,
+    /// The controller reported an error frame that does not end the connection (error warning or
+    /// passive, back to error active, a protocol or acknowledgement error, …).
+    #[error("CAN error frame, class {class:#x}, state {state:?}")]
     ErrorFrame {
-        /// The SocketCAN error class bits (or 0 if unknown).
+        /// The SocketCAN error class bits (`linux/can/error.h`).
         class: u32,
+        /// The controller's fault-confinement state, when the frame says.
+        state: Option<BusState>,
     },
     /// The peer closed the connection, or the bus was dropped.
     #[error("CAN transport closed")]
@@ -126,7 +134,22 @@ pub enum TransportError {
     Socketcand(String),
 }
 
+/// A CAN controller's fault-confinement state (ISO 11898-1: error active, warning at 96 errors,
+/// passive at 128; bus-off is [`TransportError::BusOff`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BusState {
+    ErrorActive,
+    ErrorWarning,
+    ErrorPassive,
+}
+
 impl TransportError {
+    /// Whether the connection ends with this error (everything but a non-fatal error frame).
+    #[must_use]
+    pub fn is_fatal(&self) -> bool {
+        !matches!(self, TransportError::ErrorFrame { .. })
+    }
+
     /// From an I/O error.
     pub fn io(err: &std::io::Error) -> Self {
         Self::Io { kind: err.kind(), message: err.to_string() }

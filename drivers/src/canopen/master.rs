@@ -192,6 +192,14 @@ pub enum MasterEvent {
     },
     /// An error of a drive or of the link.
     Error(CanopenError),
+    /// The CAN controller reported an error frame that did not end the connection (from the
+    /// transport, not the master: SocketCAN error frames).
+    BusError {
+        /// The SocketCAN error class bits.
+        class: u32,
+        /// The controller's error state, when the frame gives it.
+        state: Option<crate::canopen::error::BusState>,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -4,7 +4,7 @@
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use super::error::{CanopenError, LinkError};
+use super::error::{CanopenError, LinkError, TransportError};
 use super::frame::NodeId;
 use super::master::{Master, MasterEvent};
 use super::sdo::SdoRequest;
@@ -65,6 +65,10 @@ pub async fn run_master<T: CanTransport>(
         tokio::select! {
             frame = transport.recv() => match frame {
                 Ok(frame) => master.handle_frame(now(), &frame),
+                // An error frame that does not end the connection: reported, never blocking.
+                Err(TransportError::ErrorFrame { class, state }) => {
+                    let _ = events.try_send(MasterEvent::BusError { class, state });
+                }
                 Err(e) => {
                     let err: CanopenError = LinkError::from(e).into();
                     let _ = events.send(MasterEvent::Error(err.clone())).await;

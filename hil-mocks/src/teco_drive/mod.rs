@@ -5,9 +5,11 @@
 //! - [`device`]: the drive as a pure CiA 402 node ([`TecoDrive`]) and its [`Fault`]s.
 //! - [`task`]: the tokio task serving a drive on a bus port ([`spawn_drive`]).
 //! - [`socketcand`]: the socketcand server in front of an [`InProcessBus`].
+//! - [`bridge`]: an in-process bus served on another transport (a SocketCAN interface).
 //!
 //! `amr mock drives --socketcand 127.0.0.1:29536 [--nodes 1,2]` needs [`start_mock_drives`].
 
+pub mod bridge;
 pub mod device;
 mod motor;
 pub mod socketcand;
