@@ -136,8 +136,10 @@ fn bag_records(
     let mut messages = Vec::new();
     let mut stopped = None;
     for file in bag_files(path)? {
-        let rec =
-            amr_record::read::read_file(&file).with_context(|| format!("cannot read {}", file.display()))?;
+        let bytes = std::fs::read(&file).with_context(|| format!("cannot read {}", file.display()))?;
+        let wanted = [&opts.scan_topic, &opts.odom_topic, &opts.tf_topic, &opts.tf_static_topic];
+        let rec = amr_record::read::read_bytes_where(&bytes, |t| wanted.iter().any(|w| *w == t))
+            .with_context(|| format!("cannot read {}", file.display()))?;
         if let Some(why) = &rec.stopped {
             tracing::warn!(file = %file.display(), reason = %why, "the bag is not whole; reading what is there");
             stopped.get_or_insert_with(|| format!("{}: {why}", file.display()));

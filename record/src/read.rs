@@ -120,6 +120,13 @@ fn whole_records(bytes: &[u8]) -> &[u8] {
 
 /// Read every message of `bytes`.
 pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
+    read_bytes_where(bytes, |_| true)
+}
+
+/// Read every message of `bytes`, keeping the data of the topics `keep` takes only (the others
+/// come with empty `data`: their topic, type and times are still there). A bag's images need not
+/// be copied to read its scans.
+pub fn read_bytes_where(bytes: &[u8], keep: impl Fn(&str) -> bool) -> Result<Recording, ReadError> {
     let mut out = Recording::default();
     if !bytes.ends_with(MAGIC) || bytes.len() < 2 * MAGIC.len() {
         out.stopped = Some(format!("no end magic: the file was cut short at byte {}", bytes.len()));
@@ -138,7 +145,7 @@ pub fn read_bytes(bytes: &[u8]) -> Result<Recording, ReadError> {
                     encoding: m.channel.message_encoding.clone(),
                     log_time_ns: m.log_time,
                     publish_time_ns: m.publish_time,
-                    data: m.data.into_owned(),
+                    data: if keep(&m.channel.topic) { m.data.into_owned() } else { Vec::new() },
                 }),
                 Err(e) => {
                     out.stopped = Some(e.to_string());
