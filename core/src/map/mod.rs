@@ -8,6 +8,7 @@
 //! bottom row of the image (images are stored top row first, so loading flips them).
 
 mod distance;
+mod raycast;
 mod ros;
 mod survey;
 

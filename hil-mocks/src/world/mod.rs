@@ -1,4 +1,5 @@
-//! The simulated world (issue 8 §1): a static map of polygon outlines, N robot bodies with the
+//! The simulated world (issue 8 §1): a static site — polygon outlines, or any occupancy grid whose
+//! occupied cells are solid (issue 18) — N robot bodies with the
 //! configured chassis, differential-drive kinematics with acceleration limits, wheel slip and
 //! encoder resolution; a TiM551 model that ray-casts the map and every other robot; an IMU model
 //! (true yaw rate + bias + noise). Deterministic from a seed: all noise comes from one
@@ -12,6 +13,7 @@ mod site;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_core::geometry::{Polygon, cast_ray};
+use amr_core::map::OccupancyGrid;
 use amr_core::rng::Rng;
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
@@ -97,10 +99,30 @@ struct SimRobot {
     rng: Rng,
 }
 
+/// What the LiDARs see besides the robots: walls as polygon edges (the paper's site), and the
+/// occupied cells of a grid as solid squares (any ROS map).
+#[derive(Debug, Clone, Default)]
+pub struct Site {
+    pub polygons: Vec<Polygon>,
+    pub grid: Option<OccupancyGrid>,
+}
+
+impl From<Vec<Polygon>> for Site {
+    fn from(polygons: Vec<Polygon>) -> Site {
+        Site { polygons, grid: None }
+    }
+}
+
+impl From<OccupancyGrid> for Site {
+    fn from(grid: OccupancyGrid) -> Site {
+        Site { polygons: Vec::new(), grid: Some(grid) }
+    }
+}
+
 /// The world.
 #[derive(Debug, Clone)]
 pub struct World {
-    statics: Vec<Polygon>,
+    site: Site,
     robots: Vec<SimRobot>,
     noise: Noise,
     t_s: f64,
@@ -109,8 +131,8 @@ pub struct World {
 
 impl World {
     #[must_use]
-    pub fn new(statics: Vec<Polygon>, noise: Noise, seed: u64) -> Self {
-        World { statics, robots: Vec::new(), noise, t_s: 0.0, rng: Rng::seed(seed) }
+    pub fn new(site: impl Into<Site>, noise: Noise, seed: u64) -> Self {
+        World { site: site.into(), robots: Vec::new(), noise, t_s: 0.0, rng: Rng::seed(seed) }
     }
 
     /// Add a robot at `pose`, standing still; returns its index.
@@ -234,7 +256,7 @@ impl World {
     /// Ranges along `angles_rad` (robot frame) from robot `robot`'s LiDAR; NaN where nothing returns.
     pub fn ranges(&mut self, robot: usize, angles_rad: &[f64], range_max_m: f64) -> Option<Vec<f64>> {
         let lidar = self.robots.get(robot)?.pose * self.robots[robot].spec.lidar_mount;
-        let mut scene: Vec<(Se2, &Polygon)> = self.statics.iter().map(|p| (Se2::IDENTITY, p)).collect();
+        let mut scene: Vec<(Se2, &Polygon)> = self.site.polygons.iter().map(|p| (Se2::IDENTITY, p)).collect();
         scene.extend(
             self.robots
                 .iter()
@@ -242,9 +264,18 @@ impl World {
                 .filter(|(j, _)| *j != robot)
                 .map(|(_, r)| (r.pose, &r.spec.chassis)),
         );
+        let grid = self.site.grid.as_ref();
         let exact: Vec<Option<f64>> = angles_rad
             .iter()
-            .map(|a| cast_ray([lidar.x, lidar.y], lidar.theta + a, range_max_m, &scene))
+            .map(|a| {
+                let at = [lidar.x, lidar.y];
+                let polygons = cast_ray(at, lidar.theta + a, range_max_m, &scene);
+                let cells = grid.and_then(|g| g.cast_ray(at, lidar.theta + a, range_max_m));
+                match (polygons, cells) {
+                    (Some(p), Some(c)) => Some(p.min(c)),
+                    (p, c) => p.or(c),
+                }
+            })
             .collect();
         let (sigma, drop) = (self.noise.range_sigma_m, self.noise.dropout_probability);
         let rng = &mut self.robots[robot].rng;

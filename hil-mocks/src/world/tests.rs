@@ -176,3 +176,43 @@ fn shipped_paper_site_map_matches_the_site() {
     let loaded = load_map(&MapYaml::parse(&shipped_yaml).unwrap(), &shipped_image).unwrap();
     assert_eq!(loaded, grid);
 }
+
+/// The world on a grid (any ROS map) sees what it sees on polygons: on the shipped map of the
+/// paper's site, every beam returns in both, a wall's face is one cell nearer (its cells are
+/// those the polygon edges pass through), and another robot is still seen as its polygon.
+#[test]
+fn a_world_on_a_grid_sees_the_site_as_on_its_polygons() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
+    let yaml = std::fs::read_to_string(dir.join("paper-site.yaml")).unwrap();
+    let grid = load_map(&MapYaml::parse(&yaml).unwrap(), &std::fs::read(dir.join("paper-site.pgm")).unwrap())
+        .unwrap();
+    let mut on_grid = World::new(grid, Noise::NONE, 1);
+    let mut on_polygons = World::new(paper_site().unwrap(), Noise::NONE, 1);
+    for w in [&mut on_grid, &mut on_polygons] {
+        w.add_robot(square_robot(), Se2::new(-2.0, 0.45, 0.2));
+        w.add_robot(square_robot(), Se2::new(-1.0, -0.45, 0.0));
+    }
+    let beams = tim551_beams();
+    let (g, p) = (on_grid.scan(0, &beams).unwrap(), on_polygons.scan(0, &beams).unwrap());
+    let mut diffs = Vec::new();
+    for (a, b) in g.ranges_m().iter().zip(p.ranges_m()) {
+        assert_eq!(a.is_finite(), b.is_finite(), "a beam returns in one world only: {a} vs {b}");
+        if a.is_finite() {
+            assert!(*a <= b + 1e-9, "the grid's wall is behind the polygon's: {a} vs {b}");
+            diffs.push(b - a);
+        }
+    }
+    // The other robot is a polygon in both worlds: the same ranges.
+    let same = diffs.iter().filter(|d| d.abs() < 1e-9).count();
+    assert!(same >= 5, "{same} beams on the other robot");
+    // The site's walls lie on cell borders, so the map's walls take the cells on both sides and
+    // their inner face is one 5 cm cell in front of the polygon's edge: 5 cm more along the
+    // normal, 5 cm / cos(incidence) along a beam (more for a beam grazing a wall).
+    let mut walls: Vec<f64> = diffs.into_iter().filter(|d| d.abs() >= 1e-9).collect();
+    walls.sort_by(f64::total_cmp);
+    let (median, p90) = (walls[walls.len() / 2], walls[walls.len() * 9 / 10]);
+    assert!(
+        (0.045..0.08).contains(&median) && p90 < 0.2,
+        "walls nearer by: median {median}, 90th percentile {p90}"
+    );
+}
