@@ -190,5 +190,6 @@ pub fn sim_options(
         can,
         configuration: None,
         max_duration: Some(std::time::Duration::from_secs(max_s)),
+        map: None,
     }
 }

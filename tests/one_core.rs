@@ -25,7 +25,7 @@ fn setups() -> (Setup, ServerSetup) {
     amcl.max_particles = Count::new(200).unwrap();
     let map = config.maps[&scenario.map].clone();
     let eval = Setup {
-        site: paper_site().unwrap(),
+        site: paper_site().unwrap().into(),
         map: map.clone(),
         robot: amr_sim::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),

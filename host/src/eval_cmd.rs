@@ -8,7 +8,7 @@ use amr_actors::config::Config;
 use amr_core::metrics::AxisStats;
 use amr_sim::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
 use anyhow::Context as _;
-use hil_mocks::world::{Noise, paper_site};
+use hil_mocks::world::Noise;
 use serde::Serialize;
 
 #[derive(Debug, Serialize)]
@@ -37,37 +37,20 @@ fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-pub(crate) fn setup(config: &Config, scenario: &str, robots: usize) -> anyhow::Result<Setup> {
-    let sc = config.scenarios.get(scenario).with_context(|| {
-        format!("no scenario `{scenario}` (have: {:?})", config.scenarios.keys().collect::<Vec<_>>())
-    })?;
-    anyhow::ensure!(
-        sc.map == "paper-site",
-        "the simulated world knows the paper's site only, not map `{}`",
-        sc.map
-    );
+pub(crate) fn setup(
+    config: &Config,
+    chosen: &amr_actors::config::ChosenScenario,
+    robots: usize,
+) -> anyhow::Result<Setup> {
+    let sc = &chosen.scenario;
     let robot = config.robots.first().context("the configuration has no robot")?;
     anyhow::ensure!(robots >= 2, "a formation needs at least 2 robots, not {robots}");
-    let site = paper_site()?;
-    // The world does not model collisions: refuse a formation whose path leaves the site.
-    let body = amr_sim::robot_spec(robot).chassis;
-    let (x0, y0, x1, y1) = body.bounds();
-    let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
-    for r in amr_sim::eval::reference(sc, 0.1) {
-        for y in amr_sim::eval::slots(robots, sc.spacing_m.get()) {
-            let c = (r.pose * amr_core::se2::Se2::new(0.0, y, 0.0)).transform_point([0.0, 0.0]);
-            let inside = site[0].contains(c) && site.iter().all(|p| p.distance_to_boundary(c) > reach);
-            anyhow::ensure!(
-                inside,
-                "with {robots} robots the scenario `{scenario}` drives a robot into a wall near ({:.2}, {:.2})",
-                c[0],
-                c[1]
-            );
-        }
-    }
+    let site = amr_sim::site_for(&chosen.map_name, &chosen.map)?;
+    let formation: Vec<_> = std::iter::repeat_n(robot.clone(), robots).collect();
+    amr_sim::check_formation(&site, sc, &formation).with_context(|| format!("scenario {}", chosen.name))?;
     Ok(Setup {
         site,
-        map: config.maps.get(&sc.map).with_context(|| format!("no map `{}`", sc.map))?.clone(),
+        map: chosen.map.clone(),
         robot: amr_sim::robot_spec(robot),
         vamr: config.vamr.clone(),
         amcl: config.amcl.clone(),
@@ -152,7 +135,10 @@ pub(crate) fn run(
     outputs: Outputs<'_>,
 ) -> anyhow::Result<PathBuf> {
     let Outputs { dir: out_dir, record, live } = outputs;
-    let setup = setup(config, scenario, robots)?;
+    let chosen = config.scenario(scenario)?;
+    let setup = setup(config, &chosen, robots)?;
+    // A scenario file's stem names its output directory and its report.
+    let scenario = chosen.stem.as_str();
     // The live view's server runs on its own runtime while the trials run here.
     let live = match live {
         Some(addr) => {
@@ -203,7 +189,7 @@ pub(crate) fn run(
     std::fs::write(dir.join("trials.json"), serde_json::to_string(&results)? + "\n")?;
     let mut md = markdown(&report);
     if let Some(first) = results.first() {
-        let written = crate::plots::write_all(&dir, first, &setup.site)?;
+        let written = crate::plots::write_all(&dir, first, &setup.site.outlines())?;
         md += &format!(
             "\n## Plots (trial 1)\n\n{}\n",
             written
@@ -251,7 +237,9 @@ pub(crate) fn sweep(
     seed: u64,
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
-    let base = setup(config, scenario, 2)?;
+    let chosen = config.scenario(scenario)?;
+    let base = setup(config, &chosen, 2)?;
+    let scenario = chosen.stem.as_str();
     let (label, settings, paper): (&str, Vec<f64>, Vec<[f64; 4]>) = match which {
         // Table 6 (ε_d in mm) and Table 7 (Δθ in degrees) of the paper.
         Sweep::Eps => (

@@ -47,12 +47,12 @@ pub(crate) fn parse_can(s: &str) -> Result<SimCan, String> {
 /// Run the whole system against the mocks and print the report.
 pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
     let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
-    let scenario = config.scenarios.get(&args.scenario).cloned().with_context(|| {
-        format!("no scenario `{}` (have: {:?})", args.scenario, config.scenarios.keys().collect::<Vec<_>>())
-    })?;
+    let chosen = config.scenario(&args.scenario)?;
     let options = SimOptions {
-        scenario_name: args.scenario.clone(),
-        scenario,
+        scenario_name: chosen.stem.clone(),
+        map: amr_actors::config::is_path(&args.scenario)
+            .then(|| (chosen.map_name.clone(), chosen.map.clone())),
+        scenario: chosen.scenario,
         seed: args.seed,
         noise: Noise::TYPICAL,
         can: if args.virtual_time { SimCan::VirtualTime } else { args.can },
@@ -72,7 +72,9 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
         runtime()?
     };
     rt.block_on(async move {
-        let sim = Sim::start(&config, options).await.context("starting the simulation")?;
+        let sim = Sim::start(&config, options)
+            .await
+            .with_context(|| format!("starting the simulation of {}", args.scenario))?;
         // Attached before the robots' devices have booted: the recording holds every scan.
         let mut sources = amr_record::RecordSources::server(&sim.server.ports, &sim.setup);
         sources.metadata.insert("scenario".into(), args.scenario.clone());

@@ -112,3 +112,76 @@ fn the_sensitivity_study_reports_every_setting_beside_the_paper() {
     // Table 7's row for the nominal 0.1°: 2.0 %, 3.5 cm, 0.16°, 150 ms.
     assert_eq!(rows[1]["paper"], serde_json::json!([2.0, 3.5, 0.16, 150.0]));
 }
+
+/// A hall of our own, 8 m × 4 m, with three boxes along its +y wall only (issue 18 §1): a map_server
+/// YAML + PGM beside a scenario file that names it by path.
+fn hall(dir: &Path, straight_m: f64) -> std::path::PathBuf {
+    use amr_core::geometry::Polygon;
+    use amr_core::map::{MapMode, rasterize_outlines, save_map};
+    use amr_core::se2::Se2;
+    let room = Polygon::centered_rectangle(8.0, 4.0).unwrap();
+    let boxes: Vec<Polygon> = [-2.5, 0.0, 2.5]
+        .iter()
+        .map(|x| Polygon::new(vec![[x - 0.3, 1.4], [x + 0.3, 1.4], [x + 0.3, 2.0], [x - 0.3, 2.0]]).unwrap())
+        .collect();
+    let mut outlines = vec![room.clone()];
+    outlines.extend(boxes);
+    let grid = rasterize_outlines(&outlines, &room, 0.05, Se2::new(-4.25, -2.25, 0.0), 170, 90);
+    let (yaml, image) = save_map(&grid, MapMode::Trinary, 0.65, 0.196, "hall.pgm").unwrap();
+    std::fs::create_dir_all(dir.join("maps")).unwrap();
+    std::fs::create_dir_all(dir.join("runs")).unwrap();
+    std::fs::write(dir.join("maps/hall.yaml"), yaml).unwrap();
+    std::fs::write(dir.join("maps/hall.pgm"), image).unwrap();
+    let scenario = format!(
+        "map = \"../maps/hall.yaml\"\nspacing_m = 0.9\nlaps = 1\n\
+         segments = [{{ straight_m = {straight_m} }}, {{ straight_m = {} }}]\n\
+         [start]\nx_m = -2.0\ny_m = 0.0\nyaw_deg = 0.0\n\
+         [limits]\nmax_speed_mps = 0.22\nmax_accel_mps2 = 0.05\nmax_yaw_rate_radps = 0.2\n",
+        -straight_m
+    );
+    let file = dir.join("runs/hall-run.toml");
+    std::fs::write(&file, scenario).unwrap();
+    file
+}
+
+#[test]
+fn a_scenario_file_runs_on_any_map_and_a_path_through_a_wall_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = tmp.path().join("config");
+    short_config(&config);
+    let scenario = hall(tmp.path(), 0.6);
+    let run = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(["eval", "--trials", "1", "--seed", "3", "--scenario"])
+        .arg(&scenario)
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(tmp.path().join("out"))
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    // Named after the file; every configuration localised on the hall (the world ray-cast the
+    // map's cells: a world that saw nothing there would leave AMCL lost).
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("out/hall-run/report.json")).unwrap()).unwrap();
+    for s in report["summary"].as_array().unwrap() {
+        let rmse = s["trial_rmse_2d"]["mean"].as_f64().unwrap();
+        assert!(rmse < 0.15, "{}: {rmse} m", s["configuration"]);
+    }
+    // 7 m forward from x = -2 goes through the +x wall at x = 4.
+    let through = hall(&tmp.path().join("b"), 7.0);
+    let run = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(["eval", "--trials", "1", "--scenario"])
+        .arg(&through)
+        .arg("--config")
+        .arg(&config)
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && said.contains("into a wall") && said.contains("hall-run.toml"),
+        "{said}"
+    );
+}

@@ -32,6 +32,7 @@ use amr_actors::server::formation::{FormationStatus, Phase};
 use amr_actors::server::{ServerSetup, ServerTree, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
 use amr_core::config::{Configuration, ScenarioConfig};
+use amr_core::map::OccupancyGrid;
 use amr_core::metrics::ErrorStats;
 use amr_core::se2::{Se2, angle_diff};
 use amr_core::vamr::frame::virtual_frame;
@@ -41,7 +42,7 @@ use amr_msgs::{Estimate, EstimateSource};
 use hil_mocks::lpms::{MockImuHandle, MockImuOptions, start_mock_imu};
 use hil_mocks::teco_drive::{DriveHandle, TecoDrive, TecoDriveConfig, spawn_drive};
 use hil_mocks::tim551::{MockConfig, Tim551Mock};
-use hil_mocks::world::{Noise, RobotSpec, SharedWorld, World, WorldImu, WorldLidar, paper_site};
+use hil_mocks::world::{Noise, RobotSpec, SharedWorld, Site, World, WorldImu, WorldLidar, paper_site};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 use tokio::time::{Instant, MissedTickBehavior};
 
@@ -76,13 +77,14 @@ pub struct SimOptions {
     pub configuration: Option<Configuration>,
     /// Stop after this much wall time even if the plan is not done.
     pub max_duration: Option<Duration>,
+    /// A scenario file's own map (its YAML's path, and the grid); `None`: the configuration's
+    /// map that the scenario names.
+    pub map: Option<(String, OccupancyGrid)>,
 }
 
 /// Why a simulation could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
-    #[error("scenario map `{0}`: the simulated world only has the paper's site (`paper-site`)")]
-    UnknownSite(String),
     #[error("no map `{0}` in the configuration")]
     NoMap(String),
     #[error("the world's site: {0}")]
@@ -192,13 +194,18 @@ impl Sim {
     /// Start the world, the mocks, the server and every robot of the server's formation.
     pub async fn start(config: &Config, options: SimOptions) -> Result<Sim, SimError> {
         let sc = &options.scenario;
-        if sc.map != "paper-site" {
-            return Err(SimError::UnknownSite(sc.map.clone()));
-        }
-        let map = config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone();
+        let (map_name, map) = match &options.map {
+            Some(m) => m.clone(),
+            None => (
+                sc.map.clone(),
+                config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone(),
+            ),
+        };
         let robots = formation_robots(&config.server, &config.robots)?;
+        let site = site_for(&map_name, &map)?;
+        check_formation(&site, sc, &robots)?;
         let clock = FleetClock::start();
-        let world = build_world(&robots, sc, &options.noise, options.seed)?;
+        let world = build_world(&robots, sc, site, &options.noise, options.seed)?;
         let truth = TruthLog::default();
 
         let mut mocks = Vec::new();
@@ -483,13 +490,52 @@ fn observe_server(server: &ServerTree, observer: &ActorRef<ObserverMsg>) {
 }
 
 /// The world with the formation's robots at their slots around the scenario's start.
+/// What the world ray-casts for a scenario on map `map_name`: the paper's site as its polygons
+/// (its shipped map is their rendering), any other map as its occupied cells (issue 18 §1).
+pub fn site_for(map_name: &str, map: &OccupancyGrid) -> Result<Site, SimError> {
+    if map_name == "paper-site" {
+        Ok(paper_site().map_err(|e| SimError::Site(format!("{e:?}")))?.into())
+    } else {
+        Ok(map.clone().into())
+    }
+}
+
+/// The site of the configuration's map named by `sc`.
+pub fn site_of(config: &Config, sc: &ScenarioConfig) -> Result<Site, SimError> {
+    site_for(&sc.map, config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?)
+}
+
+/// The world does not model collisions: refuse a scenario that drives a robot of the formation
+/// into a wall (its chassis' reach from its centre must stay clear, every 10 cm of V's path).
+pub fn check_formation(site: &Site, sc: &ScenarioConfig, robots: &[RobotConfig]) -> Result<(), SimError> {
+    let Some(first) = robots.first() else { return Ok(()) };
+    let (x0, y0, x1, y1) = robot_spec(first).chassis.bounds();
+    let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
+    let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
+    for r in eval::reference(sc, 0.1) {
+        for y in &slots {
+            let c = (r.pose * Se2::new(0.0, *y, 0.0)).transform_point([0.0, 0.0]);
+            if !site.is_clear(c, reach) {
+                return Err(SimError::Site(format!(
+                    "with {} robots {} m apart the scenario drives a robot into a wall (or off the map) near ({:.2}, {:.2})",
+                    robots.len(),
+                    sc.spacing_m.get(),
+                    c[0],
+                    c[1]
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 pub fn build_world(
     robots: &[RobotConfig],
     sc: &ScenarioConfig,
+    site: Site,
     noise: &Noise,
     seed: u64,
 ) -> Result<SharedWorld, SimError> {
-    let site = paper_site().map_err(|e| SimError::Site(format!("{e:?}")))?;
     let mut world = World::new(site, *noise, seed);
     let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
     let start_v = sc.start_pose();
@@ -728,7 +774,13 @@ impl RobotRig {
         let robots = formation_robots(&config.server, &config.robots)?;
         let robot = robots.into_iter().next().ok_or(SimError::Site("the formation is empty".into()))?;
         let clock = FleetClock::start();
-        let world = build_world(std::slice::from_ref(&robot), scenario, &Noise::TYPICAL, seed)?;
+        let world = build_world(
+            std::slice::from_ref(&robot),
+            scenario,
+            site_of(config, scenario)?,
+            &Noise::TYPICAL,
+            seed,
+        )?;
         let truth = TruthLog::default();
         let mocks = start_mocks(&world, 0, &robot, &Noise::TYPICAL, seed, can).await?;
         let world_task = spawn_world_loop(

@@ -75,7 +75,7 @@ pub async fn serve_world(
 ) -> Result<ServedWorld, SimError> {
     let robots = formation_robots(&config.server, &config.robots)?;
     let noise = Noise::TYPICAL;
-    let world = build_world(&robots, scenario, &noise, seed)?;
+    let world = build_world(&robots, scenario, crate::site_of(config, scenario)?, &noise, seed)?;
     let mut mocks = Vec::new();
     let mut manifest = WorldManifest { robots: BTreeMap::new() };
     for (i, r) in robots.iter().enumerate() {

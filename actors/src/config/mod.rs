@@ -8,9 +8,11 @@ use std::path::{Path, PathBuf};
 pub use amr_core::config::ConfigError;
 
 mod robot;
+mod scenario_file;
 mod set;
 
 pub use robot::{Devices, RobotConfig};
+pub use scenario_file::{ChosenScenario, is_map_path, is_path, load_map_path};
 pub use set::{Config, ConfigFile, FileKind};
 
 mod embedded {

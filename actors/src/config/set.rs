@@ -43,6 +43,26 @@ fn load_map_file(
     Ok((name, grid))
 }
 
+/// The name of the set's map at `map` (a path relative to the file at `from`), if it is one:
+/// `../maps/hall.yaml` from `scenarios/x.toml` is `hall`.
+fn set_map_name(from: &str, map: &str) -> Option<String> {
+    let mut parts: Vec<&str> = from.split('/').collect();
+    parts.pop();
+    for p in map.split('/') {
+        match p {
+            "" | "." => {}
+            ".." => {
+                parts.pop()?;
+            }
+            p => parts.push(p),
+        }
+    }
+    match parts.as_slice() {
+        ["maps", file] => file.strip_suffix(".yaml").map(str::to_owned),
+        _ => None,
+    }
+}
+
 /// What a file in a configuration directory is, judged by its path.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileKind {
@@ -159,7 +179,20 @@ impl Config {
                     maps.insert(name, grid);
                 }
                 FileKind::Scenario => {
-                    let scenario = parse_file::<ScenarioConfig>(&f.path, f.text()?)?;
+                    let mut scenario = parse_file::<ScenarioConfig>(&f.path, f.text()?)?;
+                    // `map = "../maps/NAME.yaml"`: a path relative to the scenario file, which in a
+                    // set must be one of its maps.
+                    if super::is_map_path(&scenario.map) {
+                        scenario.map = set_map_name(&f.path, &scenario.map).ok_or_else(|| ConfigError {
+                            file: f.path.clone(),
+                            line: key_line(f.text().unwrap_or_default(), "map"),
+                            key: "map".to_owned(),
+                            rule: format!(
+                                "names `{}`, which is not a map of this configuration (maps/<name>.yaml)",
+                                scenario.map
+                            ),
+                        })?;
+                    }
                     let name = f.path.trim_start_matches("scenarios/").trim_end_matches(".toml").to_owned();
                     scenarios.insert(name, (f.path.clone(), scenario));
                 }
@@ -232,6 +265,8 @@ impl Config {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
     use super::*;
 
     #[test]
@@ -245,5 +280,29 @@ mod tests {
         assert!(FileKind::of("maps/old/site.yaml").is_err());
         assert!(FileKind::of("robots/robot-a.toml").is_err());
         assert!(FileKind::of("robot-a.yaml").is_err());
+    }
+
+    #[test]
+    fn a_set_scenario_may_name_its_map_by_path() {
+        assert_eq!(set_map_name("scenarios/x.toml", "../maps/hall.yaml").as_deref(), Some("hall"));
+        assert_eq!(set_map_name("scenarios/x.toml", "./../maps/./hall.yaml").as_deref(), Some("hall"));
+        assert_eq!(set_map_name("scenarios/x.toml", "hall.yaml"), None);
+        assert_eq!(set_map_name("scenarios/x.toml", "../../maps/hall.yaml"), None);
+        assert_eq!(set_map_name("scenarios/x.toml", "../maps/old/hall.yaml"), None);
+        // Through the loader: the shipped set with `straight` naming its map by path.
+        let mut files = crate::config::read_files(&crate::config::ConfigSource::Embedded).unwrap();
+        let f = files.iter_mut().find(|f| f.path == "scenarios/straight.toml").unwrap();
+        let text = f.text().unwrap().replace("map = \"paper-site\"", "map = \"../maps/paper-site.yaml\"");
+        f.bytes = text.clone().into_bytes();
+        let config = Config::from_files(files.clone()).unwrap();
+        assert_eq!(config.scenarios["straight"].map, "paper-site");
+        let f = files.iter_mut().find(|f| f.path == "scenarios/straight.toml").unwrap();
+        f.bytes = text.replace("paper-site.yaml", "hall.yaml").into_bytes();
+        let e = Config::from_files(files).unwrap_err();
+        assert_eq!(
+            (e.file.as_str(), e.key.as_str(), e.line),
+            ("scenarios/straight.toml", "map", Some(4)),
+            "{e}"
+        );
     }
 }

@@ -107,6 +107,67 @@ pub struct Site {
     pub grid: Option<OccupancyGrid>,
 }
 
+impl Site {
+    /// Everything solid as polygons, for drawing: the polygons, and a square per occupied cell.
+    #[must_use]
+    pub fn outlines(&self) -> Vec<Polygon> {
+        let mut out = self.polygons.clone();
+        if let Some(g) = &self.grid {
+            let r = g.resolution_m;
+            for j in 0..g.height {
+                for i in 0..g.width {
+                    if g.is_occupied(i, j) {
+                        let c = [[0.0, 0.0], [r, 0.0], [r, r], [0.0, r]]
+                            .map(|[a, b]| g.origin.transform_point([i as f64 * r + a, j as f64 * r + b]));
+                        if let Ok(p) = Polygon::new(c.to_vec()) {
+                            out.push(p);
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Whether a disc of `radius_m` around `c` is clear of every wall: inside the first polygon
+    /// (the room) and away from every polygon's edges; on a grid, on a free cell with no occupied
+    /// or unknown cell within the radius. The world does not model collisions, so a scenario that
+    /// drives a robot through a wall is refused with this.
+    #[must_use]
+    pub fn is_clear(&self, c: [f64; 2], radius_m: f64) -> bool {
+        let polygons_ok = self.polygons.first().is_none_or(|room| room.contains(c))
+            && self.polygons.iter().all(|p| p.distance_to_boundary(c) > radius_m);
+        let grid_ok = self.grid.as_ref().is_none_or(|g| {
+            let Some((ci, cj)) = g.cell_of(c) else { return false };
+            if !g.is_free(ci, cj) {
+                return false;
+            }
+            let n = (radius_m / g.resolution_m).ceil() as i64 + 1;
+            let half = g.resolution_m / 2.0;
+            // Bounded: (2n + 1)² cells.
+            for dj in -n..=n {
+                for di in -n..=n {
+                    let (i, j) = (ci as i64 + di, cj as i64 + dj);
+                    if i < 0 || j < 0 {
+                        continue;
+                    }
+                    let (i, j) = (i as usize, j as usize);
+                    let Some(v) = g.get(i, j) else { continue };
+                    let m = g.cell_center(i, j);
+                    // The cell's nearest point to `c` is within `radius_m` (a conservative test
+                    // with the cell's circumscribed disc).
+                    let near = (m[0] - c[0]).hypot(m[1] - c[1]) - half * std::f64::consts::SQRT_2 <= radius_m;
+                    if near && v != amr_core::map::FREE {
+                        return false;
+                    }
+                }
+            }
+            true
+        });
+        polygons_ok && grid_ok
+    }
+}
+
 impl From<Vec<Polygon>> for Site {
     fn from(polygons: Vec<Polygon>) -> Site {
         Site { polygons, grid: None }

@@ -61,6 +61,7 @@ pub(super) async fn moving_sim(
         can: SimCan::InProcess,
         configuration: None,
         max_duration: None,
+        map: None,
     };
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,

@@ -17,7 +17,6 @@ use amr_actors::server::core::{CoreSetup, Lap, Member, ServerCore};
 use amr_core::amcl::{Amcl, LikelihoodField};
 use amr_core::config::{AmclParams, Configuration, ScenarioConfig, VamrParams};
 use amr_core::formation::{FormationGains, limit_twist, member_command, wheel_odometry_increment};
-use amr_core::geometry::Polygon;
 use amr_core::map::OccupancyGrid;
 use amr_core::metrics::{AxisStats, MeanSd, Sample};
 use amr_core::scan::Scan;
@@ -33,7 +32,8 @@ pub use amr_core::plan::{Reference, reference};
 /// Everything a run needs besides the seed.
 #[derive(Debug, Clone)]
 pub struct Setup {
-    pub site: Vec<Polygon>,
+    /// What the world ray-casts (the paper's site's polygons, or a map's occupied cells).
+    pub site: hil_mocks::world::Site,
     pub map: OccupancyGrid,
     pub robot: RobotSpec,
     pub vamr: VamrParams,

@@ -40,7 +40,7 @@ fn short_setup() -> Setup {
     amcl.min_particles = Count::new(200).unwrap();
     amcl.max_particles = Count::new(200).unwrap();
     Setup {
-        site: paper_site().unwrap(),
+        site: paper_site().unwrap().into(),
         map: config.maps["paper-site"].clone(),
         robot: crate::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),
