@@ -191,5 +191,6 @@ pub fn sim_options(
         configuration: None,
         max_duration: Some(std::time::Duration::from_secs(max_s)),
         map: None,
+        surveyed_map: false,
     }
 }

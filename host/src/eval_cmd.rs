@@ -14,6 +14,10 @@ use serde::Serialize;
 #[derive(Debug, Serialize)]
 struct Report<'a> {
     scenario: &'a str,
+    /// AMCL's map: `surveyed` or `true`.
+    map: MapSource,
+    /// What the world ray-casts: `the paper's site` or the map's path.
+    site: &'a str,
     robots: usize,
     trials: usize,
     seed: u64,
@@ -37,10 +41,32 @@ fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
+/// AMCL's map in an evaluation (issue 18 §2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub(crate) enum MapSource {
+    /// A simulated survey of the site, as SLAM builds maps (the localiser never sees the world
+    /// it is simulated in).
+    Surveyed,
+    /// The site's own map (the paper's site: the rendering of the polygons the world ray-casts).
+    True,
+}
+
+/// What the world ray-casts, in words.
+fn site_words(chosen: &amr_actors::config::ChosenScenario) -> String {
+    if chosen.map_name == "paper-site" {
+        "the paper's site".into()
+    } else {
+        format!("the map {}", chosen.map_name)
+    }
+}
+
 pub(crate) fn setup(
     config: &Config,
     chosen: &amr_actors::config::ChosenScenario,
     robots: usize,
+    map: MapSource,
+    seed: u64,
 ) -> anyhow::Result<Setup> {
     let sc = &chosen.scenario;
     let robot = config.robots.first().context("the configuration has no robot")?;
@@ -48,9 +74,15 @@ pub(crate) fn setup(
     let site = amr_sim::site_for(&chosen.map_name, &chosen.map)?;
     let formation: Vec<_> = std::iter::repeat_n(robot.clone(), robots).collect();
     amr_sim::check_formation(&site, sc, &formation).with_context(|| format!("scenario {}", chosen.name))?;
+    let map = match map {
+        MapSource::True => chosen.map.clone(),
+        MapSource::Surveyed => {
+            amr_sim::survey::surveyed_map(&site, &chosen.map, &amr_sim::survey::SurveyOptions::TYPICAL, seed)
+        }
+    };
     Ok(Setup {
         site,
-        map: chosen.map.clone(),
+        map,
         robot: amr_sim::robot_spec(robot),
         vamr: config.vamr.clone(),
         amcl: config.amcl.clone(),
@@ -86,13 +118,18 @@ fn table(
 
 fn markdown(report: &Report<'_>) -> String {
     let mut out = format!(
-        "# amr eval: {} ({} robots, {} trials, seed {})\n\nSimulated: the paper's site, TiM551 model with {} m range noise, wheel slip and gyro bias \
-         (hil_mocks::world::Noise::TYPICAL). Errors are of the virtual robot V's position in metres.\n",
+        "# amr eval: {} ({} robots, {} trials, seed {})\n\nSimulated: {}, TiM551 model with {} m range noise, wheel slip and gyro bias \
+         (hil_mocks::world::Noise::TYPICAL). AMCL's map: {}. Errors are of the virtual robot V's position in metres.\n",
         report.scenario,
         report.robots,
         report.trials,
         report.seed,
-        Noise::TYPICAL.range_sigma_m
+        report.site,
+        Noise::TYPICAL.range_sigma_m,
+        match report.map {
+            MapSource::Surveyed => "surveyed (a simulated SLAM-style survey of the site: amr_sim::survey)",
+            MapSource::True => "the site's own map",
+        }
     );
     let _ = writeln!(out, "\n## Trial-level 2D RMSE against the true pose (Tables 15–16 layout)\n");
     let _ =
@@ -129,6 +166,7 @@ pub(crate) struct Outputs<'a> {
 pub(crate) fn run(
     config: &Config,
     scenario: &str,
+    map: MapSource,
     robots: usize,
     trials: usize,
     seed: u64,
@@ -136,7 +174,8 @@ pub(crate) fn run(
 ) -> anyhow::Result<PathBuf> {
     let Outputs { dir: out_dir, record, live } = outputs;
     let chosen = config.scenario(scenario)?;
-    let setup = setup(config, &chosen, robots)?;
+    let setup = setup(config, &chosen, robots, map, seed)?;
+    let site = site_words(&chosen);
     // A scenario file's stem names its output directory and its report.
     let scenario = chosen.stem.as_str();
     // The live view's server runs on its own runtime while the trials run here.
@@ -173,6 +212,8 @@ pub(crate) fn run(
     let summary = summarise(scenario, &results);
     let report = Report {
         scenario,
+        map,
+        site: &site,
         robots,
         trials,
         seed,
@@ -232,13 +273,14 @@ struct SweepRow {
 pub(crate) fn sweep(
     config: &Config,
     scenario: &str,
+    map: MapSource,
     which: Sweep,
     trials: usize,
     seed: u64,
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
     let chosen = config.scenario(scenario)?;
-    let base = setup(config, &chosen, 2)?;
+    let base = setup(config, &chosen, 2, map, seed)?;
     let scenario = chosen.stem.as_str();
     let (label, settings, paper): (&str, Vec<f64>, Vec<[f64; 4]>) = match which {
         // Table 6 (ε_d in mm) and Table 7 (Δθ in degrees) of the paper.

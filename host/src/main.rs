@@ -90,9 +90,13 @@ enum Command {
     /// T1–T4 side by side on identical sensor streams. Writes report.md, report.json and
     /// trials.json (the raw errors) to OUT/<scenario>/.
     Eval {
-        /// A scenario of the configuration (config/scenarios/<name>.toml).
+        /// A scenario of the configuration (config/scenarios/<name>.toml), or a scenario file's
+        /// path (its `map` may be a map YAML's path relative to it: any ROS map).
         #[arg(long, default_value = "straight")]
         scenario: String,
+        /// AMCL's map: a simulated SLAM-style survey of the site, or the site's own map.
+        #[arg(long, value_enum, default_value = "surveyed")]
+        map: eval_cmd::MapSource,
         /// Number of trials (the paper ran 5); trial k uses seed + k.
         #[arg(long, default_value_t = 5)]
         trials: usize,
@@ -128,9 +132,13 @@ enum Command {
     /// transports. Prints live status, then the localisation error against the true pose and the
     /// per-stage latency table.
     Sim {
-        /// A scenario of the configuration (`scenarios/<name>.toml`).
+        /// A scenario of the configuration (`scenarios/<name>.toml`), or a scenario file's path
+        /// (its `map` may be a map YAML's path relative to it: any ROS map).
         #[arg(long, default_value = "straight")]
         scenario: String,
+        /// AMCL's map: the site's own map, or a simulated SLAM-style survey of the site.
+        #[arg(long, value_enum, default_value = "true")]
+        map: eval_cmd::MapSource,
         /// Seed of the world's noise and of AMCL.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -518,6 +526,7 @@ fn main() -> ExitCode {
             quiet,
             virtual_time,
             rec,
+            map,
             ..
         } => match duration.map(std::time::Duration::try_from_secs_f64) {
             Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
@@ -532,6 +541,7 @@ fn main() -> ExitCode {
                 quiet,
                 virtual_time,
                 rec,
+                surveyed_map: map == eval_cmd::MapSource::Surveyed,
             }),
         },
         Command::Robot { config, mock, net, rec } => {
@@ -560,28 +570,30 @@ fn main() -> ExitCode {
         Command::Server { config, scenario, seed, auto_arm, net, rec } => {
             fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })
         }
-        Command::Eval { scenario, trials, seed, out, config, robots, sweep, record, foxglove } => (|| {
-            let config = amr_actors::config::load(&config_cmd::source_for(config))?;
-            let report = match sweep {
-                Some(which) => eval_cmd::sweep(&config, &scenario, which, trials, seed, &out)?,
-                None => eval_cmd::run(
-                    &config,
-                    &scenario,
-                    robots,
-                    trials,
-                    seed,
-                    eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
-                )?
-                .join("report.md"),
-            };
-            #[allow(clippy::print_stdout, reason = "the command's report")]
-            {
-                print!("{}", std::fs::read_to_string(&report)?);
-                println!("\nwritten to {}", report.display());
-            }
-            Ok(())
-        })(
-        ),
+        Command::Eval { scenario, map, trials, seed, out, config, robots, sweep, record, foxglove } => {
+            (|| {
+                let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+                let report = match sweep {
+                    Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,
+                    None => eval_cmd::run(
+                        &config,
+                        &scenario,
+                        map,
+                        robots,
+                        trials,
+                        seed,
+                        eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
+                    )?
+                    .join("report.md"),
+                };
+                #[allow(clippy::print_stdout, reason = "the command's report")]
+                {
+                    print!("{}", std::fs::read_to_string(&report)?);
+                    println!("\nwritten to {}", report.display());
+                }
+                Ok(())
+            })()
+        }
         Command::Localize { map, log, bag, ros2, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let input = match (log, bag) {

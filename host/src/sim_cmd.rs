@@ -24,6 +24,7 @@ pub(crate) struct SimArgs {
     pub quiet: bool,
     pub virtual_time: bool,
     pub rec: crate::record_cmd::RecordArgs,
+    pub surveyed_map: bool,
 }
 
 pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
@@ -58,6 +59,7 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
         can: if args.virtual_time { SimCan::VirtualTime } else { args.can },
         configuration: args.configuration,
         max_duration: args.duration,
+        surveyed_map: args.surveyed_map,
     };
     // Virtual time: one thread, tokio's clock paused and advanced only when every task waits,
     // devices over in-memory pipes: as fast as the machine allows, and the same seed gives the

@@ -165,6 +165,8 @@ fn a_scenario_file_runs_on_any_map_and_a_path_through_a_wall_is_refused() {
     // map's cells: a world that saw nothing there would leave AMCL lost).
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(tmp.path().join("out/hall-run/report.json")).unwrap()).unwrap();
+    assert_eq!(report["map"], "surveyed", "AMCL's map is a survey by default");
+    assert!(report["site"].as_str().unwrap().ends_with("hall.yaml"), "{}", report["site"]);
     for s in report["summary"].as_array().unwrap() {
         let rmse = s["trial_rmse_2d"]["mean"].as_f64().unwrap();
         assert!(rmse < 0.15, "{}: {rmse} m", s["configuration"]);

@@ -16,6 +16,7 @@ pub mod eval;
 pub mod kernel_can;
 pub mod report;
 pub mod served;
+pub mod survey;
 pub mod truth;
 
 use std::collections::BTreeMap;
@@ -80,6 +81,8 @@ pub struct SimOptions {
     /// A scenario file's own map (its YAML's path, and the grid); `None`: the configuration's
     /// map that the scenario names.
     pub map: Option<(String, OccupancyGrid)>,
+    /// AMCL's map from a simulated survey of the site ([`survey`]) instead of the site's own.
+    pub surveyed_map: bool,
 }
 
 /// Why a simulation could not start.
@@ -204,6 +207,11 @@ impl Sim {
         let robots = formation_robots(&config.server, &config.robots)?;
         let site = site_for(&map_name, &map)?;
         check_formation(&site, sc, &robots)?;
+        let map = if options.surveyed_map {
+            survey::surveyed_map(&site, &map, &survey::SurveyOptions::TYPICAL, options.seed)
+        } else {
+            map
+        };
         let clock = FleetClock::start();
         let world = build_world(&robots, sc, site, &options.noise, options.seed)?;
         let truth = TruthLog::default();

@@ -62,6 +62,7 @@ pub(super) async fn moving_sim(
         configuration: None,
         max_duration: None,
         map: None,
+        surveyed_map: false,
     };
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,

@@ -1,0 +1,152 @@
+//! Maps as robots get them (issue 18 §2): AMCL's map built by a simulated survey of the site, the
+//! way SLAM builds maps, instead of the site itself. A robot with the TiM551's beams stands on a
+//! lattice over the site's free space, looks both ways, and its scans (with range noise) go into
+//! [`amr_core::map::Survey`] at poses that err a little (SLAM's residue): endpoint cells occupied,
+//! traversed cells free, never-seen space unknown. So the localiser never sees the world it is
+//! simulated in: walls are as thick as the endpoints' scatter and sit where the noisy survey put
+//! them, and faces no survey pose saw are not in the map.
+
+use amr_core::geometry::Polygon;
+use amr_core::map::{OccupancyGrid, Survey};
+use amr_core::rng::Rng;
+use amr_core::se2::Se2;
+use hil_mocks::world::{Noise, RobotSpec, Site, World, tim551_beams};
+
+/// How the survey is made.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurveyOptions {
+    /// Distance between survey positions, m.
+    pub spacing_m: f64,
+    /// Clearance of a survey position from every wall, m (a robot stands there).
+    pub clearance_m: f64,
+    /// Range noise of the survey scans, m (1σ).
+    pub range_sigma_m: f64,
+    /// Error of each survey pose, m and rad (1σ): what SLAM leaves.
+    pub pose_sigma_m: f64,
+    pub pose_sigma_rad: f64,
+    /// A cell is occupied when at least this share of the beams that reached it ended in it.
+    pub occ_ratio: f64,
+}
+
+impl SurveyOptions {
+    /// A careful survey: every 0.4 m, 25 cm clear of walls, 1 cm range noise, poses off by 2 cm
+    /// and 0.3° (the residue `core/src/amcl/surveyed.rs` uses for its SLAM-style map); a cell is
+    /// occupied at a quarter of hits, the default of `../shared/tools/carmen/make_map.py`, which
+    /// built the real-data maps.
+    pub const TYPICAL: SurveyOptions = SurveyOptions {
+        spacing_m: 0.4,
+        clearance_m: 0.25,
+        range_sigma_m: 0.01,
+        pose_sigma_m: 0.02,
+        pose_sigma_rad: 0.3 * std::f64::consts::PI / 180.0,
+        occ_ratio: 0.25,
+    };
+}
+
+/// The map a survey of `site` gives, on the grid geometry of `like` (its resolution, and its extent
+/// with half a metre around). Deterministic from `seed`.
+#[must_use]
+pub fn surveyed_map(site: &Site, like: &OccupancyGrid, options: &SurveyOptions, seed: u64) -> OccupancyGrid {
+    let res = like.resolution_m;
+    let (x0, y0, x1, y1) = like.extent();
+    let margin = 0.5;
+    let (ox, oy) = (x0 - margin, y0 - margin);
+    let width = ((x1 - x0 + 2.0 * margin) / res).ceil() as usize;
+    let height = ((y1 - y0 + 2.0 * margin) / res).ceil() as usize;
+    let mut survey = Survey::new([ox, oy], width, height, res);
+    let noise = Noise { range_sigma_m: options.range_sigma_m, ..Noise::NONE };
+    let mut world = World::new(site.clone(), noise, seed);
+    // The surveyor: a point-sized body (it sees no robot), its LiDAR at its centre.
+    let Ok(dot) = Polygon::centered_rectangle(0.01, 0.01) else { return survey.grid(options.occ_ratio, 1) };
+    let spec = RobotSpec {
+        chassis: dot,
+        wheel_radius_m: 0.05,
+        track_width_m: 0.3,
+        lidar_mount: Se2::IDENTITY,
+        max_accel_mps2: 1.0,
+    };
+    let me = world.add_robot(spec, Se2::IDENTITY);
+    let beams = tim551_beams();
+    let mut rng = Rng::seed(seed ^ 0x5eed_5a7e);
+    let step = options.spacing_m.max(res);
+    let (nx, ny) = (((x1 - x0) / step).floor() as usize, ((y1 - y0) / step).floor() as usize);
+    // Bounded: (nx + 1) · (ny + 1) positions, two scans each.
+    for j in 0..=ny {
+        for i in 0..=nx {
+            let p = [x0 + (i as f64 + 0.5) * step, y0 + (j as f64 + 0.5) * step];
+            if !site.is_clear(p, options.clearance_m) {
+                continue;
+            }
+            // The TiM551 sees 270°: two opposite headings see all round.
+            for k in 0..2 {
+                let truth = Se2::new(p[0], p[1], f64::from(k) * std::f64::consts::PI);
+                world.set_pose(me, truth);
+                let Some(scan) = world.scan(me, &beams) else { continue };
+                let believed = truth
+                    * Se2::new(
+                        rng.gaussian(options.pose_sigma_m),
+                        rng.gaussian(options.pose_sigma_m),
+                        rng.gaussian(options.pose_sigma_rad),
+                    );
+                survey.add_scan(&believed, &scan);
+            }
+        }
+    }
+    survey.grid(options.occ_ratio, 1)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
+    use amr_core::map::{FREE, OCCUPIED, UNKNOWN};
+    use hil_mocks::world::paper_site;
+
+    use super::*;
+
+    #[test]
+    fn a_survey_of_the_paper_site_is_like_it_but_not_it() {
+        let config = amr_actors::config::load(&amr_actors::config::ConfigSource::Embedded).unwrap();
+        let truth = &config.maps["paper-site"];
+        let site: Site = paper_site().unwrap().into();
+        let map = surveyed_map(&site, truth, &SurveyOptions::TYPICAL, 1);
+        assert_eq!(map, surveyed_map(&site, truth, &SurveyOptions::TYPICAL, 1), "deterministic");
+        assert_ne!(map, surveyed_map(&site, truth, &SurveyOptions::TYPICAL, 2), "the seed matters");
+        // All but 1 % of the survey's occupied cells are near a wall of the site (within 15 cm: a 0.3° pose
+        // error is 5 cm at 10 m, plus 2 cm and half a cell's diagonal), and most of
+        // the site's wall cells have a surveyed wall cell within a cell.
+        let near_wall = |p: [f64; 2], d: f64| site.polygons.iter().any(|w| w.distance_to_boundary(p) <= d);
+        let occupied: Vec<[f64; 2]> = (0..map.height)
+            .flat_map(|j| (0..map.width).map(move |i| (i, j)))
+            .filter(|(i, j)| map.is_occupied(*i, *j))
+            .map(|(i, j)| map.cell_center(i, j))
+            .collect();
+        assert!(occupied.len() > 300, "{} occupied cells", occupied.len());
+        let stray = occupied.iter().filter(|p| !near_wall(**p, 0.15)).count();
+        assert!(stray * 100 <= occupied.len(), "{stray} surveyed wall cells away from any wall");
+        let mut walls = 0;
+        let mut found = 0;
+        for j in 0..truth.height {
+            for i in 0..truth.width {
+                if truth.is_occupied(i, j) {
+                    walls += 1;
+                    let c = truth.cell_center(i, j);
+                    if occupied.iter().any(|o| (o[0] - c[0]).hypot(o[1] - c[1]) <= 0.075) {
+                        found += 1;
+                    }
+                }
+            }
+        }
+        assert!(f64::from(found) > 0.8 * f64::from(walls), "{found} of {walls} wall cells surveyed");
+        // Not the true map: cells differ, and the inside is free, the outside unknown.
+        let differ = truth.cells.iter().zip(&map.cells).filter(|(a, b)| a != b).count();
+        assert!(differ > 100, "{differ} cells differ");
+        assert_eq!(
+            map.get(map.cell_of([0.0, 0.0]).unwrap().0, map.cell_of([0.0, 0.0]).unwrap().1),
+            Some(FREE)
+        );
+        let (i, j) = map.cell_of([0.0, 2.5]).unwrap();
+        assert_eq!(map.get(i, j), Some(UNKNOWN));
+        let _ = OCCUPIED;
+    }
+}
