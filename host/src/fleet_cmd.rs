@@ -187,12 +187,8 @@ fn phase_text(p: &Phase) -> String {
 pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
     let (config, _) = config_around(&args.config)?;
     let robots = formation_robots(&config.server, &config.robots)?;
-    let sc = config
-        .scenarios
-        .get(&args.scenario)
-        .cloned()
-        .with_context(|| format!("no scenario `{}`", args.scenario))?;
-    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
+    let chosen = config.scenario(&args.scenario)?;
+    let (sc, map) = (chosen.scenario, chosen.map);
     let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
     let settings = args.net.settings(&config)?;
     runtime()?.block_on(async move {
@@ -402,9 +398,9 @@ pub(crate) fn world_only(
     manifest: &Path,
 ) -> anyhow::Result<()> {
     let config = load(&crate::config_cmd::source_for(config))?;
-    let sc = config.scenarios.get(scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
+    let chosen = config.scenario(scenario)?;
     runtime()?.block_on(async move {
-        let world = serve_world(&config, &sc, seed).await.context("starting the world")?;
+        let world = serve_world(&config, &chosen, seed).await.context("starting the world")?;
         let text = serde_json::to_string_pretty(&world.manifest)?;
         // Written whole, then renamed: a robot never reads half a manifest.
         let tmp = manifest.with_extension("tmp");

@@ -106,8 +106,8 @@ pub(crate) fn replay(
     let meta = amr_record::read::metadata(&bytes).remove("amr").unwrap_or_default();
     let config = load(&crate::config_cmd::source_for(config))?;
     let scenario = scenario.or_else(|| meta.get("scenario").cloned()).unwrap_or_else(|| "straight".into());
-    let sc = config.scenarios.get(&scenario).cloned().with_context(|| format!("no scenario `{scenario}`"))?;
-    let map = config.maps.get(&sc.map).cloned().with_context(|| format!("no map `{}`", sc.map))?;
+    let chosen = config.scenario(&scenario)?;
+    let (sc, map) = (chosen.scenario, chosen.map);
     let recorded_seed = meta.get("seed").and_then(|s| s.parse::<u64>().ok());
     let seed = seed.or(recorded_seed).unwrap_or(1);
     let mut server = config.server.clone();

@@ -16,7 +16,6 @@ use amr_actors::robot::DeviceOverrides;
 use amr_actors::robot::canbus::CanLink;
 use amr_actors::robot::ports::AbortOnDrop;
 use amr_actors::server::formation_robots;
-use amr_core::config::ScenarioConfig;
 use hil_mocks::world::{Noise, SharedWorld};
 use serde::{Deserialize, Serialize};
 
@@ -70,12 +69,15 @@ pub struct ServedWorld {
 /// mock devices on loopback.
 pub async fn serve_world(
     config: &Config,
-    scenario: &ScenarioConfig,
+    chosen: &amr_actors::config::ChosenScenario,
     seed: u64,
 ) -> Result<ServedWorld, SimError> {
+    let scenario = &chosen.scenario;
     let robots = formation_robots(&config.server, &config.robots)?;
     let noise = Noise::TYPICAL;
-    let world = build_world(&robots, scenario, crate::site_of(config, scenario)?, &noise, seed)?;
+    let site = crate::site_for(&chosen.map_name, &chosen.map)?;
+    crate::check_formation(&site, scenario, &robots)?;
+    let world = build_world(&robots, scenario, site, &noise, seed)?;
     let mut mocks = Vec::new();
     let mut manifest = WorldManifest { robots: BTreeMap::new() };
     for (i, r) in robots.iter().enumerate() {
