@@ -122,15 +122,12 @@ impl Actor for DriveActor {
     async fn pre_start(&self, myself: ActorRef<DriveMsg>, (): ()) -> Result<DriveState, ActorProcessingErr> {
         // Events from before this actor started belong to an earlier bus or actor: not ours.
         let _ = self.ports.bus_events.take();
-        let (ports, me) = (Arc::clone(&self.ports), myself.clone());
-        let events = AbortOnDrop(tokio::spawn(async move {
-            loop {
-                ports.bus_events.wait().await;
-                if me.cast(DriveMsg::Events).is_err() {
-                    break;
-                }
-            }
-        }));
+        let events = super::ports::wake_on(
+            Arc::clone(&self.ports),
+            |p| &p.bus_events,
+            myself.clone(),
+            || DriveMsg::Events,
+        );
         self.ports.wheel_cmd.subscribe(myself.clone(), |c| Some(DriveMsg::Wheels(c)));
         let mut rx = self.ports.bus.subscribe();
         rx.mark_changed();

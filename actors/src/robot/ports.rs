@@ -176,6 +176,26 @@ impl<T> Inbox<T> {
     }
 }
 
+/// A task that casts `msg()` to `actor` each time the inbox `which(ports)` gets something, until
+/// the actor is gone; dropping the guard ends it. (The safety actor and the drive actor read their
+/// inboxes this way.)
+pub(crate) fn wake_on<T: Send + 'static, M: ractor::Message>(
+    ports: Arc<RobotPorts>,
+    which: fn(&RobotPorts) -> &Inbox<T>,
+    actor: ractor::ActorRef<M>,
+    msg: fn() -> M,
+) -> AbortOnDrop<()> {
+    AbortOnDrop(tokio::spawn(async move {
+        // Ends with the actor (a cast to a stopped actor fails).
+        loop {
+            which(&ports).wait().await;
+            if actor.cast(msg()).is_err() {
+                break;
+            }
+        }
+    }))
+}
+
 /// A connected CAN bus: the running master's command queue and which connection it is.
 #[derive(Debug, Clone)]
 pub struct BusLink {

@@ -394,15 +394,12 @@ impl Actor for SafetyActor {
         myself: ActorRef<SafetyMsg>,
         (): (),
     ) -> Result<SafetyActorState, ActorProcessingErr> {
-        let (ports, me) = (Arc::clone(&self.ports), myself.clone());
-        let waker = AbortOnDrop(tokio::spawn(async move {
-            loop {
-                ports.safety_inbox.wait().await;
-                if me.cast(SafetyMsg::Inbox).is_err() {
-                    break;
-                }
-            }
-        }));
+        let waker = super::ports::wake_on(
+            Arc::clone(&self.ports),
+            |p| &p.safety_inbox,
+            myself.clone(),
+            || SafetyMsg::Inbox,
+        );
         let period = Duration::from_secs_f64(self.params.period_s.max(0.001));
         myself.send_interval(period, || SafetyMsg::Tick);
         let mut s = SafetyActorState {
