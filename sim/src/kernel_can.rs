@@ -201,7 +201,7 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
     // to reach 0.1 m/s).
     let from = rig.truth.latest().and_then(|(_, p)| p.first().map(|p| (p.x, p.y)));
     let (odometry, _reader) = watch_odometry(&mut rig);
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    until(Duration::from_secs(2), || now_of(&odometry).is_some()).await;
     let odo0 = now_of(&odometry);
     let feed = drive_from(&rig, 0.1, 1);
     let turning = until(Duration::from_secs(10), || wheels_turning(&rig, 1000.0)).await;

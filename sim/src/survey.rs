@@ -99,7 +99,7 @@ pub fn surveyed_map(site: &Site, like: &OccupancyGrid, options: &SurveyOptions, 
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
 
-    use amr_core::map::{FREE, OCCUPIED, UNKNOWN};
+    use amr_core::map::{FREE, UNKNOWN};
     use hil_mocks::world::paper_site;
 
     use super::*;
@@ -147,6 +147,5 @@ mod tests {
         );
         let (i, j) = map.cell_of([0.0, 2.5]).unwrap();
         assert_eq!(map.get(i, j), Some(UNKNOWN));
-        let _ = OCCUPIED;
     }
 }
