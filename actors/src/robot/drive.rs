@@ -180,8 +180,13 @@ impl Actor for DriveActor {
     ) -> Result<(), ActorProcessingErr> {
         if let DriveMsg::Events = msg {
             let (events, lost) = self.ports.bus_events.take();
+            // Health after each event, not once per batch: a drive that left Operation Enabled
+            // and was enabled again within one batch (a robot thawed after its drives quick-stopped
+            // on their own) must still reach the safety layer as a change, or the robot would
+            // drive on as if nothing had happened.
             for ev in events {
                 self.apply(state, DriveMsg::Master(ev));
+                self.update_health(state);
             }
             if lost {
                 // What the drives did is unknown: they count as not enabled (which halts the robot)
@@ -310,5 +315,72 @@ impl DriveActor {
                 self.send(state, MasterCommand::SetTargets(targets.to_vec()));
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::FleetClock;
+    use crate::config::{ConfigSource, load};
+    use amr_msgs::HealthReport;
+    use std::time::Duration;
+
+    /// The drives' health reports queued for the safety layer so far.
+    fn drive_healths(ports: &RobotPorts) -> Vec<Health> {
+        ports
+            .safety_inbox
+            .take()
+            .0
+            .into_iter()
+            .filter_map(|i| match i {
+                SafetyInput::Health(HealthReport { device: Device::Drives, health, .. }) => Some(health),
+                _ => None,
+            })
+            .collect()
+    }
+
+    async fn settle() {
+        for _ in 0..20 {
+            tokio::task::yield_now().await;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+
+    #[tokio::test]
+    async fn a_drive_that_left_operation_enabled_is_reported_even_if_enabled_again_in_the_same_batch() {
+        let cfg = load(&ConfigSource::Embedded).unwrap();
+        let robot = cfg.robots.iter().find(|r| r.id.as_str() == "robot-a").unwrap();
+        let ports = RobotPorts::new("robot-a", FleetClock::start());
+        let actor = DriveActor {
+            ports: Arc::clone(&ports),
+            drive: robot.diff_drive(),
+            counters: Counters::default(),
+        };
+        let (me, handle) = Actor::spawn(None, actor, ()).await.unwrap();
+        let (tx, _rx) = tokio::sync::mpsc::channel(64);
+        ports.bus.send_replace(Some(BusLink { generation: 1, commands: tx }));
+        settle().await;
+        for node in [1, 2] {
+            ports.bus_events.push(MasterEvent::Enabled { node });
+        }
+        settle().await;
+        assert_eq!(drive_healths(&ports).last(), Some(&Health::Ok));
+        // One batch: both drives seen in their own quick stop (the master's heartbeat lost), then
+        // enabled again by the master, before the actor ran.
+        for node in [1, 2] {
+            ports.bus_events.push(MasterEvent::StateChanged { node, state: State402::QuickStopActive });
+        }
+        for node in [1, 2] {
+            ports.bus_events.push(MasterEvent::Enabled { node });
+        }
+        settle().await;
+        let seen = drive_healths(&ports);
+        assert!(
+            seen.first().is_some_and(|h| *h != Health::Ok) && seen.last() == Some(&Health::Ok),
+            "the safety layer must see the drives leave Ok and come back: {seen:?}"
+        );
+        me.stop(None);
+        let _ = handle.await;
     }
 }
