@@ -1,6 +1,7 @@
 //! `amr bench vamr`: per-stage times of the Virtual-AMR pipeline in the layout of the paper's
-//! Table 4, with the paper-faithful KD-tree heading search measured in the same run as the baseline.
-//! Medians (and P95) over repeated runs on a fixed synthetic scene; this measures, it asserts nothing.
+//! Table 4, with the paper-faithful KD-tree heading search measured in the same run as the baseline,
+//! and the time per fused update for teams of 2, 3, 4 and 8 robots (issue 18 §5).
+//! Medians (and P95) over repeated runs on fixed synthetic scenes; this measures, it asserts nothing.
 
 use std::fmt::Write as _;
 use std::hint::black_box;
@@ -8,13 +9,14 @@ use std::time::Instant;
 
 use amr_core::config::{Configuration, VamrParams};
 use amr_core::vamr::contour::{ContourInput, recognize};
+use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::fusion::{FusionInput, fuse};
 use amr_core::vamr::heading::{
     AngleGrid, HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search,
 };
-use amr_core::vamr::pipeline::Pipeline;
+use amr_core::vamr::pipeline::{Pipeline, Source, Stage, UpdateError};
 use amr_core::vamr::preprocess::preprocess;
-use amr_core::vamr::synthetic::Pair;
+use amr_core::vamr::synthetic::{Pair, Team};
 use amr_core::vamr::tracker::Tracker;
 use serde::Serialize;
 
@@ -42,19 +44,62 @@ pub(crate) struct Report {
     pub full_search_speedup: [f64; 2],
     /// Whether the baseline and our search picked the same angle (they score slightly differently).
     pub baseline_agrees: [bool; 2],
+    /// Time per fused update by team size.
+    pub teams: Vec<TeamRow>,
+}
+
+/// The team sizes of the time-per-fused-update table.
+pub(crate) const TEAM_SIZES: [usize; 4] = [2, 3, 4, 8];
+
+/// One team size at one beam count: a T4 pipeline's whole updates on [`Team::fan`].
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct TeamRow {
+    pub robots: usize,
+    pub beams: usize,
+    /// The first update: it acquires every track and runs the full heading search for each robot.
+    pub acquisition_ms: f64,
+    /// The updates after it (refined searches): the whole update, failed ones included, and each
+    /// stage's share of it over the updates that reached the stage, tracking and heading summed
+    /// over the N − 1 robots.
+    pub update: Timing,
+    pub preprocess: Timing,
+    pub tracking: Timing,
+    pub heading: Timing,
+    pub virtual_scan: Timing,
+    /// Updates run, the acquisition included.
+    pub updates: usize,
+    /// Updates that returned an error or in which a heading search failed (the previous heading
+    /// was kept).
+    pub failed_updates: usize,
+    /// Failed heading searches: a previous heading kept, or none to keep (an error).
+    pub failed_searches: usize,
+    /// Updates that returned an error, and the first error.
+    pub errors: usize,
+    pub first_error: Option<String>,
+    /// The worst relative pose against the truth, over the updates that returned one.
+    pub worst_position_error_m: Option<f64>,
+    pub worst_heading_error_deg: Option<f64>,
 }
 
 fn time<T>(runs: usize, mut f: impl FnMut() -> T) -> Timing {
-    let mut ms: Vec<f64> = (0..runs)
-        .map(|_| {
-            let t0 = Instant::now();
-            black_box(f());
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
+    summarize(
+        (0..runs)
+            .map(|_| {
+                let t0 = Instant::now();
+                black_box(f());
+                t0.elapsed().as_secs_f64() * 1e3
+            })
+            .collect(),
+    )
+}
+
+/// Median and P95 of samples in ms (NaN for none).
+fn summarize(mut ms: Vec<f64>) -> Timing {
     ms.sort_by(f64::total_cmp);
-    let at = |q: f64| ms[((ms.len() - 1) as f64 * q).round() as usize];
-    Timing { median_ms: at(0.5), p95_ms: at(0.95), runs }
+    let at = |q: f64| {
+        ms.get((ms.len().saturating_sub(1) as f64 * q).round() as usize).copied().unwrap_or(f64::NAN)
+    };
+    Timing { median_ms: at(0.5), p95_ms: at(0.95), runs: ms.len() }
 }
 
 struct Measured {
@@ -142,6 +187,110 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
     })
 }
 
+/// Half-width of the area where each robot's track is acquired, around its true position (its
+/// formation slot). Narrower than the server's 0.5 m: on the fan, neighbours stand 1 m apart, and
+/// 0.5 m plus the chassis' reach would take in a neighbour's body, which fits the outline as well.
+const SLOT_HALF_WIDTH_M: f64 = 0.3;
+
+/// `robots` robots on [`Team::fan`] with `beams` beams: one T4 pipeline (the server's 50 ms sync
+/// spread and 100 ms age) fed the team's scans at 10 Hz, `runs` updates after the acquisition.
+fn measure_team(robots: usize, beams: usize, params: &VamrParams, runs: usize) -> anyhow::Result<TeamRow> {
+    let team = Team::fan(robots, beams)?;
+    let truth: Vec<_> = (0..robots)
+        .map(|i| team.truth(i).ok_or_else(|| anyhow::anyhow!("the team has no robot {i}")))
+        .collect::<anyhow::Result<_>>()?;
+    let mut pipeline = Pipeline::new(robots, params.clone(), Configuration::T4, 0.05, 0.1);
+    for (i, t) in truth.iter().enumerate().skip(1) {
+        pipeline.set_expected(i, [t.x, t.y], SLOT_HALF_WIDTH_M);
+    }
+    let mut packets = team.packets();
+    let mut row = TeamRow {
+        robots,
+        beams,
+        acquisition_ms: f64::NAN,
+        update: summarize(Vec::new()),
+        preprocess: summarize(Vec::new()),
+        tracking: summarize(Vec::new()),
+        heading: summarize(Vec::new()),
+        virtual_scan: summarize(Vec::new()),
+        updates: runs + 1,
+        failed_updates: 0,
+        failed_searches: 0,
+        errors: 0,
+        first_error: None,
+        worst_position_error_m: None,
+        worst_heading_error_deg: None,
+    };
+    // Per update: the whole, then preprocessing, tracking, heading, virtual scan.
+    let mut samples: [Vec<f64>; 5] = Default::default();
+    for k in 0..=runs {
+        let stamp_s = 0.1 * k as f64;
+        for p in &mut packets {
+            p.times = PacketTimes { stamp_s, received_s: stamp_s + 0.01 };
+        }
+        // A stage an update did not reach (it failed before) has no sample.
+        let mut stage_ms: [Option<f64>; 4] = [None; 4];
+        let start = Instant::now();
+        let mut last = start;
+        let out = pipeline.update_with_laps(&packets, &mut |stage| {
+            let now = Instant::now();
+            let slot = match stage {
+                Stage::Preprocess => 0,
+                Stage::Tracking => 1,
+                Stage::Heading => 2,
+                Stage::VirtualScan => 3,
+            };
+            *stage_ms[slot].get_or_insert(0.0) += (now - last).as_secs_f64() * 1e3;
+            last = now;
+        });
+        let total_ms = start.elapsed().as_secs_f64() * 1e3;
+        match black_box(out) {
+            Ok(update) => {
+                let failed =
+                    update.pairs.iter().filter(|p| p.heading_source == Source::PreviousHeading).count();
+                row.failed_searches += failed;
+                row.failed_updates += usize::from(failed > 0);
+                let errors = update.relative.iter().zip(&truth).skip(1).map(|(est, t)| {
+                    let position_m = (est.x - t.x).hypot(est.y - t.y);
+                    (position_m, amr_core::se2::angle_diff(est.theta, t.theta).abs().to_degrees())
+                });
+                let (position_m, heading_deg) =
+                    errors.fold((0.0, 0.0), |(p, h), (pi, hi)| (pi.max(p), hi.max(h)));
+                let worst = |old: Option<f64>, new: f64| Some(old.map_or(new, |o| o.max(new)));
+                row.worst_position_error_m = worst(row.worst_position_error_m, position_m);
+                row.worst_heading_error_deg = worst(row.worst_heading_error_deg, heading_deg);
+            }
+            Err(e) => {
+                row.errors += 1;
+                row.failed_searches += usize::from(matches!(e, UpdateError::NoHeading { .. }));
+                row.failed_updates += 1;
+                row.first_error.get_or_insert_with(|| e.to_string());
+            }
+        }
+        if k == 0 {
+            row.acquisition_ms = total_ms;
+        } else {
+            samples[0].push(total_ms);
+            for (s, ms) in samples[1..].iter_mut().zip(stage_ms) {
+                s.extend(ms);
+            }
+        }
+    }
+    let [update, preprocess, tracking, heading, virtual_scan] = samples.map(summarize);
+    Ok(TeamRow { update, preprocess, tracking, heading, virtual_scan, ..row })
+}
+
+/// [`measure_team`] for every team size at each beam count.
+fn team_sizes(params: &VamrParams, beams: &[usize], runs: usize) -> anyhow::Result<Vec<TeamRow>> {
+    let mut rows = Vec::new();
+    for &b in beams {
+        for robots in TEAM_SIZES {
+            rows.push(measure_team(robots, b, params, runs)?);
+        }
+    }
+    Ok(rows)
+}
+
 pub(crate) fn run(params: &VamrParams, quick: bool) -> anyhow::Result<Report> {
     let scale = if quick { 1 } else { 5 };
     let small = measure(271, params, scale)?;
@@ -164,6 +313,7 @@ pub(crate) fn run(params: &VamrParams, quick: bool) -> anyhow::Result<Report> {
         rows,
         full_search_speedup: [small.speedup, large.speedup],
         baseline_agrees: [small.agrees, large.agrees],
+        teams: team_sizes(params, &[271, 655], 30 * scale)?,
     })
 }
 
@@ -196,6 +346,62 @@ pub(crate) fn markdown(r: &Report) -> String {
         out,
         "Acquisition and AMCL are not part of this pipeline benchmark; `amr bench amcl` measures AMCL."
     );
+    out + &team_markdown(&r.teams)
+}
+
+/// The time-per-fused-update table.
+fn team_markdown(rows: &[TeamRow]) -> String {
+    let cell = |t: &Timing| {
+        if t.runs == 0 { "—".to_owned() } else { format!("{:.3} ({:.3})", t.median_ms, t.p95_ms) }
+    };
+    let runs = rows.first().map_or(0, |r| r.update.runs);
+    let [w, h] = Team::HALL_M;
+    let mut out = format!(
+        "\n## Time per fused update by team size\n\n\
+         T4 on a synthetic {w} m × {h} m hall, robot 0 seeing the others on a fan 1.1–1.9 m ahead; after \
+         one acquisition update (full heading search for each robot), {runs} updates at 10 Hz refine \
+         around the previous headings. Median (P95) ms over those updates, failed ones included, and of \
+         each stage over the updates that reached it (— for none); tracking and heading summed over \
+         the N − 1 robots.\n\n\
+         | Robots | Points per scan | Fused update | Preprocessing | Tracking | Heading search | Virtual scan | Acquisition (ms) | Failed updates | Worst error vs truth |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n"
+    );
+    for r in rows {
+        let error = match (r.worst_position_error_m, r.worst_heading_error_deg) {
+            (Some(p), Some(h)) => format!("{:.1} cm, {h:.2}°", p * 100.0),
+            _ => "no result".to_owned(),
+        };
+        let _ = writeln!(
+            out,
+            "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {} of {} | {} |",
+            r.robots,
+            r.beams,
+            cell(&r.update),
+            cell(&r.preprocess),
+            cell(&r.tracking),
+            cell(&r.heading),
+            cell(&r.virtual_scan),
+            r.acquisition_ms,
+            r.failed_updates,
+            r.updates,
+            error
+        );
+    }
+    let _ = writeln!(
+        out,
+        "\nA failed update returned an error or kept a robot's previous heading because its search failed."
+    );
+    for r in rows.iter().filter(|r| r.failed_updates > 0) {
+        let _ = writeln!(
+            out,
+            "- {} robots × {} points: {} failed heading searches, {} errors{}",
+            r.robots,
+            r.beams,
+            r.failed_searches,
+            r.errors,
+            r.first_error.as_ref().map_or(String::new(), |e| format!(" (first: {e})"))
+        );
+    }
     out
 }
 
@@ -575,4 +781,39 @@ pub(crate) fn amcl_markdown(r: &AmclReport) -> String {
     }
     out += "\nFor comparison: the paper's AMCL update took 30–33 ms (Pentium G4400); Beluga reports about 1.6 ms at 2 000 particles and 100 beams (desktop i9).\n";
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> VamrParams {
+        amr_core::config::parse_file("vamr.toml", include_str!("../../config/vamr.toml")).unwrap()
+    }
+
+    /// The team table has one row per team size with a measured time, in Markdown and in JSON.
+    /// (No thresholds: speed goals live in the benchmarks.)
+    #[test]
+    fn the_team_table_times_every_team_size() {
+        let rows = team_sizes(&shipped(), &[271], 2).unwrap();
+        let table = team_markdown(&rows);
+        assert!(table.contains("## Time per fused update by team size"), "{table}");
+        for n in TEAM_SIZES {
+            let prefix = format!("| {n} | 271 | ");
+            let line = table
+                .lines()
+                .find(|l| l.starts_with(&prefix))
+                .unwrap_or_else(|| panic!("no row for {n}:\n{table}"));
+            let median: f64 = line[prefix.len()..].split(' ').next().unwrap().parse().unwrap();
+            assert!(median > 0.0, "{line}");
+        }
+        let json = serde_json::to_value(&rows).unwrap();
+        let sizes: Vec<u64> =
+            json.as_array().unwrap().iter().map(|r| r["robots"].as_u64().unwrap()).collect();
+        assert_eq!(sizes, [2, 3, 4, 8]);
+        for r in json.as_array().unwrap() {
+            assert!(r["update"]["median_ms"].as_f64().unwrap() > 0.0, "{r}");
+            assert_eq!(r["updates"].as_u64(), Some(3), "{r}");
+        }
+    }
 }

@@ -368,7 +368,8 @@ fn parse_dialect(s: &str) -> Result<amr_drivers::sopas::Dialect, String> {
 enum BenchCommand {
     /// Per-stage times of the Virtual-AMR pipeline (paper Table 4 layout) at 2 × 271 and 2 × 655
     /// points on a synthetic two-robot scene, with the paper-faithful KD-tree heading search as the
-    /// baseline measured in the same run. Uses vamr.toml from the configuration.
+    /// baseline measured in the same run; then the time per fused update (T4) for teams of 2, 3, 4
+    /// and 8 robots, with failed heading searches. Uses vamr.toml from the configuration.
     Vamr(BenchOptions),
     /// Time of one AMCL update at 2 000 particles, with 60 beams and with a whole virtual scan, of
     /// resampling + estimate alone, at 10 000 particles × 100 beams; a 200 m × 600 m map's load time
