@@ -34,6 +34,7 @@ fn setups() -> (Setup, ServerSetup) {
         scenario: scenario.clone(),
         physics_dt_s: 1.0 / 150.0,
         steps_per_scan: 10,
+        oracle: amr_core::vamr::pipeline::Oracle::default(),
         robots: 2,
     };
     let server = ServerSetup {

@@ -26,7 +26,7 @@ struct Report<'a> {
 }
 
 /// A progress bar on stderr when it is a terminal (hidden otherwise, so logs and CI stay clean).
-fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
+pub(crate) fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     let bar = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         indicatif::ProgressBar::new(len)
     } else {
@@ -90,6 +90,7 @@ pub(crate) fn setup(
         scenario: sc.clone(),
         physics_dt_s: 1.0 / 150.0,
         steps_per_scan: 10,
+        oracle: amr_core::vamr::pipeline::Oracle::default(),
         robots,
     })
 }

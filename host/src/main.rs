@@ -10,6 +10,7 @@ mod mock_cmd;
 mod plots;
 mod record_cmd;
 mod sim_cmd;
+mod study_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -117,6 +118,10 @@ enum Command {
         /// written to OUT/<scenario>/sweep-<eps|step>.{md,json}.
         #[arg(long, value_enum)]
         sweep: Option<eval_cmd::Sweep>,
+        /// Instead of T1–T4: T4's error budget, each of its sources replaced by the truth in turn
+        /// (OUT/<scenario>/budget.{md,json}).
+        #[arg(long, conflicts_with = "sweep")]
+        budget: bool,
         /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
         /// this file for one trial, FILE-<seed>.mcap for several.
         #[arg(long, value_name = "FILE.mcap")]
@@ -571,30 +576,41 @@ fn main() -> ExitCode {
         Command::Server { config, scenario, seed, auto_arm, net, rec } => {
             fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })
         }
-        Command::Eval { scenario, map, trials, seed, out, config, robots, sweep, record, foxglove } => {
-            (|| {
-                let config = amr_actors::config::load(&config_cmd::source_for(config))?;
-                let report = match sweep {
-                    Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,
-                    None => eval_cmd::run(
-                        &config,
-                        &scenario,
-                        map,
-                        robots,
-                        trials,
-                        seed,
-                        eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
-                    )?
-                    .join("report.md"),
-                };
-                #[allow(clippy::print_stdout, reason = "the command's report")]
-                {
-                    print!("{}", std::fs::read_to_string(&report)?);
-                    println!("\nwritten to {}", report.display());
-                }
-                Ok(())
-            })()
-        }
+        Command::Eval {
+            scenario,
+            map,
+            trials,
+            seed,
+            out,
+            config,
+            robots,
+            sweep,
+            budget,
+            record,
+            foxglove,
+        } => (|| {
+            let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+            let report = match sweep {
+                None if budget => study_cmd::budget(&config, &scenario, map, robots, trials, seed, &out)?,
+                Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,
+                None => eval_cmd::run(
+                    &config,
+                    &scenario,
+                    map,
+                    robots,
+                    trials,
+                    seed,
+                    eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
+                )?
+                .join("report.md"),
+            };
+            #[allow(clippy::print_stdout, reason = "the command's report")]
+            {
+                print!("{}", std::fs::read_to_string(&report)?);
+                println!("\nwritten to {}", report.display());
+            }
+            Ok(())
+        })(),
         Command::Localize { map, log, bag, ros2, initial, params, out, seed } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let input = match (log, bag) {

@@ -20,8 +20,8 @@ use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
 use amr_core::config::{AmclParams, Configuration, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
-use amr_core::vamr::frame::PacketTimes;
-use amr_core::vamr::pipeline::{Pipeline, RobotPacket, Source, Stage, UpdateError};
+use amr_core::vamr::frame::{PacketTimes, virtual_frame};
+use amr_core::vamr::pipeline::{Oracle, Pipeline, RobotPacket, Source, Stage, UpdateError};
 use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, StageTimes, Uplink};
 
 /// Scans kept per robot for pairing.
@@ -71,6 +71,9 @@ pub struct CoreSetup {
     /// Where V starts in the map; each robot's own filter starts at its slot.
     pub initial_v: Se2,
     pub seed: u64,
+    /// Estimates replaced by the truth given with [`ServerCore::set_truth`]: evaluations only
+    /// (the error budget); the server runs with none.
+    pub oracle: Oracle,
 }
 
 /// The end of a piece of work in [`ServerCore::offer`], for timing by the caller (the core has no
@@ -204,6 +207,8 @@ struct Held {
     stamp_s: f64,
     rx_s: f64,
     odom: Se2,
+    /// The true pose at the scan (evaluations only).
+    truth: Option<Se2>,
 }
 
 /// The server's localisation (see the module documentation).
@@ -222,6 +227,9 @@ pub struct ServerCore {
     lost: Vec<bool>,
     /// Per robot: the odometry frame of its last scan (0: none yet).
     odom_frames: Vec<u64>,
+    oracle: Oracle,
+    /// Per robot: the true pose of its next scan (evaluations only).
+    truth: Vec<Option<Se2>>,
 }
 
 impl ServerCore {
@@ -252,9 +260,18 @@ impl ServerCore {
                 let mut pipeline =
                     Pipeline::new(n, setup.vamr.clone(), *c, setup.max_spread_s, setup.max_age_s);
                 for (i, m) in setup.members.iter().enumerate().skip(1) {
+                    let observer = observer(&setup.members, i);
+                    pipeline.set_observer(i, observer);
+                    let y0 = setup.members.get(observer).map_or(y0, |o| o.slot_y_m);
                     pipeline.set_expected(i, [0.0, m.slot_y_m - y0], 0.5);
                 }
-                let filter = (*c != Configuration::T1).then(|| filter(setup.seed, setup.initial_v));
+                pipeline.set_oracle(setup.oracle);
+                let filter = (*c != Configuration::T1).then(|| {
+                    let mut f =
+                        Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed);
+                    f.init_pose(setup.initial_v, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
+                    f
+                });
                 Channel { configuration: *c, pipeline, filter, seq: 0 }
             })
             .collect();
@@ -267,7 +284,16 @@ impl ServerCore {
             fused_stamp: vec![f64::NEG_INFINITY; n],
             lost: vec![false; n],
             odom_frames: vec![0; n],
+            oracle: setup.oracle,
+            truth: vec![None; n],
             members: setup.members,
+        }
+    }
+
+    /// The true pose of robot `i`'s next scan, for the oracle (evaluations only).
+    pub fn set_truth(&mut self, i: usize, pose: Se2) {
+        if let Some(t) = self.truth.get_mut(i) {
+            *t = Some(pose);
         }
     }
 
@@ -324,7 +350,8 @@ impl ServerCore {
         self.robot_amcl(i, s, odom, &mut step);
         lap(Lap::RobotAmcl);
         let buf = &mut self.scans[i];
-        buf.push_back(Held { scan: Arc::clone(&s.scan), stamp_s: s.stamp_s, rx_s, odom });
+        let truth = self.truth.get_mut(i).and_then(Option::take);
+        buf.push_back(Held { scan: Arc::clone(&s.scan), stamp_s: s.stamp_s, rx_s, odom, truth });
         while buf.len() > BUFFER {
             buf.pop_front();
         }
@@ -446,9 +473,12 @@ impl ServerCore {
                 chassis: &m.chassis,
                 weight: m.weight,
                 amcl_pose: self.corrections.get(i).copied().flatten().map(|c| c * h.odom),
+                truth: h.truth,
             })
             .collect();
         let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |h| (h.stamp_s, h.odom));
+        // The oracle's V in robot 0's frame, from the true relative poses.
+        let true_v_in_reference = self.oracle.odometry.then(|| true_v_in_first(set, &self.members)).flatten();
         for ch in &mut self.channels {
             let c = ch.configuration;
             let result = ch.pipeline.update_with_laps(&packets, &mut |stage| lap(Lap::Pipeline(c, stage)));
@@ -477,7 +507,7 @@ impl ServerCore {
                 configuration: ch.configuration,
                 stamp_s: first,
                 oldest_stamp_s: oldest,
-                v_odom: first_odom * u.v_in_reference,
+                v_odom: first_odom * true_v_in_reference.unwrap_or(u.v_in_reference),
                 points,
                 robots: u.bases_in_v.iter().zip(set).map(|(b, h)| (*b, h.odom)).collect(),
                 times: StageTimes { acquisition_sync_s: now_s - oldest, ..StageTimes::default() },
@@ -516,6 +546,49 @@ impl ServerCore {
             });
         }
     }
+}
+
+/// AMCL's parameters for a virtual scan fused from `robots` robots: each robot's beams keep their
+/// budget, `max_beams` × `robots` in all. With one robot's budget the fused scan would be thinned
+/// to the information of one scan, and T4 would localise on half the beams that T1's two filters
+/// use together (issue 18 §4: the error budget found this, not the relative pose, to be why T4 was
+/// worse than T1). The cost of its sensor update is then that of T1's filters together.
+#[must_use]
+pub fn virtual_params(amcl: &AmclParams, robots: usize) -> AmclParams {
+    let mut p = amcl.clone();
+    let beams = i64::from(amcl.max_beams.get()).saturating_mul(robots.max(1) as i64);
+    if let Ok(c) = amr_core::config::value::Count::new(beams) {
+        p.max_beams = c;
+    }
+    p
+}
+
+/// The robot that observes robot `i` of a line formation (issue 18 §5): the nearest robot before
+/// it on its side of robot 0, between robot 0 and it, so that nothing stands between them; robot
+/// 0 when none is.
+fn observer(members: &[Member], i: usize) -> usize {
+    let (Some(first), Some(me)) = (members.first(), members.get(i)) else { return 0 };
+    let d = me.slot_y_m - first.slot_y_m;
+    members[..i]
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, m)| {
+            let dm = m.slot_y_m - first.slot_y_m;
+            dm * d > 0.0 && dm.abs() < d.abs()
+        })
+        .min_by(|(_, a), (_, b)| {
+            (a.slot_y_m - me.slot_y_m).abs().total_cmp(&(b.slot_y_m - me.slot_y_m).abs())
+        })
+        .map_or(0, |(k, _)| k)
+}
+
+/// V in the first robot's frame from the robots' true poses, when every one is known.
+fn true_v_in_first(set: &[Held], members: &[Member]) -> Option<Se2> {
+    let first = set.first()?.truth?;
+    let rel: Option<Vec<(Se2, f64)>> =
+        set.iter().zip(members).map(|(h, m)| h.truth.map(|t| (first.inverse() * t, m.weight))).collect();
+    Some(virtual_frame(&rel?))
 }
 
 #[cfg(test)]

@@ -202,6 +202,7 @@ pub fn core_setup(setup: &ServerSetup, configurations: &[Configuration]) -> Core
         field: Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, TIM551_RANGE_M.1)),
         initial_v: setup.amcl.initial_pose.map_or(setup.scenario.start_pose(), |p| p.pose()),
         seed: setup.seed,
+        oracle: amr_core::vamr::pipeline::Oracle::default(),
     }
 }
 

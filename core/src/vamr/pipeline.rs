@@ -1,8 +1,14 @@
 //! One fused update: sync gate → preprocessing → relative poses (by the configured T1–T4 sources)
 //! → virtual frame → body masks → virtual scan (spec §6, §9).
 //!
-//! Robot 0 is the reference: it tracks every other robot's centre in its own scan, and each other
-//! robot's heading is searched against robot 0's scan. With two robots this is the paper's A and B.
+//! Robot 0 is the reference. Every other robot has an *observer*, a robot before it that tracks its
+//! centre in its own scan and against whose scan its heading is searched; by default robot 0
+//! observes all (with two robots this is the paper's A and B). In a longer line the far robots are
+//! hidden from robot 0 behind its neighbours, so each is observed by its neighbour nearer to robot 0
+//! ([`Pipeline::set_observer`]) and its pose relative to robot 0 is composed along the chain.
+//!
+//! For error budgets (issue 18 §4) an [`Oracle`] replaces the tracker's position or the heading
+//! search's heading by the truth carried in the packets: evaluation only, never on a robot.
 
 use crate::config::{Configuration, VamrParams};
 use crate::geometry::Polygon;
@@ -28,6 +34,22 @@ pub struct RobotPacket<'a> {
     /// The robot's own AMCL pose `T_{B_i}^M`, where the configuration takes relative position or
     /// heading from AMCL (T1–T3).
     pub amcl_pose: Option<Se2>,
+    /// The robot's true pose in any frame common to the set (a simulation's world), for an
+    /// [`Oracle`]; `None` everywhere but in evaluations.
+    pub truth: Option<Se2>,
+}
+
+/// Which estimates an evaluation replaces by the truth ([`RobotPacket::truth`]), to measure each
+/// one's share of the error (the error budget). The default replaces nothing.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Oracle {
+    /// The relative position (the contour tracker's, or AMCL's in T1–T2).
+    pub position: bool,
+    /// The relative heading (the heading search's, or AMCL's in T1 and T3).
+    pub heading: bool,
+    /// V's odometry: composed with the true relative poses instead of the estimated ones (applied
+    /// by whoever composes it: the server core).
+    pub odometry: bool,
 }
 
 /// Where a relative pose component came from in this update.
@@ -106,9 +128,12 @@ pub struct Pipeline {
     max_age_s: f64,
     trackers: Vec<Tracker>,
     headings: Vec<Option<f64>>,
-    /// Where each non-reference robot is expected (its formation slot, in robot 0's frame): the
-    /// search area while its track is being acquired.
+    /// Where each non-reference robot is expected (its formation slot, in its observer's frame):
+    /// the search area while its track is being acquired.
     expected: Vec<Option<Roi>>,
+    /// Each non-reference robot's observer (a robot before it).
+    observers: Vec<usize>,
+    oracle: Oracle,
     scratch: SearchScratch,
 }
 
@@ -126,6 +151,8 @@ impl Pipeline {
             trackers: vec![Tracker::new(params.tracker); others],
             headings: vec![None; others],
             expected: vec![None; others],
+            observers: vec![0; others],
+            oracle: Oracle::default(),
             params,
             configuration,
             max_spread_s,
@@ -139,21 +166,48 @@ impl Pipeline {
         self.configuration
     }
 
-    /// Acquire robot `robot`'s track near `center` (robot 0's base frame), within `half_width_m`,
-    /// instead of over the whole scan. With three or more robots this is what tells the reference
-    /// robot which body is which; the formation's configured slots give it.
+    /// Acquire robot `robot`'s track near `center` (its observer's base frame), within
+    /// `half_width_m`, instead of over the whole scan. With three or more robots this is what tells
+    /// an observer which body is which; the formation's configured slots give it.
     pub fn set_expected(&mut self, robot: usize, center: [f64; 2], half_width_m: f64) {
         if let Some(slot) = robot.checked_sub(1).and_then(|i| self.expected.get_mut(i)) {
             *slot = Some(Roi { center, half_width: [half_width_m; 2] });
         }
     }
 
+    /// Robot `robot` is observed by robot `observer` (which must come before it; default 0).
+    /// Ignored for an out-of-range robot or an observer not before it.
+    pub fn set_observer(&mut self, robot: usize, observer: usize) {
+        if observer < robot
+            && let Some(slot) = robot.checked_sub(1).and_then(|i| self.observers.get_mut(i))
+        {
+            *slot = observer;
+        }
+    }
+
+    /// Each non-reference robot's observer, robot 1 first.
+    #[must_use]
+    pub fn observers(&self) -> &[usize] {
+        &self.observers
+    }
+
+    /// Replace estimates by the truth (evaluations only).
+    pub fn set_oracle(&mut self, oracle: Oracle) {
+        self.oracle = oracle;
+    }
+
     /// Forget robot `robot`'s track and heading (its data stopped): the next update acquires it
-    /// again in its expected area with the full heading search.
+    /// again in its expected area with the full heading search. The robots it observes are tracked
+    /// in its scans, so they are acquired afresh too.
     pub fn reset_robot(&mut self, robot: usize) {
         if let Some(i) = robot.checked_sub(1).filter(|i| *i < self.trackers.len()) {
             self.trackers[i] = Tracker::new(self.params.tracker);
             self.headings[i] = None;
+        }
+        let observed: Vec<usize> =
+            (1..=self.observers.len()).filter(|k| self.observers[k - 1] == robot && *k != robot).collect();
+        for k in observed {
+            self.reset_robot(k);
         }
     }
 
@@ -196,15 +250,32 @@ impl Pipeline {
         };
         let pre: Vec<Preprocessed> =
             packets.iter().map(|p| preprocess(p.scan, &p.lidar_to_base, &self.params.preprocess)).collect();
-        let reference = &packets[0];
-        let target = heading_from_search
-            .then(|| TargetScan::new(reference.scan, &reference.lidar_to_base, &pre[0].smoothed_points));
+        // The heading search's target: each observer's scan, built once.
+        let mut targets: Vec<Option<TargetScan>> = Vec::new();
+        targets.resize_with(packets.len(), || None);
+        if heading_from_search {
+            for &o in &self.observers {
+                if targets[o].is_none() {
+                    targets[o] = Some(TargetScan::new(
+                        packets[o].scan,
+                        &packets[o].lidar_to_base,
+                        &pre[o].smoothed_points,
+                    ));
+                }
+            }
+        }
         lap(Stage::Preprocess);
         let mut relative = vec![Se2::IDENTITY];
         let mut pairs = Vec::new();
         for i in 1..packets.len() {
+            let observer = self.observers[i - 1];
+            let reference = &packets[observer];
             let other = &packets[i];
             let from_amcl = match (reference.amcl_pose, other.amcl_pose) {
+                (Some(a), Some(b)) => Some(a.inverse() * b),
+                _ => None,
+            };
+            let from_truth = match (reference.truth, other.truth) {
                 (Some(a), Some(b)) => Some(a.inverse() * b),
                 _ => None,
             };
@@ -221,7 +292,7 @@ impl Pipeline {
                 let contour = recognize(
                     ContourInput {
                         scan: reference.scan,
-                        filtered: &pre[0].filtered_points,
+                        filtered: &pre[observer].filtered_points,
                         lidar_to_base: reference.lidar_to_base,
                         chassis: other.chassis,
                         roi: tracker.roi(t_s).or(self.expected[i - 1]),
@@ -245,8 +316,12 @@ impl Pipeline {
                 let rel = from_amcl.ok_or(UpdateError::NoPosition { robot: i, why: "no AMCL poses" })?;
                 [rel.x, rel.y]
             };
+            let position = match (self.oracle.position, from_truth) {
+                (true, Some(t)) => [t.x, t.y],
+                _ => position,
+            };
             lap(Stage::Tracking);
-            let theta = if let Some(target) = &target {
+            let theta = if let Some(target) = &targets[observer] {
                 let h = &self.params.heading;
                 let (grid, mode) = match self.headings[i - 1] {
                     Some(prev) => (
@@ -277,8 +352,12 @@ impl Pipeline {
             } else {
                 from_amcl.ok_or(UpdateError::NoHeading { robot: i, why: "no AMCL poses" })?.theta
             };
+            let theta = match (self.oracle.heading, from_truth) {
+                (true, Some(t)) => t.theta,
+                _ => theta,
+            };
             lap(Stage::Heading);
-            relative.push(Se2::new(position[0], position[1], theta));
+            relative.push(relative[observer] * Se2::new(position[0], position[1], theta));
             pairs.push(report);
         }
         let weighted: Vec<(Se2, f64)> = relative.iter().zip(packets).map(|(t, p)| (*t, p.weight)).collect();

@@ -90,6 +90,7 @@ fn packets<'a>(w: &'a World, scans: &'a [Scan], poses: &[Se2], amcl: bool) -> Ve
             chassis: &w.chassis,
             weight: 1.0,
             amcl_pose: amcl.then_some(*p),
+            truth: None,
         })
         .collect()
 }
@@ -294,6 +295,7 @@ fn with_three_robots_each_track_locks_onto_its_own_robot() {
             chassis: &w.chassis,
             weight: 1.0,
             amcl_pose: None,
+            truth: None,
         })
         .collect();
     let mut p = Pipeline::new(3, shipped_params(), Configuration::T4, 0.05, 0.1);
@@ -315,4 +317,69 @@ fn with_three_robots_each_track_locks_onto_its_own_robot() {
     let out = blind.update(&packets).unwrap();
     let (a, b) = (out.relative[1], out.relative[2]);
     assert!((a.x - b.x).hypot(a.y - b.y) < 0.01, "both tracks on one robot's position: {a:?} {b:?}");
+}
+
+/// Four robots in a line (the formation's slots: 0, +s, −s, +2s): robot 3 stands behind robot 1
+/// as robot 0 sees it. Observed by robot 1 (its neighbour nearer to robot 0), its pose relative to
+/// robot 0 is composed along the chain and holds; observed by robot 0 it does not.
+#[test]
+fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
+    let w = site();
+    let poses = [
+        Se2::new(0.0, 0.0, 0.0),
+        Se2::from_degrees(0.04, 0.6, 3.0),
+        Se2::from_degrees(-0.03, -0.6, -2.0),
+        Se2::from_degrees(0.05, 1.2, -4.0),
+    ];
+    let scans: Vec<Scan> = (0..4).map(|i| w.scan(&poses, i)).collect();
+    let packets: Vec<RobotPacket<'_>> = scans
+        .iter()
+        .zip(&poses)
+        .map(|(s, p)| RobotPacket {
+            scan: s,
+            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+            lidar_to_base: w.mount,
+            chassis: &w.chassis,
+            weight: 1.0,
+            amcl_pose: None,
+            truth: Some(*p),
+        })
+        .collect();
+    let truth = |i: usize| poses[0].inverse() * poses[i];
+    let chained = |observer3: usize| {
+        let mut p = Pipeline::new(4, shipped_params(), Configuration::T4, 0.05, 0.1);
+        p.set_expected(1, [0.0, 0.6], 0.5);
+        p.set_expected(2, [0.0, -0.6], 0.5);
+        p.set_observer(3, observer3);
+        let from = if observer3 == 1 { 0.6 } else { 0.0 };
+        p.set_expected(3, [0.0, 1.2 - from], 0.5);
+        p.update(&packets)
+    };
+    let out = chained(1).unwrap();
+    for i in 1..4 {
+        assert!(
+            out.relative[i].approx_eq(&truth(i), 0.015, 0.3f64.to_radians()),
+            "robot {i}: {:?} vs {:?}",
+            out.relative[i],
+            truth(i)
+        );
+    }
+    // Robot 0 cannot see robot 3: no estimate, or a wrong one.
+    let blind = chained(0);
+    assert!(
+        blind.as_ref().map_or(true, |o| !o.relative[3].approx_eq(&truth(3), 0.015, 0.3f64.to_radians())),
+        "robot 0 should not find robot 3 behind robot 1: {:?}",
+        blind.map(|o| o.relative[3])
+    );
+    // The oracle replaces both estimates by the truth, exactly.
+    let mut p = Pipeline::new(4, shipped_params(), Configuration::T4, 0.05, 0.1);
+    p.set_observer(3, 1);
+    for (i, y) in [(1, 0.6), (2, -0.6), (3, 0.6)] {
+        p.set_expected(i, [0.0, y], 0.5);
+    }
+    p.set_oracle(super::pipeline::Oracle { position: true, heading: true, odometry: false });
+    let out = p.update(&packets).unwrap();
+    for i in 1..4 {
+        assert!(out.relative[i].approx_eq(&truth(i), 1e-9, 1e-9), "oracle, robot {i}");
+    }
 }

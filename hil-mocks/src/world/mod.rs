@@ -18,7 +18,7 @@ use amr_core::rng::Rng;
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
 
-pub use site::{PAPER_SITE_LENGTH_M, PAPER_SITE_WIDTH_M, paper_site};
+pub use site::{PAPER_SITE_LENGTH_M, PAPER_SITE_WIDTH_M, corridor, one_sided_hall, paper_site};
 
 /// A robot's physical description (from its configuration).
 #[derive(Debug, Clone)]
@@ -97,6 +97,18 @@ struct SimRobot {
     twist: (f64, f64),
     gyro_bias_radps: f64,
     rng: Rng,
+}
+
+/// What one robot's LiDAR can see ([`World::visibility`]), in beams.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Visibility {
+    pub beams: usize,
+    /// Beams whose first return is another robot's body.
+    pub on_robots: usize,
+    /// Beams that return from the site with no other robot about.
+    pub site_alone: usize,
+    /// Of those, the ones that still do.
+    pub site_left: usize,
 }
 
 /// What the LiDARs see besides the robots: walls as polygon edges (the paper's site), and the
@@ -312,6 +324,40 @@ impl World {
             beams.range_max_m,
         )?;
         Some(beams.with_ranges(ranges))
+    }
+
+    /// What robot `robot`'s LiDAR could see now on the beams of `beams`, noise-free: how many beams
+    /// the other robots' bodies take, and how many of the site's returns it would have alone are
+    /// left (issue 18 §3: the occlusion study).
+    #[must_use]
+    pub fn visibility(&self, robot: usize, beams: &Scan) -> Option<Visibility> {
+        let me = self.robots.get(robot)?;
+        let lidar = me.pose * me.spec.lidar_mount;
+        let statics: Vec<(Se2, &Polygon)> = self.site.polygons.iter().map(|p| (Se2::IDENTITY, p)).collect();
+        let others: Vec<(Se2, &Polygon)> = self
+            .robots
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != robot)
+            .map(|(_, r)| (r.pose, &r.spec.chassis))
+            .collect();
+        let at = [lidar.x, lidar.y];
+        let max = beams.range_max_m;
+        let mut v = Visibility { beams: beams.len(), ..Visibility::default() };
+        for i in 0..beams.len() {
+            let a = lidar.theta + beams.angle(i);
+            let cells = self.site.grid.as_ref().and_then(|g| g.cast_ray(at, a, max));
+            let site = match (cast_ray(at, a, max, &statics), cells) {
+                (Some(p), Some(c)) => Some(p.min(c)),
+                (p, c) => p.or(c),
+            };
+            let robot_hit = cast_ray(at, a, max, &others);
+            let hidden = robot_hit.is_some_and(|r| site.is_none_or(|s| r < s));
+            v.on_robots += usize::from(hidden);
+            v.site_alone += usize::from(site.is_some());
+            v.site_left += usize::from(site.is_some() && !hidden);
+        }
+        Some(v)
     }
 
     /// Ranges along `angles_rad` (robot frame) from robot `robot`'s LiDAR; NaN where nothing returns.

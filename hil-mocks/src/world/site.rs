@@ -27,3 +27,38 @@ pub fn paper_site() -> Result<Vec<Polygon>, PolygonError> {
     let column = Polygon::new(vec![[-2.15, -hy], [-1.85, -hy], [-1.85, -hy + 0.3], [-2.15, -hy + 0.3]])?;
     Ok(vec![room, column])
 }
+
+fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<[f64; 2]> {
+    vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+}
+
+/// The occlusion study's hall (issue 18 §3), `config/maps/one-sided-hall.*`: 40 m × 20 m
+/// (x from −20 to 20, y from −12 to 8), its features on one side only — ten racks 2 m × 0.8 m
+/// against the +y wall, at irregular gaps so that no two stretches look alike — and nothing else
+/// within the TiM551's 10 m from where the formations drive (y from −4 to 6, x from −6 to 4): the
+/// −y and end walls stand 12 m and more away. A robot localises on the racks alone, and a
+/// neighbour on their side hides part of them.
+pub fn one_sided_hall() -> Result<Vec<Polygon>, PolygonError> {
+    let mut out = vec![Polygon::new(rect(-20.0, -12.0, 20.0, 8.0))?];
+    for x0 in [-18.5, -14.0, -10.5, -6.0, -2.5, 1.5, 5.0, 9.5, 13.0, 17.0] {
+        out.push(Polygon::new(rect(x0, 7.2, x0 + 2.0, 8.0))?);
+    }
+    Ok(out)
+}
+
+/// The occlusion study's corridor (issue 18 §3), `config/maps/corridor.*`: 40 m long and 3 m wide
+/// (x from −20 to 20, y from −1.5 to 1.5), plain walls but for door recesses 1 m wide and 0.3 m
+/// deep, four in each wall at irregular places: the only features along it. The end walls stand
+/// 14 m and more from where the formations drive.
+pub fn corridor() -> Result<Vec<Polygon>, PolygonError> {
+    let mut room = vec![[-20.0, -1.5]];
+    for x in [-12.0, -2.0, 8.0, 16.0] {
+        room.extend([[x, -1.5], [x, -1.8], [x + 1.0, -1.8], [x + 1.0, -1.5]]);
+    }
+    room.extend([[20.0, -1.5], [20.0, 1.5]]);
+    for x in [12.0, 3.0, -7.0, -16.0] {
+        room.extend([[x + 1.0, 1.5], [x + 1.0, 1.8], [x, 1.8], [x, 1.5]]);
+    }
+    room.push([-20.0, 1.5]);
+    Ok(vec![Polygon::new(room)?])
+}

@@ -157,6 +157,32 @@ fn the_gyro_reads_the_true_yaw_rate_plus_its_bias() {
     assert!(bias.abs() <= 0.01 + 1e-4 && bias.abs() > 1e-5, "bias {bias}");
 }
 
+/// The occlusion study's maps are the renderings of [`one_sided_hall`] and [`corridor`]. Set
+/// `AMR_WRITE_MAPS=1` to re-render them.
+#[test]
+fn shipped_study_maps_match_their_sites() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
+    let sites = [
+        ("one-sided-hall", one_sided_hall().unwrap(), Se2::new(-20.25, -12.25, 0.0), 810, 410, [2.0, 7.2]),
+        ("corridor", corridor().unwrap(), Se2::new(-20.25, -2.05, 0.0), 810, 82, [3.5, 1.8]),
+    ];
+    for (name, site, origin, w, h, feature) in sites {
+        let grid = rasterize_outlines(&site, &site[0], 0.05, origin, w, h);
+        let (yaml, image) = save_map(&grid, MapMode::Trinary, 0.65, 0.196, &format!("{name}.pgm")).unwrap();
+        if std::env::var_os("AMR_WRITE_MAPS").is_some() {
+            std::fs::write(dir.join(format!("{name}.yaml")), &yaml).unwrap();
+            std::fs::write(dir.join(format!("{name}.pgm")), &image).unwrap();
+        }
+        assert_eq!(std::fs::read_to_string(dir.join(format!("{name}.yaml"))).unwrap(), yaml, "{name}");
+        assert_eq!(std::fs::read(dir.join(format!("{name}.pgm"))).unwrap(), image, "{name}");
+        // A feature's face is occupied; the middle of the drive is free.
+        let (i, j) = grid.cell_of(feature).unwrap();
+        assert!(grid.is_occupied(i, j), "{name}: {feature:?}");
+        let (i, j) = grid.cell_of([0.0, 0.0]).unwrap();
+        assert!(grid.is_free(i, j), "{name}");
+    }
+}
+
 /// The shipped map is the rendering of [`paper_site`]. Set `AMR_WRITE_MAPS=1` to re-render it after
 /// changing the site (and say why in the map's README).
 #[test]
@@ -215,4 +241,26 @@ fn a_world_on_a_grid_sees_the_site_as_on_its_polygons() {
         (0.045..0.08).contains(&median) && p90 < 0.2,
         "walls nearer by: median {median}, 90th percentile {p90}"
     );
+}
+
+/// Visibility counts what a neighbour hides: alone, a robot sees the whole site; beside another at
+/// 0.9 m, the beams the other's body spans go to it (its near face 0.7 m from the LiDAR, which is
+/// 0.175 m ahead of the centre: from atan(0.025/0.7) to atan(0.375/0.7), about 30° of 1° beams),
+/// and as many fewer site returns are left.
+#[test]
+fn visibility_counts_the_beams_a_neighbour_takes() {
+    let beams = tim551_beams();
+    let mut w = World::new(paper_site().unwrap(), Noise::NONE, 1);
+    let a = w.add_robot(square_robot(), Se2::new(-2.0, 0.45, 0.0));
+    let alone = w.visibility(a, &beams).unwrap();
+    assert_eq!((alone.beams, alone.on_robots), (271, 0));
+    assert_eq!(alone.site_left, alone.site_alone);
+    assert!(alone.site_alone > 250, "{alone:?}");
+    let b = w.add_robot(square_robot(), Se2::new(-2.0, -0.45, 0.0));
+    let v = w.visibility(a, &beams).unwrap();
+    assert!((28..=33).contains(&v.on_robots), "{v:?}");
+    assert_eq!(v.site_alone, alone.site_alone);
+    assert_eq!(v.site_left, v.site_alone - v.on_robots);
+    assert_eq!(w.visibility(b, &beams).unwrap().on_robots, v.on_robots);
+    assert!(w.visibility(5, &beams).is_none());
 }

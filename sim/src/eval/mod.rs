@@ -45,6 +45,8 @@ pub struct Setup {
     pub steps_per_scan: usize,
     /// Robots in the formation (the paper: 2).
     pub robots: usize,
+    /// Estimates of T2–T4 replaced by the truth (the error budget); none in a normal evaluation.
+    pub oracle: amr_core::vamr::pipeline::Oracle,
 }
 
 /// One configuration's errors over one trial.
@@ -85,7 +87,23 @@ pub struct Trial {
     pub truth_robots: Vec<Vec<[f64; 2]>>,
     /// T4's particle cloud (positions) after the last scan.
     pub final_particles_t4: Vec<[f64; 2]>,
+    /// What each robot's LiDAR could see, averaged over every [`VISIBILITY_EVERY`]th scan.
+    pub visibility: Vec<View>,
 }
+
+/// One robot's view over a trial (issue 18 §3), shares in 0..=1.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct View {
+    /// Of its beams, the share whose first return is another robot's body.
+    pub occluded: f64,
+    /// Of the site returns it would have alone, the share left with the others about.
+    pub site_left: f64,
+    /// Of its beams, the share that returns from the site (what it localises on).
+    pub site: f64,
+}
+
+/// Visibility is counted on every this many scans (it costs two more ray casts per beam).
+pub const VISIBILITY_EVERY: usize = 5;
 
 const CONFIGS: [Configuration; 4] =
     [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4];
@@ -193,6 +211,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         field: Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, tim551_beams().range_max_m)),
         initial_v: start_v,
         seed,
+        oracle: setup.oracle,
     });
     // Odometry poses in the map frame, starting from the known start poses.
     let mut odom: Vec<Se2> = robots.iter().map(|r| world.pose(*r).unwrap_or(start_v)).collect();
@@ -206,6 +225,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
     let mut scans = 0;
     let (mut times_s, mut truth_v, mut truth_robots) =
         (Vec::new(), Vec::new(), vec![Vec::new(); robots.len()]);
+    let mut views: Vec<(f64, f64, f64, usize)> = vec![(0.0, 0.0, 0.0, 0); robots.len()];
     for (step, r) in reference.iter().enumerate() {
         // Control, closed on odometry.
         for (i, rid) in robots.iter().enumerate() {
@@ -238,6 +258,16 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             continue;
         }
         scans += 1;
+        if (scans - 1) % VISIBILITY_EVERY == 0 {
+            for (acc, rid) in views.iter_mut().zip(&robots) {
+                if let Some(v) = world.visibility(*rid, &beams) {
+                    acc.0 += v.on_robots as f64 / v.beams.max(1) as f64;
+                    acc.1 += if v.site_alone == 0 { 1.0 } else { v.site_left as f64 / v.site_alone as f64 };
+                    acc.2 += v.site_left as f64 / v.beams.max(1) as f64;
+                    acc.3 += 1;
+                }
+            }
+        }
         let t = world.time_s();
         let scan_list: Vec<Arc<Scan>> = robots
             .iter()
@@ -257,6 +287,9 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             CONFIGS[1..].iter().map(|c| (*c, None)).collect();
         let mut offered = Vec::with_capacity(scan_list.len());
         for (i, scan) in scan_list.iter().enumerate() {
+            if setup.oracle != amr_core::vamr::pipeline::Oracle::default() {
+                core.set_truth(i, truth[i]);
+            }
             let msg = Uplink::Scan(ScanMsg {
                 robot: ids[i].clone(),
                 seq: scans as u64,
@@ -323,7 +356,14 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         .filter(EstimateSource::Fused(Configuration::T4))
         .map(|f| f.particles().iter().map(|p| [p.pose.x, p.pose.y]).collect())
         .unwrap_or_default();
-    Trial { seed, scans, series, times_s, truth_v, truth_robots, final_particles_t4 }
+    let visibility = views
+        .iter()
+        .map(|(o, l, site, n)| {
+            let n = (*n).max(1) as f64;
+            View { occluded: o / n, site_left: l / n, site: site / n }
+        })
+        .collect();
+    Trial { seed, scans, series, times_s, truth_v, truth_robots, final_particles_t4, visibility }
 }
 
 fn config_index(c: Configuration) -> usize {

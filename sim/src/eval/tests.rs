@@ -49,6 +49,7 @@ fn short_setup() -> Setup {
         scenario,
         physics_dt_s: 1.0 / 150.0,
         steps_per_scan: 10,
+        oracle: amr_core::vamr::pipeline::Oracle::default(),
         robots: 2,
     }
 }

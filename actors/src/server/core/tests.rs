@@ -37,6 +37,7 @@ fn core() -> ServerCore {
         amcl,
         initial_v: Se2::new(-2.0, 0.0, 0.0),
         seed: 1,
+        oracle: amr_core::vamr::pipeline::Oracle::default(),
     })
 }
 
@@ -212,4 +213,34 @@ fn a_restarted_robots_odometry_is_not_read_as_motion() {
     // Same frame again: no restart.
     let step = c.offer(&scan_in_frame("robot-a", 1.1, Se2::IDENTITY, 8), 1.1, &mut |_| {});
     assert!(!step.odometry_restarted);
+}
+
+#[test]
+fn in_a_line_each_robot_is_observed_by_its_neighbour_nearer_to_the_reference() {
+    let members = |n: usize| -> Vec<Member> {
+        amr_core::formation::slots(n, 0.9)
+            .into_iter()
+            .enumerate()
+            .map(|(i, y)| Member {
+                id: format!("r{i}"),
+                lidar_to_base: Se2::IDENTITY,
+                chassis: amr_core::geometry::Polygon::new(vec![
+                    [-0.2, -0.2],
+                    [0.2, -0.2],
+                    [0.2, 0.2],
+                    [-0.2, 0.2],
+                ])
+                .unwrap(),
+                weight: 1.0,
+                slot_y_m: y,
+            })
+            .collect()
+    };
+    let observers = |n: usize| (1..n).map(|i| observer(&members(n), i)).collect::<Vec<_>>();
+    // Two robots: the paper's pair. Three: both beside the reference in the middle.
+    assert_eq!(observers(2), vec![0]);
+    assert_eq!(observers(3), vec![0, 0]);
+    // Slots 0, +s, −s, +2s, −2s, …: each by the one a slot nearer, on its side.
+    assert_eq!(observers(4), vec![0, 0, 1]);
+    assert_eq!(observers(8), vec![0, 0, 1, 2, 3, 4, 5]);
 }
