@@ -198,6 +198,7 @@ fn packets<'a>(site: &'a Site, scans: &'a [Scan]) -> Vec<RobotPacket<'a>> {
             chassis: &site.chassis,
             weight: 1.0,
             amcl_pose: None,
+            truth: None,
         })
         .collect()
 }
