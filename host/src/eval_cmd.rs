@@ -246,6 +246,13 @@ pub(crate) fn run(
     Ok(dir)
 }
 
+/// A study over many configurations (issue 18).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Study {
+    /// T1–T4 over robot spacing, team size and sites, with the occlusion each robot suffers.
+    Occlusion,
+}
+
 /// Which parameter a sensitivity study varies (paper Tables 6–7).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Sweep {

@@ -122,6 +122,15 @@ enum Command {
         /// (OUT/<scenario>/budget.{md,json}).
         #[arg(long, conflicts_with = "sweep")]
         budget: bool,
+        /// Instead of T1–T4 on one scenario: the occlusion study (issue 18 §3), T1–T4 over spacing
+        /// 0.5–2.0 m and teams of 2, 3 and 4 on every scenario given with --study-scenario (default:
+        /// straight, turning, hall-straight, hall-turning, corridor), written to
+        /// OUT/study-occlusion/study.{md,json} with a plot per scenario.
+        #[arg(long, value_enum, conflicts_with_all = ["sweep", "budget"])]
+        study: Option<eval_cmd::Study>,
+        /// A scenario (name or file) for --study; repeat for several.
+        #[arg(long = "study-scenario", value_name = "SCENARIO", requires = "study")]
+        study_scenarios: Vec<String>,
         /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
         /// this file for one trial, FILE-<seed>.mcap for several.
         #[arg(long, value_name = "FILE.mcap")]
@@ -586,11 +595,21 @@ fn main() -> ExitCode {
             robots,
             sweep,
             budget,
+            study,
+            study_scenarios,
             record,
             foxglove,
         } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
             let report = match sweep {
+                None if study.is_some() => {
+                    let scenarios: Vec<String> = if study_scenarios.is_empty() {
+                        study_cmd::STUDY_SCENARIOS.iter().map(|s| (*s).to_owned()).collect()
+                    } else {
+                        study_scenarios
+                    };
+                    study_cmd::occlusion(&config, &scenarios, map, trials, seed, &out)?
+                }
                 None if budget => study_cmd::budget(&config, &scenario, map, robots, trials, seed, &out)?,
                 Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,
                 None => eval_cmd::run(

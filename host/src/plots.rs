@@ -211,3 +211,55 @@ pub(crate) fn write_all(dir: &Path, trial: &Trial, site: &[Polygon]) -> anyhow::
     }
     Ok(written)
 }
+
+/// One line per entry of `series` (its label and points), with points marked.
+fn lines_chart<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    caption: &str,
+    axes: (&str, &str),
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), String> {
+    area.fill(&WHITE).map_err(|e| e.to_string())?;
+    let all = || series.iter().flat_map(|(_, p)| p.iter().copied());
+    let (x0, x1) = all().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (x, _)| (a.min(x), b.max(x)));
+    let y1 = all().map(|(_, y)| y).fold(0.0, f64::max);
+    let (x0, x1) = if x0.is_finite() { (x0 - 0.1, x1 + 0.1) } else { (0.0, 1.0) };
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(35)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x0..x1, 0.0..(y1 * 1.1).max(1e-3))
+        .map_err(|e| e.to_string())?;
+    chart.configure_mesh().x_desc(axes.0).y_desc(axes.1).draw().map_err(|e| e.to_string())?;
+    let palette =
+        [COLOURS[0], COLOURS[1], COLOURS[2], COLOURS[3], RGBColor(148, 103, 189), RGBColor(140, 86, 75)];
+    for (k, (label, points)) in series.iter().enumerate() {
+        let colour = palette[k % palette.len()];
+        labelled(&mut chart, points.clone(), colour, label.clone())?;
+        chart
+            .draw_series(points.iter().map(|p| Circle::new(*p, 3, colour.filled())))
+            .map_err(|e| e.to_string())?;
+    }
+    finish(&mut chart, area)
+}
+
+/// A line chart as `<stem>.png` and `<stem>.svg` in `dir`.
+pub(crate) fn write_lines(
+    dir: &Path,
+    stem: &str,
+    caption: &str,
+    axes: (&str, &str),
+    series: &[(String, Vec<(f64, f64)>)],
+) -> anyhow::Result<Vec<PathBuf>> {
+    register_font()?;
+    let png = dir.join(format!("{stem}.png"));
+    let svg = dir.join(format!("{stem}.svg"));
+    lines_chart(&BitMapBackend::new(&png, (900, 500)).into_drawing_area(), caption, axes, series)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("drawing {}", png.display()))?;
+    lines_chart(&SVGBackend::new(&svg, (900, 500)).into_drawing_area(), caption, axes, series)
+        .map_err(anyhow::Error::msg)
+        .with_context(|| format!("drawing {}", svg.display()))?;
+    Ok(vec![png, svg])
+}

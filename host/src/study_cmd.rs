@@ -163,3 +163,241 @@ pub(crate) fn budget(
     std::fs::write(dir.join("budget.md"), &md)?;
     Ok(dir.join("budget.md"))
 }
+
+/// The occlusion study's scenarios by default: the paper's site, the one-sided hall and the
+/// corridor (`config/maps/README.md`), straight and turning where the site allows.
+pub(crate) const STUDY_SCENARIOS: [&str; 5] =
+    ["straight", "turning", "hall-straight", "hall-turning", "corridor"];
+/// Centre-to-centre spacing between neighbours, m.
+pub(crate) const SPACINGS_M: [f64; 4] = [0.5, 1.0, 1.5, 2.0];
+/// Team sizes.
+pub(crate) const TEAMS: [usize; 3] = [2, 3, 4];
+/// Laps of a looping scenario in the study (the paper's turning runs 30).
+const STUDY_LAPS: i64 = 2;
+
+const CONFIGS: [Configuration; 4] =
+    [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4];
+
+/// One configuration of the study: a scenario, a team and a spacing.
+#[derive(Debug, Serialize)]
+struct StudyRow {
+    scenario: String,
+    site: String,
+    motion: &'static str,
+    robots: usize,
+    spacing_m: f64,
+    /// Why the configuration was not run (the formation does not fit the site), if it was not.
+    skipped: Option<String>,
+    /// T1–T4.
+    figures: Vec<(Configuration, Figures)>,
+    /// Per robot, mean over trials: share of its beams on other robots' bodies.
+    occluded: Vec<f64>,
+    /// Per robot: share of the site returns it would have alone that are left.
+    site_left: Vec<f64>,
+    /// Per robot: share of its beams that return from the site.
+    site_share: Vec<f64>,
+}
+
+impl StudyRow {
+    fn rmse_cm(&self, c: Configuration) -> Option<f64> {
+        self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| f.rmse).map(|m| 100.0 * m.mean)
+    }
+
+    /// T4 − min(T1, T2, T3), cm.
+    fn t4_over_best_cm(&self) -> Option<f64> {
+        let best = CONFIGS[..3].iter().filter_map(|c| self.rmse_cm(*c)).fold(f64::INFINITY, f64::min);
+        Some(self.rmse_cm(Configuration::T4)? - best).filter(|d| d.is_finite())
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct StudyReport<'a> {
+    map: MapSource,
+    trials: usize,
+    seed: u64,
+    spacings_m: &'a [f64],
+    teams: &'a [usize],
+    rows: &'a [StudyRow],
+}
+
+fn motion(sc: &amr_core::config::ScenarioConfig) -> &'static str {
+    if sc.segments.iter().any(|s| s.turn_deg.is_some_and(|t| t.get() != 0.0)) {
+        "turning"
+    } else {
+        "straight"
+    }
+}
+
+fn pct(v: &[f64]) -> String {
+    v.iter().map(|x| format!("{:.0}", 100.0 * x)).collect::<Vec<_>>().join("/")
+}
+
+/// `amr eval --study occlusion`: T1–T4 over robot spacing, team size and sites (issue 18 §3).
+pub(crate) fn occlusion(
+    config: &Config,
+    scenarios: &[String],
+    map: MapSource,
+    trials: usize,
+    seed: u64,
+    out_dir: &Path,
+) -> anyhow::Result<PathBuf> {
+    let mut rows = Vec::new();
+    for name in scenarios {
+        let chosen = config.scenario(name)?;
+        let site =
+            if chosen.map_name == "paper-site" { "paper site".to_owned() } else { chosen.map_name.clone() };
+        for robots in TEAMS {
+            for spacing in SPACINGS_M {
+                let mut c = chosen.clone();
+                c.scenario.spacing_m =
+                    amr_core::config::value::Positive::new(spacing).map_err(anyhow::Error::msg)?;
+                if c.scenario.laps.get() > STUDY_LAPS as u32 {
+                    c.scenario.laps =
+                        amr_core::config::value::Count::new(STUDY_LAPS).map_err(anyhow::Error::msg)?;
+                }
+                let mut row = StudyRow {
+                    scenario: chosen.stem.clone(),
+                    site: site.clone(),
+                    motion: motion(&c.scenario),
+                    robots,
+                    spacing_m: spacing,
+                    skipped: None,
+                    figures: Vec::new(),
+                    occluded: Vec::new(),
+                    site_left: Vec::new(),
+                    site_share: Vec::new(),
+                };
+                match setup(config, &c, robots, map, seed) {
+                    Err(e) => row.skipped = Some(format!("{e:#}")),
+                    Ok(s) => {
+                        let what = format!("{} · {robots} robots · {spacing} m", chosen.stem);
+                        let results = run_trials(&s, seed, trials, &what);
+                        row.figures = CONFIGS.iter().map(|k| (*k, figures(&results, *k))).collect();
+                        let n = results.len().max(1) as f64;
+                        let mean = |f: fn(&amr_sim::eval::View) -> f64| -> Vec<f64> {
+                            (0..robots)
+                                .map(|i| {
+                                    results.iter().filter_map(|t| t.visibility.get(i)).map(f).sum::<f64>() / n
+                                })
+                                .collect()
+                        };
+                        row.occluded = mean(|v| v.occluded);
+                        row.site_left = mean(|v| v.site_left);
+                        row.site_share = mean(|v| v.site);
+                    }
+                }
+                tracing::info!(
+                    scenario = %row.scenario,
+                    robots,
+                    spacing,
+                    t1_cm = ?row.rmse_cm(Configuration::T1),
+                    t4_cm = ?row.rmse_cm(Configuration::T4),
+                    skipped = row.skipped.is_some(),
+                    "study configuration done"
+                );
+                rows.push(row);
+            }
+        }
+    }
+    let dir = out_dir.join("study-occlusion");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let report = StudyReport { map, trials, seed, spacings_m: &SPACINGS_M, teams: &TEAMS, rows: &rows };
+    std::fs::write(dir.join("study.json"), serde_json::to_string_pretty(&report)? + "\n")?;
+    let mut md = study_markdown(&report);
+    let _ = writeln!(md, "\n## Plots\n");
+    for name in scenarios {
+        let stem =
+            rows.iter().find(|r| r.scenario == *name || name.ends_with(&format!("{}.toml", r.scenario)));
+        let Some(stem) = stem.map(|r| r.scenario.clone()) else { continue };
+        let mut series = Vec::new();
+        for robots in TEAMS {
+            for c in [Configuration::T1, Configuration::T4] {
+                let points: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter(|r| r.scenario == stem && r.robots == robots)
+                    .filter_map(|r| Some((r.spacing_m, r.rmse_cm(c)?)))
+                    .collect();
+                if !points.is_empty() {
+                    series.push((format!("{c:?}, {robots} robots"), points));
+                }
+            }
+        }
+        let written = crate::plots::write_lines(
+            &dir,
+            &stem,
+            &format!("{stem}: trial-level 2D RMSE of V (T1 and T4) over spacing"),
+            ("spacing (m)", "2D RMSE (cm)"),
+            &series,
+        )?;
+        for p in written.iter().filter(|p| p.extension().is_some_and(|e| e == "png")) {
+            let _ = writeln!(md, "- {}", p.file_name().map(|n| n.to_string_lossy()).unwrap_or_default());
+        }
+    }
+    std::fs::write(dir.join("study.md"), &md)?;
+    Ok(dir.join("study.md"))
+}
+
+fn study_markdown(r: &StudyReport<'_>) -> String {
+    let mut md = format!(
+        "# amr eval --study occlusion: {} trials per configuration from seed {}, AMCL's map {}\n\n\
+         Trial-level 2D RMSE of V against the truth, cm (mean ± SD over trials); in brackets, trials that \
+         diverged (error above {DIVERGED_M} m at some scan, or no estimate at all). Per robot (robot 0 first): \
+         the share of its beams on other robots' bodies (occluded %), the share of the site returns it would \
+         have alone that are left (site left %), and the share of its beams that return from the site at all \
+         (site %). Δ = T4 − min(T1, T2, T3).\n\n\
+         | scenario | motion | robots | spacing m | T1 | T2 | T3 | T4 | Δ cm | occluded % | site left % | site % |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        r.trials,
+        r.seed,
+        match r.map {
+            MapSource::Surveyed => "surveyed",
+            MapSource::True => "true",
+        },
+    );
+    for row in r.rows {
+        if let Some(why) = &row.skipped {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | does not fit: {} |||||||",
+                row.scenario,
+                row.motion,
+                row.robots,
+                row.spacing_m,
+                why.replace('|', "/").lines().next().unwrap_or_default()
+            );
+            continue;
+        }
+        let cell = |c: Configuration| {
+            row.figures
+                .iter()
+                .find(|(k, _)| *k == c)
+                .map_or("—".into(), |(_, f)| format!("{} ({})", cm(f), f.diverged))
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            row.scenario,
+            row.motion,
+            row.robots,
+            row.spacing_m,
+            cell(Configuration::T1),
+            cell(Configuration::T2),
+            cell(Configuration::T3),
+            cell(Configuration::T4),
+            row.t4_over_best_cm().map_or("—".into(), |d| format!("{d:+.2}")),
+            pct(&row.occluded),
+            pct(&row.site_left),
+            pct(&row.site_share),
+        );
+    }
+    let run: Vec<&StudyRow> = r.rows.iter().filter(|x| x.skipped.is_none()).collect();
+    let worse = run.iter().filter(|x| x.t4_over_best_cm().is_some_and(|d| d > 0.5)).count();
+    let _ = writeln!(
+        md,
+        "\n{} configurations run, {} skipped (the formation does not fit the site); T4 more than 0.5 cm worse \
+         than the best of T1–T3 in {worse}.",
+        run.len(),
+        r.rows.len() - run.len()
+    );
+    md
+}

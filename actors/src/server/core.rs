@@ -68,7 +68,8 @@ pub struct CoreSetup {
     pub max_age_s: f64,
     pub amcl: AmclParams,
     pub field: Arc<LikelihoodField>,
-    /// Where V starts in the map; each robot's own filter starts at its slot.
+    /// Where the formation starts in the map: the origin of the slots. Each robot's own filter
+    /// starts at its slot, a virtual-scan filter at V (the slots' weighted centroid).
     pub initial_v: Se2,
     pub seed: u64,
     /// Estimates replaced by the truth given with [`ServerCore::set_truth`]: evaluations only
@@ -253,6 +254,11 @@ impl ServerCore {
             })
             .collect();
         let y0 = setup.members.first().map_or(0.0, |m| m.slot_y_m);
+        // V is the weighted centroid of the robots (Eq. 16): off the slots' origin when the slots
+        // are not symmetric about it (four robots: 0, +s, −s, +2s).
+        let v_in_slots = virtual_frame(
+            &setup.members.iter().map(|m| (Se2::new(0.0, m.slot_y_m, 0.0), m.weight)).collect::<Vec<_>>(),
+        );
         let channels = setup
             .configurations
             .iter()
@@ -269,7 +275,7 @@ impl ServerCore {
                 let filter = (*c != Configuration::T1).then(|| {
                     let mut f =
                         Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed);
-                    f.init_pose(setup.initial_v, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
+                    f.init_pose(setup.initial_v * v_in_slots, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
                     f
                 });
                 Channel { configuration: *c, pipeline, filter, seq: 0 }
@@ -474,6 +480,7 @@ impl ServerCore {
                 weight: m.weight,
                 amcl_pose: self.corrections.get(i).copied().flatten().map(|c| c * h.odom),
                 truth: h.truth,
+                odom: Some(h.odom),
             })
             .collect();
         let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |h| (h.stamp_s, h.odom));

@@ -80,6 +80,10 @@ pub struct HeadingParams {
     /// A best score less than this many times the runner-up (the best more than 1° away) is a
     /// failed estimate: the peak is not distinct.
     pub min_peak_ratio: Positive,
+    /// A refined estimate further than this from the prediction (the last heading carried
+    /// forward by both robots' odometry) is refused as an outlier; absent: none is (the paper).
+    #[serde(default)]
+    pub prior_gate_deg: Option<Positive>,
 }
 
 /// Spec §6: body masks and the virtual scan.

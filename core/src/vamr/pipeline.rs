@@ -37,6 +37,9 @@ pub struct RobotPacket<'a> {
     /// The robot's true pose in any frame common to the set (a simulation's world), for an
     /// [`Oracle`]; `None` everywhere but in evaluations.
     pub truth: Option<Se2>,
+    /// The robot's odometry pose at the scan, if known: between updates the relative heading is
+    /// carried forward by the robots' odometry turns (see [`Pipeline`]).
+    pub odom: Option<Se2>,
 }
 
 /// Which estimates an evaluation replaces by the truth ([`RobotPacket::truth`]), to measure each
@@ -61,7 +64,9 @@ pub enum Source {
     FullSearch,
     /// The heading search ran around the previous estimate.
     RefinedSearch,
-    /// The search failed (score below `min_score`); the previous estimate was kept.
+    /// The search failed (score below `min_score` or no distinct peak) or its estimate was
+    /// refused (`prior_gate_deg` from the prediction): the previous estimate, carried forward by
+    /// the robots' odometry, was used.
     PreviousHeading,
 }
 
@@ -119,6 +124,10 @@ pub enum UpdateError {
     NoHeading { robot: usize, why: &'static str },
 }
 
+/// Refined heading estimates refused in a row (they disagree with the odometry's prediction)
+/// before the prediction is given up for a full search: 1 s of scans at 15 Hz.
+pub const MAX_REFUSED: u32 = 15;
+
 /// The pipeline's state across updates: one tracker and one heading per non-reference robot.
 #[derive(Debug)]
 pub struct Pipeline {
@@ -128,6 +137,12 @@ pub struct Pipeline {
     max_age_s: f64,
     trackers: Vec<Tracker>,
     headings: Vec<Option<f64>>,
+    /// Per non-reference robot: its and its observer's odometry yaw when its heading was last
+    /// carried forward.
+    heading_yaws: Vec<Option<(f64, f64)>>,
+    /// Per non-reference robot: search results refused in a row (a prediction gone wrong is
+    /// given up after [`MAX_REFUSED`], for a full search).
+    refused: Vec<u32>,
     /// Where each non-reference robot is expected (its formation slot, in its observer's frame):
     /// the search area while its track is being acquired.
     expected: Vec<Option<Roi>>,
@@ -150,6 +165,8 @@ impl Pipeline {
         Pipeline {
             trackers: vec![Tracker::new(params.tracker); others],
             headings: vec![None; others],
+            heading_yaws: vec![None; others],
+            refused: vec![0; others],
             expected: vec![None; others],
             observers: vec![0; others],
             oracle: Oracle::default(),
@@ -203,6 +220,7 @@ impl Pipeline {
         if let Some(i) = robot.checked_sub(1).filter(|i| *i < self.trackers.len()) {
             self.trackers[i] = Tracker::new(self.params.tracker);
             self.headings[i] = None;
+            self.refused[i] = 0;
         }
         let observed: Vec<usize> =
             (1..=self.observers.len()).filter(|k| self.observers[k - 1] == robot && *k != robot).collect();
@@ -323,6 +341,16 @@ impl Pipeline {
             lap(Stage::Tracking);
             let theta = if let Some(target) = &targets[observer] {
                 let h = &self.params.heading;
+                // The kept heading, carried forward by both robots' odometry turns since.
+                let yaws = other.odom.zip(reference.odom).map(|(a, b)| (a.theta, b.theta));
+                if let (Some(prev), Some((ti, to)), Some((pi, po))) =
+                    (self.headings[i - 1], yaws, self.heading_yaws[i - 1])
+                {
+                    self.headings[i - 1] = Some(crate::se2::normalize_angle(
+                        prev + crate::se2::angle_diff(ti, pi) - crate::se2::angle_diff(to, po),
+                    ));
+                }
+                self.heading_yaws[i - 1] = yaws;
                 let (grid, mode) = match self.headings[i - 1] {
                     Some(prev) => (
                         AngleGrid::around(prev, h.refine_window_deg.get(), h.step_deg.get()),
@@ -337,11 +365,31 @@ impl Pipeline {
                 let distinct = |e: &super::heading::HeadingEstimate| {
                     e.score >= h.min_score.get() && e.score >= h.min_peak_ratio.get() * e.runner_up
                 };
-                match estimate.filter(distinct) {
+                // A refined estimate far from the prediction is refused; after MAX_REFUSED in a
+                // row the prediction is the suspect, and the next update searches the full circle.
+                let predicted = self.headings[i - 1];
+                let agrees = |e: &super::heading::HeadingEstimate| match (h.prior_gate_deg, predicted) {
+                    (Some(gate), Some(p)) if mode == Source::RefinedSearch => {
+                        crate::se2::angle_diff(e.theta_rad, p).abs() <= gate.get().to_radians()
+                    }
+                    _ => true,
+                };
+                let distinct = estimate.filter(distinct);
+                if distinct.as_ref().is_some_and(|e| !agrees(e)) {
+                    self.refused[i - 1] += 1;
+                }
+                match distinct.filter(agrees) {
                     Some(e) => {
                         self.headings[i - 1] = Some(e.theta_rad);
+                        self.refused[i - 1] = 0;
                         report.heading_source = mode;
                         e.theta_rad
+                    }
+                    None if self.refused[i - 1] > MAX_REFUSED => {
+                        self.headings[i - 1] = None;
+                        self.refused[i - 1] = 0;
+                        report.heading_source = Source::PreviousHeading;
+                        predicted.ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })?
                     }
                     None => {
                         report.heading_source = Source::PreviousHeading;

@@ -91,6 +91,7 @@ fn packets<'a>(w: &'a World, scans: &'a [Scan], poses: &[Se2], amcl: bool) -> Ve
             weight: 1.0,
             amcl_pose: amcl.then_some(*p),
             truth: None,
+            odom: None,
         })
         .collect()
 }
@@ -296,6 +297,7 @@ fn with_three_robots_each_track_locks_onto_its_own_robot() {
             weight: 1.0,
             amcl_pose: None,
             truth: None,
+            odom: None,
         })
         .collect();
     let mut p = Pipeline::new(3, shipped_params(), Configuration::T4, 0.05, 0.1);
@@ -343,6 +345,7 @@ fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
             weight: 1.0,
             amcl_pose: None,
             truth: Some(*p),
+            odom: None,
         })
         .collect();
     let truth = |i: usize| poses[0].inverse() * poses[i];
@@ -382,4 +385,42 @@ fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
     for i in 1..4 {
         assert!(out.relative[i].approx_eq(&truth(i), 1e-9, 1e-9), "oracle, robot {i}");
     }
+}
+
+/// Between updates the kept heading follows the robots' odometry turns: when the search fails
+/// (here robot 1's scan is lost), the relative heading used is the last one turned by what the
+/// odometry says each robot turned since, not the stale one.
+#[test]
+fn a_failed_search_carries_the_heading_forward_by_odometry() {
+    let w = site();
+    fn packets<'a>(w: &'a World, scans: &'a [Scan], odom: [Se2; 2], t: f64) -> Vec<RobotPacket<'a>> {
+        scans
+            .iter()
+            .zip(odom)
+            .map(|(s, o)| RobotPacket {
+                scan: s,
+                times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
+                lidar_to_base: w.mount,
+                chassis: &w.chassis,
+                weight: 1.0,
+                amcl_pose: None,
+                truth: None,
+                odom: Some(o),
+            })
+            .collect()
+    }
+    let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    p.set_expected(1, [0.0, -0.9], 0.5);
+    let before = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&before, i)).collect();
+    let first = p.update(&packets(&w, &scans, before, 0.0)).unwrap();
+    assert!(first.relative[1].theta.abs() < 0.2f64.to_radians(), "{:?}", first.relative[1]);
+    // Robot 1 turns 3° in place and its odometry says so; its scan is lost (no returns).
+    let after = [before[0], Se2::from_degrees(0.0, -0.45, 3.0)];
+    let mut scans: Vec<Scan> = (0..2).map(|i| w.scan(&after, i)).collect();
+    scans[1] = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
+    let out = p.update(&packets(&w, &scans, after, 0.1)).unwrap();
+    assert_eq!(out.pairs[0].heading_source, super::pipeline::Source::PreviousHeading);
+    let turned = out.relative[1].theta.to_degrees();
+    assert!((turned - 3.0).abs() < 0.25, "the kept heading should follow the odometry: {turned}°");
 }

@@ -199,6 +199,7 @@ fn packets<'a>(site: &'a Site, scans: &'a [Scan]) -> Vec<RobotPacket<'a>> {
             weight: 1.0,
             amcl_pose: None,
             truth: None,
+            odom: None,
         })
         .collect()
 }
