@@ -181,3 +181,57 @@ fn a_scenario_file_runs_on_any_map_and_a_path_through_a_wall_is_refused() {
         "{said}"
     );
 }
+
+/// The occlusion study on a map of one's own (issue 18 §3): every team and spacing is tried, the
+/// ones that do not fit the site are listed with the reason, the others carry T1–T4 and what each
+/// robot's neighbours hid from it; a plot per scenario.
+#[test]
+fn the_occlusion_study_runs_every_team_and_spacing_on_a_scenario_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let config = tmp.path().join("config");
+    short_config(&config);
+    let scenario = hall(tmp.path(), 0.3);
+    let run = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(["eval", "--study", "occlusion", "--trials", "1", "--seed", "3", "--study-scenario"])
+        .arg(&scenario)
+        .arg("--config")
+        .arg(&config)
+        .arg("--out")
+        .arg(tmp.path().join("out"))
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let dir = tmp.path().join("out/study-occlusion");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("study.json")).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    let grid: Vec<(u64, f64)> =
+        rows.iter().map(|r| (r["robots"].as_u64().unwrap(), r["spacing_m"].as_f64().unwrap())).collect();
+    let mut expected = Vec::new();
+    for n in [2, 3, 4] {
+        for s in [0.5, 1.0, 1.5, 2.0] {
+            expected.push((n, s));
+        }
+    }
+    assert_eq!(grid, expected);
+    // The hall is 4 m wide with boxes along +y: four robots 2 m apart do not fit; two 0.5 m apart do.
+    let row = |n: u64, s: f64| rows.iter().find(|r| r["robots"] == n && r["spacing_m"] == s).unwrap();
+    assert!(row(4, 2.0)["skipped"].as_str().unwrap().contains("into a wall"), "{}", row(4, 2.0));
+    let (two, three) = (row(2, 0.5), row(3, 0.5));
+    for r in [two, three] {
+        assert!(r["skipped"].is_null(), "{r}");
+        let figures = r["figures"].as_array().unwrap();
+        assert_eq!(figures.len(), 4);
+        for f in figures {
+            let rmse = f[1]["rmse"]["mean"].as_f64().unwrap();
+            assert!(rmse < 0.1, "{f}");
+        }
+    }
+    // Three abreast the middle robot loses about twice the beams to its neighbours.
+    let occluded = |r: &serde_json::Value| r["occluded"][0].as_f64().unwrap();
+    assert!(occluded(three) > 1.6 * occluded(two) && occluded(two) > 0.1, "{two} {three}");
+    let md = std::fs::read_to_string(dir.join("study.md")).unwrap();
+    assert!(md.contains("| hall-run | straight | 2 | 0.5 |") && md.contains("hall-run.png"), "{md}");
+    assert!(dir.join("hall-run.png").is_file());
+}

@@ -134,3 +134,47 @@ fn same_seed_same_trial() {
     assert_eq!(a, b);
     assert_ne!(a, c);
 }
+
+/// The oracle replaces what it names by the truth, and nothing else: with the true relative
+/// heading T2–T4's heading errors vanish while the scans (and T1) stay exactly as without it.
+#[test]
+fn the_oracle_replaces_the_heading_and_only_in_the_fusion() {
+    let mut setup = short_setup();
+    setup.scenario.segments.truncate(1);
+    let plain = run_trial(&setup, 4);
+    setup.oracle = amr_core::vamr::pipeline::Oracle { heading: true, ..Default::default() };
+    let oracle = run_trial(&setup, 4);
+    let series = |t: &Trial, c: Configuration| t.series.iter().find(|(k, _)| *k == c).unwrap().1.clone();
+    let t4 = series(&plain, Configuration::T4);
+    assert!(t4.heading_errors_rad.iter().any(|e| e.abs() > 1e-4), "the search has errors of its own");
+    for c in [Configuration::T2, Configuration::T4] {
+        let s = series(&oracle, c);
+        assert!(!s.heading_errors_rad.is_empty());
+        assert!(s.heading_errors_rad.iter().all(|e| e.abs() < 1e-9), "{c:?}: {:?}", s.heading_errors_rad);
+    }
+    // The world does not know about the oracle: the same true path; and T1's V, where the relative
+    // heading sets only V's heading, has the same positions (from the robots' own AMCL).
+    assert_eq!(plain.truth_v, oracle.truth_v);
+    let xy = |t: &Trial| -> Vec<Option<[f64; 2]>> {
+        series(t, Configuration::T1).estimates.iter().map(|e| e.map(|p| [p[0], p[1]])).collect()
+    };
+    assert_eq!(xy(&plain), xy(&oracle));
+}
+
+/// Visibility in a trial: beside a neighbour 0.9 m away each robot loses about a tenth of its
+/// beams to the other's body (as many site returns), and three abreast the middle robot twice that.
+#[test]
+fn each_trial_counts_what_the_neighbours_hide() {
+    let mut setup = short_setup();
+    setup.scenario.segments.truncate(1);
+    let two = run_trial(&setup, 5);
+    assert_eq!(two.visibility.len(), 2);
+    for v in &two.visibility {
+        assert!((0.08..0.15).contains(&v.occluded), "{v:?}");
+        assert!((v.site_left + v.occluded - 1.0).abs() < 0.02, "{v:?}");
+    }
+    setup.robots = 3;
+    let three = run_trial(&setup, 5);
+    let middle = three.visibility[0].occluded;
+    assert!(middle > 1.8 * two.visibility[0].occluded, "{:?}", three.visibility);
+}
