@@ -11,14 +11,22 @@ use crate::config::{ConfigSource, load};
 
 /// The shipped server on the paper site, with few particles (fast in a debug build).
 fn core() -> ServerCore {
+    core_with(&[0.45, -0.45])
+}
+
+/// [`core`] with a robot in each of `slots`.
+fn core_with(slots: &[f64]) -> ServerCore {
     let config = load(&ConfigSource::Embedded).unwrap();
     let mut amcl = config.amcl.clone();
     amcl.min_particles = Count::new(100).unwrap();
     amcl.max_particles = Count::new(100).unwrap();
     let map = &config.maps["paper-site"];
-    let members = ["robot-a", "robot-b"]
+    let ids: Vec<String> = (0..slots.len())
+        .map(|i| if i < 2 { ["robot-a", "robot-b"][i].to_owned() } else { format!("robot-{i}") })
+        .collect();
+    let members = ids
         .iter()
-        .zip([0.45, -0.45])
+        .zip(slots.iter().copied())
         .map(|(id, y)| Member {
             id: (*id).to_owned(),
             lidar_to_base: Se2::new(0.175, 0.0, 0.0),
@@ -243,4 +251,20 @@ fn in_a_line_each_robot_is_observed_by_its_neighbour_nearer_to_the_reference() {
     // Slots 0, +s, −s, +2s, −2s, …: each by the one a slot nearer, on its side.
     assert_eq!(observers(4), vec![0, 0, 1]);
     assert_eq!(observers(8), vec![0, 0, 1, 2, 3, 4, 5]);
+}
+
+/// A virtual-scan filter starts at V, the robots' centroid (four robots in a line: s/2 off the
+/// slots' origin), and keeps every robot's beam budget.
+#[test]
+fn a_virtual_filter_starts_at_the_centroid_with_every_robots_beams() {
+    let slots = amr_core::formation::slots(4, 0.6);
+    let core = core_with(&slots);
+    let f = core.filter(EstimateSource::Fused(Configuration::T4)).unwrap();
+    let n = f.particles().len() as f64;
+    let mean_y = f.particles().iter().map(|p| p.pose.y).sum::<f64>() / n;
+    let mean_x = f.particles().iter().map(|p| p.pose.x).sum::<f64>() / n;
+    // initial_v is (-2, 0); the slots 0, 0.6, -0.6, 1.2 average to 0.3.
+    assert!((mean_y - 0.3).abs() < 0.05 && (mean_x + 2.0).abs() < 0.05, "{mean_x} {mean_y}");
+    let config = load(&ConfigSource::Embedded).unwrap();
+    assert_eq!(virtual_params(&config.amcl, 4).max_beams.get(), 4 * config.amcl.max_beams.get());
 }
