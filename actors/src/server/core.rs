@@ -270,6 +270,8 @@ impl ServerCore {
                     pipeline.set_observer(i, observer);
                     let y0 = setup.members.get(observer).map_or(y0, |o| o.slot_y_m);
                     pipeline.set_expected(i, [0.0, m.slot_y_m - y0], 0.5);
+                    // The formation drives with parallel headings.
+                    pipeline.set_expected_heading(i, 0.0);
                 }
                 pipeline.set_oracle(setup.oracle);
                 let filter = (*c != Configuration::T1).then(|| {

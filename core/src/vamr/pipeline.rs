@@ -148,6 +148,8 @@ pub struct Pipeline {
     expected: Vec<Option<Roi>>,
     /// Each non-reference robot's observer (a robot before it).
     observers: Vec<usize>,
+    /// Each non-reference robot's expected heading relative to its observer (the formation's).
+    expected_headings: Vec<Option<f64>>,
     oracle: Oracle,
     scratch: SearchScratch,
 }
@@ -169,6 +171,7 @@ impl Pipeline {
             refused: vec![0; others],
             expected: vec![None; others],
             observers: vec![0; others],
+            expected_headings: vec![None; others],
             oracle: Oracle::default(),
             params,
             configuration,
@@ -189,6 +192,16 @@ impl Pipeline {
     pub fn set_expected(&mut self, robot: usize, center: [f64; 2], half_width_m: f64) {
         if let Some(slot) = robot.checked_sub(1).and_then(|i| self.expected.get_mut(i)) {
             *slot = Some(Roi { center, half_width: [half_width_m; 2] });
+        }
+    }
+
+    /// Robot `robot`'s heading relative to its observer is expected to be `heading_rad` (a
+    /// formation drives with parallel headings: 0). When acquiring its heading finds no distinct
+    /// peak, this is taken instead, carried forward by odometry and refined by the next searches
+    /// (without it such an update has no heading and fuses nothing).
+    pub fn set_expected_heading(&mut self, robot: usize, heading_rad: f64) {
+        if let Some(slot) = robot.checked_sub(1).and_then(|i| self.expected_headings.get_mut(i)) {
+            *slot = Some(heading_rad);
         }
     }
 
@@ -329,14 +342,17 @@ impl Pipeline {
                 tracker
                     .state()
                     .map(|s| s.position())
-                    .ok_or(UpdateError::NoPosition { robot: i, why: "no track" })?
+                    .ok_or(UpdateError::NoPosition { robot: i, why: "no track" })
             } else {
-                let rel = from_amcl.ok_or(UpdateError::NoPosition { robot: i, why: "no AMCL poses" })?;
-                [rel.x, rel.y]
+                from_amcl
+                    .map(|rel| [rel.x, rel.y])
+                    .ok_or(UpdateError::NoPosition { robot: i, why: "no AMCL poses" })
             };
+            // The oracle stands in for a failed estimate too (its row of the budget has no misses
+            // of its own).
             let position = match (self.oracle.position, from_truth) {
                 (true, Some(t)) => [t.x, t.y],
-                _ => position,
+                _ => position?,
             };
             lap(Stage::Tracking);
             let theta = if let Some(target) = &targets[observer] {
@@ -383,26 +399,28 @@ impl Pipeline {
                         self.headings[i - 1] = Some(e.theta_rad);
                         self.refused[i - 1] = 0;
                         report.heading_source = mode;
-                        e.theta_rad
+                        Ok(e.theta_rad)
                     }
                     None if self.refused[i - 1] > MAX_REFUSED => {
                         self.headings[i - 1] = None;
                         self.refused[i - 1] = 0;
                         report.heading_source = Source::PreviousHeading;
-                        predicted.ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })?
+                        predicted.ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })
                     }
                     None => {
                         report.heading_source = Source::PreviousHeading;
-                        self.headings[i - 1]
-                            .ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })?
+                        if self.headings[i - 1].is_none() {
+                            self.headings[i - 1] = self.expected_headings[i - 1];
+                        }
+                        self.headings[i - 1].ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })
                     }
                 }
             } else {
-                from_amcl.ok_or(UpdateError::NoHeading { robot: i, why: "no AMCL poses" })?.theta
+                from_amcl.map(|r| r.theta).ok_or(UpdateError::NoHeading { robot: i, why: "no AMCL poses" })
             };
             let theta = match (self.oracle.heading, from_truth) {
                 (true, Some(t)) => t.theta,
-                _ => theta,
+                _ => theta?,
             };
             lap(Stage::Heading);
             relative.push(relative[observer] * Se2::new(position[0], position[1], theta));

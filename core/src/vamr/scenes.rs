@@ -424,3 +424,40 @@ fn a_failed_search_carries_the_heading_forward_by_odometry() {
     let turned = out.relative[1].theta.to_degrees();
     assert!((turned - 3.0).abs() < 0.25, "the kept heading should follow the odometry: {turned}°");
 }
+
+/// Acquiring a heading that finds no distinct peak (robot 1's scan lost): with the formation's
+/// expected heading the update fuses with it (to be refined by later searches); without, it has
+/// no heading at all.
+#[test]
+fn a_failed_acquisition_falls_back_on_the_formations_heading() {
+    let w = site();
+    let poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 1.0)];
+    let mut scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    scans[1] = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
+    let packets: Vec<RobotPacket<'_>> = scans
+        .iter()
+        .map(|s| RobotPacket {
+            scan: s,
+            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
+            lidar_to_base: w.mount,
+            chassis: &w.chassis,
+            weight: 1.0,
+            amcl_pose: None,
+            truth: None,
+            odom: None,
+        })
+        .collect();
+    let mut blind = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    blind.set_expected(1, [0.0, -0.9], 0.5);
+    assert!(matches!(blind.update(&packets), Err(super::pipeline::UpdateError::NoHeading { robot: 1, .. })));
+    let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    p.set_expected(1, [0.0, -0.9], 0.5);
+    p.set_expected_heading(1, 0.0);
+    let out = p.update(&packets).unwrap();
+    assert_eq!(out.pairs[0].heading_source, super::pipeline::Source::PreviousHeading);
+    assert!(
+        out.relative[1].theta.abs() < 1e-12 && (out.relative[1].y + 0.9).abs() < 0.02,
+        "{:?}",
+        out.relative[1]
+    );
+}
