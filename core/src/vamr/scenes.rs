@@ -287,19 +287,7 @@ fn with_three_robots_each_track_locks_onto_its_own_robot() {
     let poses =
         [Se2::new(0.0, 0.0, 0.0), Se2::from_degrees(0.05, 0.9, 4.0), Se2::from_degrees(-0.05, -0.9, -3.0)];
     let scans: Vec<Scan> = (0..3).map(|i| w.scan(&poses, i)).collect();
-    let packets: Vec<RobotPacket<'_>> = scans
-        .iter()
-        .map(|s| RobotPacket {
-            scan: s,
-            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
-            lidar_to_base: w.mount,
-            chassis: &w.chassis,
-            weight: 1.0,
-            amcl_pose: None,
-            truth: None,
-            odom: None,
-        })
-        .collect();
+    let packets = packets(&w, &scans, &poses, false);
     let mut p = Pipeline::new(3, shipped_params(), Configuration::T4, 0.05, 0.1);
     p.set_expected(1, [0.0, 0.9], 0.5);
     p.set_expected(2, [0.0, -0.9], 0.5);
@@ -334,19 +322,10 @@ fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
         Se2::from_degrees(0.05, 1.2, -4.0),
     ];
     let scans: Vec<Scan> = (0..4).map(|i| w.scan(&poses, i)).collect();
-    let packets: Vec<RobotPacket<'_>> = scans
-        .iter()
+    let packets: Vec<RobotPacket<'_>> = packets(&w, &scans, &poses, false)
+        .into_iter()
         .zip(&poses)
-        .map(|(s, p)| RobotPacket {
-            scan: s,
-            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
-            lidar_to_base: w.mount,
-            chassis: &w.chassis,
-            weight: 1.0,
-            amcl_pose: None,
-            truth: Some(*p),
-            odom: None,
-        })
+        .map(|(p, t)| RobotPacket { truth: Some(*t), ..p })
         .collect();
     let truth = |i: usize| poses[0].inverse() * poses[i];
     let chained = |observer3: usize| {
@@ -393,19 +372,14 @@ fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
 #[test]
 fn a_failed_search_carries_the_heading_forward_by_odometry() {
     let w = site();
-    fn packets<'a>(w: &'a World, scans: &'a [Scan], odom: [Se2; 2], t: f64) -> Vec<RobotPacket<'a>> {
-        scans
-            .iter()
+    fn odometered<'a>(w: &'a World, scans: &'a [Scan], odom: [Se2; 2], t: f64) -> Vec<RobotPacket<'a>> {
+        packets(w, scans, &odom, false)
+            .into_iter()
             .zip(odom)
-            .map(|(s, o)| RobotPacket {
-                scan: s,
+            .map(|(p, o)| RobotPacket {
                 times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
-                lidar_to_base: w.mount,
-                chassis: &w.chassis,
-                weight: 1.0,
-                amcl_pose: None,
-                truth: None,
                 odom: Some(o),
+                ..p
             })
             .collect()
     }
@@ -413,13 +387,13 @@ fn a_failed_search_carries_the_heading_forward_by_odometry() {
     p.set_expected(1, [0.0, -0.9], 0.5);
     let before = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
     let scans: Vec<Scan> = (0..2).map(|i| w.scan(&before, i)).collect();
-    let first = p.update(&packets(&w, &scans, before, 0.0)).unwrap();
+    let first = p.update(&odometered(&w, &scans, before, 0.0)).unwrap();
     assert!(first.relative[1].theta.abs() < 0.2f64.to_radians(), "{:?}", first.relative[1]);
     // Robot 1 turns 3° in place and its odometry says so; its scan is lost (no returns).
     let after = [before[0], Se2::from_degrees(0.0, -0.45, 3.0)];
     let mut scans: Vec<Scan> = (0..2).map(|i| w.scan(&after, i)).collect();
     scans[1] = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
-    let out = p.update(&packets(&w, &scans, after, 0.1)).unwrap();
+    let out = p.update(&odometered(&w, &scans, after, 0.1)).unwrap();
     assert_eq!(out.pairs[0].heading_source, super::pipeline::Source::PreviousHeading);
     let turned = out.relative[1].theta.to_degrees();
     assert!((turned - 3.0).abs() < 0.25, "the kept heading should follow the odometry: {turned}°");
@@ -434,19 +408,7 @@ fn a_failed_acquisition_falls_back_on_the_formations_heading() {
     let poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 1.0)];
     let mut scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
     scans[1] = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
-    let packets: Vec<RobotPacket<'_>> = scans
-        .iter()
-        .map(|s| RobotPacket {
-            scan: s,
-            times: PacketTimes { stamp_s: 0.0, received_s: 0.01 },
-            lidar_to_base: w.mount,
-            chassis: &w.chassis,
-            weight: 1.0,
-            amcl_pose: None,
-            truth: None,
-            odom: None,
-        })
-        .collect();
+    let packets = packets(&w, &scans, &poses, false);
     let mut blind = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
     blind.set_expected(1, [0.0, -0.9], 0.5);
     assert!(matches!(blind.update(&packets), Err(super::pipeline::UpdateError::NoHeading { robot: 1, .. })));
