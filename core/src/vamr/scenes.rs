@@ -372,17 +372,6 @@ fn a_robot_hidden_from_the_reference_is_tracked_by_its_neighbour() {
 #[test]
 fn a_failed_search_carries_the_heading_forward_by_odometry() {
     let w = site();
-    fn odometered<'a>(w: &'a World, scans: &'a [Scan], odom: [Se2; 2], t: f64) -> Vec<RobotPacket<'a>> {
-        packets(w, scans, &odom, false)
-            .into_iter()
-            .zip(odom)
-            .map(|(p, o)| RobotPacket {
-                times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
-                odom: Some(o),
-                ..p
-            })
-            .collect()
-    }
     let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
     p.set_expected(1, [0.0, -0.9], 0.5);
     let before = [Se2::new(0.0, 0.45, 0.0), Se2::new(0.0, -0.45, 0.0)];
@@ -397,6 +386,54 @@ fn a_failed_search_carries_the_heading_forward_by_odometry() {
     assert_eq!(out.pairs[0].heading_source, super::pipeline::Source::PreviousHeading);
     let turned = out.relative[1].theta.to_degrees();
     assert!((turned - 3.0).abs() < 0.25, "the kept heading should follow the odometry: {turned}°");
+}
+
+/// Packets at time `t` whose odometry is the true pose (exact odometry).
+fn odometered<'a>(w: &'a World, scans: &'a [Scan], odom: [Se2; 2], t: f64) -> Vec<RobotPacket<'a>> {
+    packets(w, scans, &odom, false)
+        .into_iter()
+        .zip(odom)
+        .map(|(p, o)| RobotPacket {
+            times: PacketTimes { stamp_s: t, received_s: t + 0.01 },
+            odom: Some(o),
+            ..p
+        })
+        .collect()
+}
+
+/// A robot whose track is lost (hidden from its observer for longer than `N_miss`) keeps its
+/// heading, carried by odometry across the loss: when it is seen again and the full search finds
+/// nothing (its scan lost), that heading is fused, not the formation's expected one.
+#[test]
+fn a_lost_track_keeps_its_heading_carried_by_odometry() {
+    let w = site();
+    let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+    p.set_expected(1, [0.0, -0.9], 0.5);
+    p.set_expected_heading(1, 0.0);
+    let mut poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 4.0)];
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    let first = p.update(&odometered(&w, &scans, poses, 0.0)).unwrap();
+    assert!((first.relative[1].theta.to_degrees() - 4.0).abs() < 0.2, "{:?}", first.relative[1]);
+    // Robot 1 vanishes from robot 0's scan (its own scan lost too) and turns on to 6°.
+    let mut lost = false;
+    for k in 1..=8 {
+        poses[1] = Se2::from_degrees(0.0, -0.45, 4.0 + 0.25 * f64::from(k));
+        let blank = w.scan(&poses, 1).with_ranges(vec![f64::NAN; w.scan(&poses, 1).len()]);
+        let scans = [w.scan(&poses[..1], 0), blank];
+        let out = p.update(&odometered(&w, &scans, poses, 0.1 * f64::from(k)));
+        lost |= out.is_err();
+    }
+    assert!(lost, "robot 1 should have been lost");
+    // Seen again; its scan still lost, so the full search has nothing to match.
+    let blank = w.scan(&poses, 1).with_ranges(vec![f64::NAN; w.scan(&poses, 1).len()]);
+    let scans = [w.scan(&poses, 0), blank];
+    let out = p.update(&odometered(&w, &scans, poses, 0.9)).unwrap();
+    assert_eq!(out.pairs[0].heading_source, Source::PreviousHeading);
+    let kept = out.relative[1].theta.to_degrees();
+    assert!(
+        (kept - 6.0).abs() < 0.25,
+        "the heading carried across the loss: {kept}°, not the formation's 0°"
+    );
 }
 
 /// Acquiring a heading that finds no distinct peak (robot 1's scan lost): with the formation's
