@@ -37,7 +37,7 @@ fn check_accepts_the_shipped_configuration() {
     assert!(stdout.contains("robot robot-b"), "{stdout}");
     assert!(stdout.contains("configuration T4, formation [robot-a (w 1), robot-b (w 1)]"), "{stdout}");
     assert!(stdout.contains("map paper-site: 210 × 76 cells at 0.05 m"), "{stdout}");
-    assert!(stdout.trim_end().ends_with("ok: 2 robots, server, vamr, amcl and 3 maps are valid"), "{stdout}");
+    assert!(stdout.trim_end().ends_with("ok: 2 robots, server, vamr, amcl and 4 maps are valid"), "{stdout}");
 }
 
 #[test]

@@ -62,3 +62,17 @@ pub fn corridor() -> Result<Vec<Polygon>, PolygonError> {
     room.push([-20.0, 1.5]);
     Ok(vec![Polygon::new(room)?])
 }
+
+/// The occlusion study's blind-robot site (issue 18 §4), `config/maps/short-racks.*`: the hall of
+/// [`one_sided_hall`] with only three of its racks, against the +y wall from x = −14 to −4 m. A
+/// formation driving on past their end (`short-racks`) sees them only behind its shoulder: the
+/// robot nearest them sees them still, while its neighbour's lines of sight to them pass through
+/// that robot's body (a TiM551 mounted at the front sees nothing beyond 135° from ahead). Nothing
+/// else stands within the LiDARs' 10 m, so the far robot, alone, loses every constraint.
+pub fn short_racks() -> Result<Vec<Polygon>, PolygonError> {
+    let mut out = vec![Polygon::new(rect(-20.0, -12.0, 20.0, 8.0))?];
+    for x0 in [-14.0, -10.5, -6.0] {
+        out.push(Polygon::new(rect(x0, 7.2, x0 + 2.0, 8.0))?);
+    }
+    Ok(out)
+}

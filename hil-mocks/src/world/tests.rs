@@ -157,14 +157,15 @@ fn the_gyro_reads_the_true_yaw_rate_plus_its_bias() {
     assert!(bias.abs() <= 0.01 + 1e-4 && bias.abs() > 1e-5, "bias {bias}");
 }
 
-/// The occlusion study's maps are the renderings of [`one_sided_hall`] and [`corridor`]. Set
-/// `AMR_WRITE_MAPS=1` to re-render them.
+/// The occlusion study's maps are the renderings of [`one_sided_hall`], [`corridor`] and
+/// [`short_racks`]. Set `AMR_WRITE_MAPS=1` to re-render them.
 #[test]
 fn shipped_study_maps_match_their_sites() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
     let sites = [
         ("one-sided-hall", one_sided_hall().unwrap(), Se2::new(-20.25, -12.25, 0.0), 810, 410, [2.0, 7.2]),
         ("corridor", corridor().unwrap(), Se2::new(-20.25, -2.05, 0.0), 810, 82, [3.5, 1.8]),
+        ("short-racks", short_racks().unwrap(), Se2::new(-20.25, -12.25, 0.0), 810, 410, [-5.0, 7.2]),
     ];
     for (name, site, origin, w, h, feature) in sites {
         let grid = rasterize_outlines(&site, &site[0], 0.05, origin, w, h);
