@@ -84,6 +84,23 @@ pub struct HeadingParams {
     /// forward by both robots' odometry) is refused as an outlier; absent: none is (the paper).
     #[serde(default)]
     pub prior_gate_deg: Option<Positive>,
+    /// Ours: a refined estimate that passes the gate is blended with the prediction (a scalar
+    /// Kalman filter) instead of replacing it. The prediction's uncertainty grows by this much per
+    /// √s (the two robots' odometry headings drifting apart). Absent, or `search_sigma_deg`
+    /// absent: each estimate replaces the heading (the paper).
+    #[serde(default)]
+    pub drift_deg_per_sqrt_s: Option<Positive>,
+    /// Ours: the uncertainty (1σ) of one refined estimate, for the blend above.
+    #[serde(default)]
+    pub search_sigma_deg: Option<Positive>,
+}
+
+impl HeadingParams {
+    /// The blend's (drift per √s, search σ), radians, when both are set.
+    #[must_use]
+    pub fn blend_rad(&self) -> Option<(f64, f64)> {
+        Some((self.drift_deg_per_sqrt_s?.get().to_radians(), self.search_sigma_deg?.get().to_radians()))
+    }
 }
 
 /// Spec §6: body masks and the virtual scan.

@@ -146,6 +146,10 @@ pub struct Pipeline {
     /// Per non-reference robot: its track was lost, so the next search sweeps the full circle;
     /// the heading carried by odometry stays as the fallback should that search find nothing.
     reacquire: Vec<bool>,
+    /// Per non-reference robot: the kept heading's variance (rad²) and when it was last carried
+    /// forward (`heading.drift_deg_per_sqrt_s` and `search_sigma_deg`).
+    heading_var: Vec<f64>,
+    heading_t: Vec<Option<f64>>,
     /// Where each non-reference robot is expected (its formation slot, in its observer's frame):
     /// the search area while its track is being acquired.
     expected: Vec<Option<Roi>>,
@@ -173,6 +177,8 @@ impl Pipeline {
             heading_yaws: vec![None; others],
             refused: vec![0; others],
             reacquire: vec![false; others],
+            heading_var: vec![0.0; others],
+            heading_t: vec![None; others],
             expected: vec![None; others],
             observers: vec![0; others],
             expected_headings: vec![None; others],
@@ -375,6 +381,10 @@ impl Pipeline {
                     ));
                 }
                 self.heading_yaws[i - 1] = yaws;
+                if let (Some((drift, _)), Some(t0)) = (h.blend_rad(), self.heading_t[i - 1]) {
+                    self.heading_var[i - 1] += drift * drift * (t_s - t0).max(0.0);
+                }
+                self.heading_t[i - 1] = Some(t_s);
                 let full = std::mem::take(&mut self.reacquire[i - 1]);
                 let (grid, mode) = match self.headings[i - 1].filter(|_| !full) {
                     Some(prev) => (
@@ -405,10 +415,24 @@ impl Pipeline {
                 }
                 match distinct.filter(agrees) {
                     Some(e) => {
-                        self.headings[i - 1] = Some(e.theta_rad);
+                        let theta = match (h.blend_rad(), predicted) {
+                            (Some((_, sigma)), Some(prior)) if mode == Source::RefinedSearch => {
+                                let var = self.heading_var[i - 1];
+                                let gain = var / (var + sigma * sigma);
+                                self.heading_var[i - 1] = (1.0 - gain) * var;
+                                crate::se2::normalize_angle(
+                                    prior + gain * crate::se2::angle_diff(e.theta_rad, prior),
+                                )
+                            }
+                            (blend, _) => {
+                                self.heading_var[i - 1] = blend.map_or(0.0, |(_, sigma)| sigma * sigma);
+                                e.theta_rad
+                            }
+                        };
+                        self.headings[i - 1] = Some(theta);
                         self.refused[i - 1] = 0;
                         report.heading_source = mode;
-                        Ok(e.theta_rad)
+                        Ok(theta)
                     }
                     None if self.refused[i - 1] > MAX_REFUSED => {
                         self.headings[i - 1] = None;
@@ -419,7 +443,9 @@ impl Pipeline {
                     None => {
                         report.heading_source = Source::PreviousHeading;
                         if self.headings[i - 1].is_none() {
+                            // The formation's heading is a guess: the next estimates replace it.
                             self.headings[i - 1] = self.expected_headings[i - 1];
+                            self.heading_var[i - 1] = h.refine_window_deg.get().to_radians().powi(2);
                         }
                         self.headings[i - 1].ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })
                     }

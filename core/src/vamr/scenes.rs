@@ -436,6 +436,37 @@ fn a_lost_track_keeps_its_heading_carried_by_odometry() {
     );
 }
 
+/// With `drift_deg_per_sqrt_s` and `search_sigma_deg` set, a refined estimate is blended with the
+/// odometry's prediction: where the odometry missed 1° of a turn, the first estimate after it moves
+/// the heading part of the way, and the estimates that follow bring it to the searched heading.
+#[test]
+fn a_refined_heading_is_blended_with_the_odometrys_prediction() {
+    let w = site();
+    let mut params = shipped_params();
+    params.heading.drift_deg_per_sqrt_s = Some(crate::config::value::Positive::new(0.1).unwrap());
+    params.heading.search_sigma_deg = Some(crate::config::value::Positive::new(0.3).unwrap());
+    let mut p = Pipeline::new(2, params, Configuration::T4, 0.05, 0.1);
+    p.set_expected(1, [0.0, -0.9], 0.5);
+    let mut poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 4.0)];
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    let first = p.update(&odometered(&w, &scans, poses, 0.0)).unwrap();
+    assert!((first.relative[1].theta.to_degrees() - 4.0).abs() < 0.2, "{:?}", first.relative[1]);
+    // Robot 1 turns to 5°; its odometry still says 4°.
+    let odom = poses;
+    poses[1] = Se2::from_degrees(0.0, -0.45, 5.0);
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    let mut headings = Vec::new();
+    for k in 1..=40 {
+        let out = p.update(&odometered(&w, &scans, odom, 0.1 * f64::from(k))).unwrap();
+        assert_eq!(out.pairs[0].heading_source, Source::RefinedSearch);
+        headings.push(out.relative[1].theta.to_degrees());
+    }
+    assert!(headings[0] > 4.2 && headings[0] < 4.8, "part of the way: {headings:?}");
+    assert!(headings.windows(2).all(|h| h[1] >= h[0] - 1e-9), "monotone: {headings:?}");
+    let last = headings[headings.len() - 1];
+    assert!((last - 5.0).abs() < 0.2, "the searched heading in the end: {headings:?}");
+}
+
 /// Acquiring a heading that finds no distinct peak (robot 1's scan lost): with the formation's
 /// expected heading the update fuses with it (to be refined by later searches); without, it has
 /// no heading at all.
