@@ -124,7 +124,7 @@ enum Command {
         budget: bool,
         /// Instead of T1–T4 on one scenario: the occlusion study (issue 18 §3), T1–T4 over spacing
         /// 0.5–2.0 m and teams of 2, 3 and 4 on every scenario given with --study-scenario (default:
-        /// straight, turning, hall-straight, hall-turning, corridor), written to
+        /// straight, turning, hall-straight, hall-turning, corridor, short-racks), written to
         /// OUT/study-occlusion/study.{md,json} with a plot per scenario.
         #[arg(long, value_enum, conflicts_with_all = ["sweep", "budget"])]
         study: Option<eval_cmd::Study>,

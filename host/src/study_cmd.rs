@@ -164,10 +164,11 @@ pub(crate) fn budget(
     Ok(dir.join("budget.md"))
 }
 
-/// The occlusion study's scenarios by default: the paper's site, the one-sided hall and the
-/// corridor (`config/maps/README.md`), straight and turning where the site allows.
-pub(crate) const STUDY_SCENARIOS: [&str; 5] =
-    ["straight", "turning", "hall-straight", "hall-turning", "corridor"];
+/// The occlusion study's scenarios by default: the paper's site, the one-sided hall, the
+/// corridor and the hall with its racks behind the formation (`config/maps/README.md`), straight
+/// and turning where the site allows.
+pub(crate) const STUDY_SCENARIOS: [&str; 6] =
+    ["straight", "turning", "hall-straight", "hall-turning", "corridor", "short-racks"];
 /// Centre-to-centre spacing between neighbours, m.
 pub(crate) const SPACINGS_M: [f64; 4] = [0.5, 1.0, 1.5, 2.0];
 /// Team sizes.
