@@ -33,11 +33,19 @@ fn trapezoid(distance: f64, max: f64, accel: f64, dt: f64) -> Vec<f64> {
         .collect()
 }
 
-/// The whole reference of a scenario, sampled every `dt_s`, with 1 s at rest at the start (so the
-/// filters settle) and at the end.
+/// The whole reference of a scenario for a formation of `robots`, sampled every `dt_s`, with 1 s at
+/// rest at the start (so the filters settle) and at the end.
 #[must_use]
-pub fn reference(sc: &ScenarioConfig, dt_s: f64) -> Vec<Reference> {
+pub fn reference(sc: &ScenarioConfig, robots: usize, dt_s: f64) -> Vec<Reference> {
     let lim = &sc.limits;
+    // Turning on the spot: the robot furthest from V, and its outer wheel (0.2 m further), sets the
+    // yaw rate and angular acceleration. With three or more robots that is not spacing/2: a plan
+    // built for two swung the outer robots of three 1 m apart up to 1.3 m off their slots (out of
+    // the reference robot's view) in hall-turning.
+    let furthest = crate::formation::slots(robots.max(2), sc.spacing_m.get())
+        .into_iter()
+        .fold(0.0_f64, |m, y| m.max(y.abs()));
+    let half = furthest + 0.2;
     let mut twists: Vec<(f64, f64)> = vec![(0.0, 0.0); (1.0 / dt_s).round() as usize];
     for _ in 0..sc.laps.get() {
         for seg in &sc.segments {
@@ -49,8 +57,6 @@ pub fn reference(sc: &ScenarioConfig, dt_s: f64) -> Vec<Reference> {
                 );
             }
             if let Some(a) = seg.turn_deg {
-                // Turning on the spot: the outer robot's wheels set the angular acceleration.
-                let half = sc.spacing_m.get() / 2.0 + 0.2;
                 let w_max = lim.max_yaw_rate_radps.get().min(lim.max_speed_mps.get() / half);
                 let alpha = lim.max_accel_mps2.get() / half;
                 twists.extend(

@@ -520,7 +520,7 @@ pub fn check_formation(site: &Site, sc: &ScenarioConfig, robots: &[RobotConfig])
     let (x0, y0, x1, y1) = robot_spec(first).chassis.bounds();
     let reach = x0.abs().max(x1.abs()).hypot(y0.abs().max(y1.abs()));
     let slots = amr_core::formation::slots(robots.len(), sc.spacing_m.get());
-    for r in eval::reference(sc, 0.1) {
+    for r in eval::reference(sc, robots.len(), 0.1) {
         for y in &slots {
             let c = (r.pose * Se2::new(0.0, *y, 0.0)).transform_point([0.0, 0.0]);
             if !site.is_clear(c, reach) {

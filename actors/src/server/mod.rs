@@ -226,7 +226,7 @@ pub async fn start_server(
     let formation = FormationActor {
         ports: Arc::clone(&ports),
         params: FormationParams {
-            plan: Arc::new(reference(sc, FORMATION_PERIOD_S)),
+            plan: Arc::new(reference(sc, setup.robots.len(), FORMATION_PERIOD_S)),
             period_s: FORMATION_PERIOD_S,
             slots: slot_y,
             gains: FormationGains::DEFAULT,

@@ -190,7 +190,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         .map(|y| world.add_robot(setup.robot.clone(), start_v * Se2::new(0.0, *y, 0.0)))
         .collect();
     let ids: Vec<String> = (0..robots.len()).map(|i| format!("robot{i}")).collect();
-    let reference = reference(sc, setup.physics_dt_s);
+    let reference = reference(sc, setup.robots, setup.physics_dt_s);
     let mut core = ServerCore::new(CoreSetup {
         members: slots
             .iter()

@@ -80,7 +80,7 @@ fn the_reference_respects_the_limits_and_comes_back() {
     let config = shipped();
     let sc = &config.scenarios["straight"];
     let dt = 0.01;
-    let r = reference(sc, dt);
+    let r = reference(sc, 2, dt);
     let start = sc.start_pose();
     let end = r.last().unwrap().pose;
     assert!(end.approx_eq(&start, 1e-3, 1e-9), "back where it started: {end:?}");
@@ -91,6 +91,38 @@ fn the_reference_respects_the_limits_and_comes_back() {
         r.windows(2).all(|w| (w[1].v_mps - w[0].v_mps).abs() <= 0.05 * dt + 1e-12),
         "acceleration ≤ 0.05 m/s²"
     );
+}
+
+/// Turning on the spot, every robot of the formation can follow the plan inside the limits: its
+/// outer wheel (0.2 m beyond its slot) never needs more than the speed or acceleration limit, for
+/// teams of 2–4 at every spacing of the occlusion study.
+#[test]
+fn every_robot_can_follow_the_turns_of_the_reference() {
+    let config = shipped();
+    let mut sc = config.scenarios["turning"].clone();
+    let dt = 0.01;
+    for robots in 2..=4 {
+        for spacing in [0.5, 1.0, 2.0] {
+            sc.spacing_m = amr_core::config::value::Positive::new(spacing).unwrap();
+            let r = reference(&sc, robots, dt);
+            let (v_max, a_max) = (sc.limits.max_speed_mps.get(), sc.limits.max_accel_mps2.get());
+            for y in slots(robots, spacing) {
+                let wheels: Vec<[f64; 2]> = r
+                    .iter()
+                    .map(|x| {
+                        let v = x.v_mps - x.w_radps * y;
+                        [v - x.w_radps * 0.2, v + x.w_radps * 0.2]
+                    })
+                    .collect();
+                let what = format!("{robots} robots {spacing} m apart, the one at {y} m");
+                assert!(wheels.iter().flatten().all(|w| w.abs() <= v_max + 1e-9), "{what}: speed");
+                assert!(
+                    wheels.windows(2).all(|w| (0..2).all(|k| (w[1][k] - w[0][k]).abs() <= a_max * dt + 1e-9)),
+                    "{what}: acceleration"
+                );
+            }
+        }
+    }
 }
 
 #[test]
