@@ -505,7 +505,7 @@ impl ServerCore {
                 }
             };
             ch.seq += 1;
-            let full_search = u.pairs.iter().any(|p| p.heading_source == Source::FullSearch);
+            let full_search = u.pairs.iter().any(|p| p.full_search);
             let heading_failed = u.pairs.iter().any(|p| p.heading_source == Source::PreviousHeading);
             let points = u
                 .virtual_scan

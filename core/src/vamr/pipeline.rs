@@ -79,6 +79,9 @@ pub struct PairReport {
     pub heading_source: Source,
     pub heading_score: Option<f64>,
     pub heading_margin: Option<f64>,
+    /// The heading search swept the full circle (an acquisition), whether or not it found a
+    /// heading (`heading_source` says what was used).
+    pub full_search: bool,
 }
 
 /// The result of one fused update.
@@ -328,6 +331,7 @@ impl Pipeline {
                 heading_source: Source::Amcl,
                 heading_score: None,
                 heading_margin: None,
+                full_search: false,
             };
             let position = if position_from_tracker {
                 let tracker = &mut self.trackers[i - 1];
@@ -393,6 +397,7 @@ impl Pipeline {
                     ),
                     None => (AngleGrid::full(h.step_deg.get()), Source::FullSearch),
                 };
+                report.full_search = mode == Source::FullSearch;
                 let problem = HeadingProblem::new(&pre[i].smoothed_points, target, position, h);
                 let estimate = search(&problem, &grid, &mut self.scratch);
                 report.heading_score = estimate.as_ref().map(|e| e.score);

@@ -429,6 +429,7 @@ fn a_lost_track_keeps_its_heading_carried_by_odometry() {
     let scans = [w.scan(&poses, 0), blank];
     let out = p.update(&odometered(&w, &scans, poses, 0.9)).unwrap();
     assert_eq!(out.pairs[0].heading_source, Source::PreviousHeading);
+    assert!(out.pairs[0].full_search, "a lost track is acquired again with the full search");
     let kept = out.relative[1].theta.to_degrees();
     assert!(
         (kept - 6.0).abs() < 0.25,
@@ -459,6 +460,7 @@ fn a_refined_heading_is_blended_with_the_odometrys_prediction() {
     for k in 1..=40 {
         let out = p.update(&odometered(&w, &scans, odom, 0.1 * f64::from(k))).unwrap();
         assert_eq!(out.pairs[0].heading_source, Source::RefinedSearch);
+        assert!(!out.pairs[0].full_search);
         headings.push(out.relative[1].theta.to_degrees());
     }
     assert!(headings[0] > 4.2 && headings[0] < 4.8, "part of the way: {headings:?}");
@@ -485,6 +487,7 @@ fn a_failed_acquisition_falls_back_on_the_formations_heading() {
     p.set_expected_heading(1, 0.0);
     let out = p.update(&packets).unwrap();
     assert_eq!(out.pairs[0].heading_source, super::pipeline::Source::PreviousHeading);
+    assert!(out.pairs[0].full_search, "an acquisition sweeps the full circle, found or not");
     assert!(
         out.relative[1].theta.abs() < 1e-12 && (out.relative[1].y + 0.9).abs() < 0.02,
         "{:?}",
