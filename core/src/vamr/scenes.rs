@@ -415,17 +415,16 @@ fn a_lost_track_keeps_its_heading_carried_by_odometry() {
     let first = p.update(&odometered(&w, &scans, poses, 0.0)).unwrap();
     assert!((first.relative[1].theta.to_degrees() - 4.0).abs() < 0.2, "{:?}", first.relative[1]);
     // Robot 1 vanishes from robot 0's scan (its own scan lost too) and turns on to 6°.
+    let blank = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
     let mut lost = false;
     for k in 1..=8 {
         poses[1] = Se2::from_degrees(0.0, -0.45, 4.0 + 0.25 * f64::from(k));
-        let blank = w.scan(&poses, 1).with_ranges(vec![f64::NAN; w.scan(&poses, 1).len()]);
-        let scans = [w.scan(&poses[..1], 0), blank];
+        let scans = [w.scan(&poses[..1], 0), blank.clone()];
         let out = p.update(&odometered(&w, &scans, poses, 0.1 * f64::from(k)));
         lost |= out.is_err();
     }
     assert!(lost, "robot 1 should have been lost");
     // Seen again; its scan still lost, so the full search has nothing to match.
-    let blank = w.scan(&poses, 1).with_ranges(vec![f64::NAN; w.scan(&poses, 1).len()]);
     let scans = [w.scan(&poses, 0), blank];
     let out = p.update(&odometered(&w, &scans, poses, 0.9)).unwrap();
     assert_eq!(out.pairs[0].heading_source, Source::PreviousHeading);
