@@ -49,6 +49,15 @@ pub struct Noise {
     pub gyro_bias_max_radps: f64,
     /// Gyro white noise, rad/s.
     pub gyro_sigma_radps: f64,
+    /// Systematic odometry errors (Borenstein & Feng, "Measurement and correction of systematic
+    /// odometry errors in mobile robots", IEEE Trans. Robotics and Automation 12(6), 1996: the
+    /// unequal wheel diameters `E_d` and the uncertain wheelbase `E_b` that their UMBmark test
+    /// measures). Each wheel's effective radius is the nominal one times `1 + ε`, ε drawn once per
+    /// robot with this relative standard deviation; the odometry keeps using the nominal radius.
+    pub wheel_radius_sigma: f64,
+    /// Likewise the effective track width (the tyres' contact patches), relative 1σ, drawn once
+    /// per robot.
+    pub track_width_sigma: f64,
 }
 
 impl Noise {
@@ -61,6 +70,8 @@ impl Noise {
         encoder_sigma_counts: 0.0,
         gyro_bias_max_radps: 0.0,
         gyro_sigma_radps: 0.0,
+        wheel_radius_sigma: 0.0,
+        track_width_sigma: 0.0,
     };
 
     /// A TiM551 (statistical error ≈ 20 mm at 1σ in SICK's data sheet; we use 10 mm as the
@@ -73,6 +84,12 @@ impl Noise {
         encoder_sigma_counts: 2.0,
         gyro_bias_max_radps: 0.002,
         gyro_sigma_radps: 0.005,
+        // A calibrated robot, not a perfect one: 0.2 % per wheel radius (0.13 mm of a 65 mm wheel;
+        // tyre wear and load change more than that) and 0.5 % of the track width (1.7 mm of
+        // 0.33 m, less than a tyre's contact patch). Driving straight, a robot whose wheels differ
+        // by 0.28 % (1σ of the difference) turns 0.5°/m that its odometry does not see.
+        wheel_radius_sigma: 0.002,
+        track_width_sigma: 0.005,
     };
 }
 
@@ -96,6 +113,10 @@ struct SimRobot {
     /// The body's true twist over the last step.
     twist: (f64, f64),
     gyro_bias_radps: f64,
+    /// Effective wheel radii (left, right) and track width over the nominal ones
+    /// ([`Noise::wheel_radius_sigma`], [`Noise::track_width_sigma`]).
+    wheel_scale: [f64; 2],
+    track_scale: f64,
     rng: Rng,
 }
 
@@ -213,6 +234,9 @@ impl World {
         let mut rng = self.rng.fork(self.robots.len() as u64);
         let max_bias = self.noise.gyro_bias_max_radps;
         let bias = if max_bias > 0.0 { rng.range(-max_bias, max_bias) } else { 0.0 };
+        let mut scale = |sigma: f64| if sigma > 0.0 { 1.0 + rng.gaussian(sigma) } else { 1.0 };
+        let wheel_scale = [scale(self.noise.wheel_radius_sigma), scale(self.noise.wheel_radius_sigma)];
+        let track_scale = scale(self.noise.track_width_sigma);
         self.robots.push(SimRobot {
             spec,
             pose,
@@ -222,6 +246,8 @@ impl World {
             wheel_rad: [0.0; 2],
             twist: (0.0, 0.0),
             gyro_bias_radps: bias,
+            wheel_scale,
+            track_scale,
             rng,
         });
         self.robots.len() - 1
@@ -261,11 +287,13 @@ impl World {
                 let before = r.wheel_mps[k];
                 r.wheel_mps[k] += dv;
                 let mean = 0.5 * (before + r.wheel_mps[k]);
+                // The drive turns the wheel at the rate the nominal radius asks for; the ground
+                // moves by the effective radius.
                 r.wheel_rad[k] += mean * dt_s / r.spec.wheel_radius_m;
-                ground[k] = mean * (1.0 + r.rng.gaussian(slip_sigma));
+                ground[k] = mean * r.wheel_scale[k] * (1.0 + r.rng.gaussian(slip_sigma));
             }
             let v = 0.5 * (ground[0] + ground[1]);
-            let w = (ground[1] - ground[0]) / r.spec.track_width_m;
+            let w = (ground[1] - ground[0]) / (r.spec.track_width_m * r.track_scale);
             r.pose = r.pose * arc(v * dt_s, w * dt_s);
             r.twist = (v, w);
         }

@@ -79,6 +79,50 @@ fn encoders_measure_the_wheels_not_the_ground() {
 }
 
 #[test]
+fn unequal_wheels_and_an_uncertain_track_bend_the_path_the_encoders_call_straight() {
+    // Wheel odometry with the nominal radius and track, over the encoders.
+    fn drive(noise: Noise, seed: u64, v: f64, w_cmd: f64, steps: usize) -> (Se2, Se2) {
+        let mut w = World::new(vec![], noise, seed);
+        let spec = RobotSpec { max_accel_mps2: 1e9, ..square_robot() };
+        let r = w.add_robot(spec, Se2::IDENTITY);
+        w.command(r, v, w_cmd);
+        let mut odom = Se2::IDENTITY;
+        let mut last = w.encoders_rad(r).unwrap();
+        for _ in 0..steps {
+            w.step(0.01);
+            let enc = w.encoders_rad(r).unwrap();
+            let (dl, dr) = ((enc[0] - last[0]) * 0.065, (enc[1] - last[1]) * 0.065);
+            odom = odom * arc((dl + dr) / 2.0, (dr - dl) / 0.33);
+            last = enc;
+        }
+        (w.pose(r).unwrap(), odom)
+    }
+    let systematic = Noise { wheel_radius_sigma: 0.002, track_width_sigma: 0.005, ..Noise::NONE };
+    // 20 s at 0.2 m/s: the odometry says 4 m straight; the robot turned and drifted by what its
+    // wheels differ. Over seeds the heading error spreads as (ε_r − ε_l)/b · s: 1σ ≈ 0.0028 ·
+    // 4 / 0.33 ≈ 0.034 rad.
+    let mut headings = Vec::new();
+    for seed in 0..40 {
+        let (truth, odom) = drive(systematic, seed, 0.2, 0.0, 2000);
+        assert!(odom.y.abs() < 1e-9 && odom.theta.abs() < 1e-9, "the encoders see a straight line: {odom:?}");
+        // The same seed bends the same way: drawn once per robot, deterministic.
+        assert_eq!(drive(systematic, seed, 0.2, 0.0, 2000).0, truth);
+        headings.push(truth.theta);
+    }
+    let sd = (headings.iter().map(|t| t * t).sum::<f64>() / headings.len() as f64).sqrt();
+    assert!((0.018..0.06).contains(&sd), "heading error sd over seeds {sd} rad");
+    assert!(headings.iter().all(|t| t.abs() < 0.15), "{headings:?}");
+    // Turning on the spot, the track's error scales the turn the odometry reports: 2 rad by the
+    // encoders is 2/(1 + ε_b) rad on the ground.
+    let (truth, odom) = drive(Noise { track_width_sigma: 0.005, ..Noise::NONE }, 3, 0.0, 0.2, 1000);
+    let ratio = odom.theta / truth.theta;
+    assert!((ratio - 1.0).abs() > 1e-5 && (ratio - 1.0).abs() < 0.03, "odometry/true turn {ratio}");
+    // Without them, the odometry of an exact robot is exact.
+    let (truth, odom) = drive(Noise::NONE, 3, 0.2, 0.1, 1000);
+    assert!((truth.x - odom.x).abs() < 1e-9 && (truth.theta - odom.theta).abs() < 1e-9);
+}
+
+#[test]
 fn the_lidar_sees_walls_and_the_other_robot_but_not_itself() {
     let mut w = World::new(paper_site().unwrap(), Noise::NONE, 3);
     let a = w.add_robot(square_robot(), Se2::new(0.0, 0.45, 0.0));
