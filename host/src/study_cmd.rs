@@ -53,6 +53,9 @@ pub(crate) struct Figures {
     pub diverged: usize,
     /// Scans without an estimate, over all trials.
     pub missing: usize,
+    /// Per trial, the worst-placed robot's own 2D RMSE (where the configuration placed it), m:
+    /// mean and SD over trials.
+    pub worst_robot: Option<MeanSd>,
 }
 
 /// A trial whose estimate strays this far from the truth has diverged, m.
@@ -67,7 +70,16 @@ pub(crate) fn figures(trials: &[Trial], c: Configuration) -> Figures {
         .iter()
         .filter(|s| s.truth.is_empty() || s.truth.iter().any(|e| e.e_x.hypot(e.e_y) > DIVERGED_M))
         .count();
-    Figures { rmse: MeanSd::of(&per_trial), diverged, missing: series.iter().map(|s| s.missing).sum() }
+    let worst: Vec<f64> = series
+        .iter()
+        .filter_map(|s| s.robots.iter().filter_map(|e| AxisStats::of(e).map(|a| a.d2.rmse)).reduce(f64::max))
+        .collect();
+    Figures {
+        rmse: MeanSd::of(&per_trial),
+        diverged,
+        missing: series.iter().map(|s| s.missing).sum(),
+        worst_robot: MeanSd::of(&worst),
+    }
 }
 
 fn cm(f: &Figures) -> String {
@@ -202,6 +214,16 @@ struct StudyRow {
 impl StudyRow {
     fn rmse_cm(&self, c: Configuration) -> Option<f64> {
         self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| f.rmse).map(|m| 100.0 * m.mean)
+    }
+
+    fn worst_robot_cm(&self, c: Configuration) -> Option<f64> {
+        self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| f.worst_robot).map(|m| 100.0 * m.mean)
+    }
+
+    /// T4 − min(T1, T2, T3) for the worst-placed robot, cm.
+    fn t4_worst_over_best_cm(&self) -> Option<f64> {
+        let best = CONFIGS[..3].iter().filter_map(|c| self.worst_robot_cm(*c)).fold(f64::INFINITY, f64::min);
+        Some(self.worst_robot_cm(Configuration::T4)? - best).filter(|d| d.is_finite())
     }
 
     /// T4 − min(T1, T2, T3), cm.
@@ -399,6 +421,46 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
          than the best of T1–T3 in {worse}.",
         run.len(),
         r.rows.len() - run.len()
+    );
+    let _ = writeln!(
+        md,
+        "\n## The worst-placed robot\n\n\
+         V's error is the mean of the robots' errors: errors of opposite sign cancel in it, and a robot whose \
+         own estimate drifts counts only 1/N. Here, per trial, the 2D RMSE of the robot each configuration \
+         placed worst (where it told that robot it stands), cm, mean ± SD over trials. Δ = T4 − min(T1, T2, T3).\n\n\
+         | scenario | motion | robots | spacing m | T1 | T2 | T3 | T4 | Δ cm | T1 / T4 |\n\
+         |---|---|---|---|---|---|---|---|---|---|"
+    );
+    for row in &run {
+        let cell = |c: Configuration| {
+            row.figures
+                .iter()
+                .find(|(k, _)| *k == c)
+                .and_then(|(_, f)| f.worst_robot)
+                .map_or("—".into(), |m| format!("{:.2} ± {:.2}", 100.0 * m.mean, 100.0 * m.sd))
+        };
+        let ratio = match (row.worst_robot_cm(Configuration::T1), row.worst_robot_cm(Configuration::T4)) {
+            (Some(a), Some(b)) if b > 0.0 => format!("{:.2}", a / b),
+            _ => "—".into(),
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {ratio} |",
+            row.scenario,
+            row.motion,
+            row.robots,
+            row.spacing_m,
+            cell(Configuration::T1),
+            cell(Configuration::T2),
+            cell(Configuration::T3),
+            cell(Configuration::T4),
+            row.t4_worst_over_best_cm().map_or("—".into(), |d| format!("{d:+.2}")),
+        );
+    }
+    let worse = run.iter().filter(|x| x.t4_worst_over_best_cm().is_some_and(|d| d > 0.5)).count();
+    let _ = writeln!(
+        md,
+        "\nFor the worst-placed robot, T4 more than 0.5 cm worse than the best of T1–T3 in {worse}."
     );
     md
 }

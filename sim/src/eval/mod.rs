@@ -71,6 +71,11 @@ pub struct Series {
     pub pipeline_s: f64,
     /// V's estimate at every scan (`[x, y, θ]` in the map), `None` where there was none.
     pub estimates: Vec<Option<[f64; 3]>>,
+    /// Per robot (formation order), the error of where this configuration places it, against its
+    /// true pose, at every scan it placed it. V's error is a mean over the robots: with equal
+    /// weights, errors of opposite sign cancel in it, and a robot whose own estimate drifts counts
+    /// only 1/N. What each robot is told of its own pose is the error that drives it.
+    pub robots: Vec<Vec<Sample>>,
 }
 
 /// One trial: per configuration (T1–T4, in that order).
@@ -287,6 +292,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         }
         let true_heading = truth.get(1).map(|b| (truth[0].inverse() * *b).theta);
         let mut estimates: Vec<(Configuration, Option<Se2>)> = CONFIGS.iter().map(|c| (*c, None)).collect();
+        let mut placed: Vec<Vec<Option<Se2>>> = vec![vec![None; robots.len()]; CONFIGS.len()];
         let mut virtual_scans: Vec<(Configuration, Option<Points>)> =
             CONFIGS[1..].iter().map(|c| (*c, None)).collect();
         let mut offered = Vec::with_capacity(scan_list.len());
@@ -334,12 +340,25 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             for e in &out.estimates {
                 if let (EstimateSource::Fused(c), Some(v)) = (e.source, e.v) {
                     estimates[config_index(c)].1 = Some(v);
+                    for (slot, a) in placed[config_index(c)].iter_mut().zip(&e.robots) {
+                        if let Some(a) = a {
+                            *slot = Some(a.map);
+                        }
+                    }
                 }
             }
             offered.push((msg, t + RX_DELAY_S));
         }
         for (c, est) in &estimates {
             record(&mut series, *c, *est, &v_true, &v_ref);
+        }
+        for ((_, s), placed) in series.iter_mut().zip(&placed) {
+            s.robots.resize(truth.len(), Vec::new());
+            for ((errors, est), t) in s.robots.iter_mut().zip(placed).zip(&truth) {
+                if let Some(e) = est {
+                    errors.push(error(e, t));
+                }
+            }
         }
         let filters: Vec<(Configuration, &Amcl)> = CONFIGS[1..]
             .iter()
@@ -382,6 +401,10 @@ pub struct ConfigSummary {
     pub pooled_reference: Option<AxisStats>,
     /// Trial-level 2D RMSE against the truth, mean ± SD over trials.
     pub trial_rmse_2d: Option<MeanSd>,
+    /// Per robot, its own trial-level 2D RMSE (where the configuration placed it), mean ± SD over
+    /// trials; and per trial the worst robot's, mean ± SD.
+    pub robot_rmse_2d: Vec<Option<MeanSd>>,
+    pub worst_robot_rmse_2d: Option<MeanSd>,
     pub missing: usize,
     /// The paper's trial-level 2D RMSE, mean and SD (Tables 15–16), when it gives one.
     pub paper_rmse_2d: Option<(f64, f64)>,
@@ -411,11 +434,23 @@ pub fn summarise(scenario: &str, trials: &[Trial]) -> Vec<ConfigSummary> {
             };
             let per_trial: Vec<f64> =
                 all.iter().filter_map(|s| AxisStats::of(&s.truth).map(|a| a.d2.rmse)).collect();
+            let n_robots = all.iter().map(|s| s.robots.len()).max().unwrap_or(0);
+            let robot_rmse =
+                |s: &Series, i: usize| s.robots.get(i).and_then(|e| AxisStats::of(e)).map(|a| a.d2.rmse);
+            let robot_rmse_2d = (0..n_robots)
+                .map(|i| MeanSd::of(&all.iter().filter_map(|s| robot_rmse(s, i)).collect::<Vec<_>>()))
+                .collect();
+            let worst: Vec<f64> = all
+                .iter()
+                .filter_map(|s| (0..s.robots.len()).filter_map(|i| robot_rmse(s, i)).reduce(f64::max))
+                .collect();
             ConfigSummary {
                 configuration: format!("{c:?}"),
                 pooled_truth: pooled(|s| &s.truth),
                 pooled_reference: pooled(|s| &s.reference),
                 trial_rmse_2d: MeanSd::of(&per_trial),
+                robot_rmse_2d,
+                worst_robot_rmse_2d: MeanSd::of(&worst),
                 missing: all.iter().map(|s| s.missing).sum(),
                 paper_rmse_2d: paper_rmse(scenario, *c),
             }

@@ -72,6 +72,25 @@ fn three_robots_run_through_the_same_pipeline() {
         assert!(s.truth.len() > trial.scans / 2, "{c:?}: {} of {} scans", s.truth.len(), trial.scans);
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
         assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
+        // Each robot is placed wherever V is, and against its own truth: V (the robots' centroid)
+        // errs by the mean of their errors, and no robot is compared with its neighbour's pose
+        // (0.9 m away).
+        assert_eq!(s.robots.len(), 2, "{c:?}");
+        for r in &s.robots {
+            assert_eq!(r.len(), s.truth.len(), "{c:?}: a robot placed with every estimate of V");
+            let rmse = AxisStats::of(r).unwrap().d2.rmse;
+            assert!(rmse < 0.3, "{c:?}: a robot's 2D RMSE {rmse:.3} m");
+        }
+        for (k, v) in s.truth.iter().enumerate() {
+            let (mx, my) = (
+                (s.robots[0][k].e_x + s.robots[1][k].e_x) / 2.0,
+                (s.robots[0][k].e_y + s.robots[1][k].e_y) / 2.0,
+            );
+            assert!(
+                (mx - v.e_x).abs() < 1e-9 && (my - v.e_y).abs() < 1e-9,
+                "{c:?} scan {k}: V {v:?}, robots' mean ({mx}, {my})"
+            );
+        }
     }
 }
 
@@ -143,6 +162,25 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
         // the paper's comparison, which `amr eval` reports).
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
         assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
+        // Each robot is placed wherever V is, and against its own truth: V (the robots' centroid)
+        // errs by the mean of their errors, and no robot is compared with its neighbour's pose
+        // (0.9 m away).
+        assert_eq!(s.robots.len(), 2, "{c:?}");
+        for r in &s.robots {
+            assert_eq!(r.len(), s.truth.len(), "{c:?}: a robot placed with every estimate of V");
+            let rmse = AxisStats::of(r).unwrap().d2.rmse;
+            assert!(rmse < 0.3, "{c:?}: a robot's 2D RMSE {rmse:.3} m");
+        }
+        for (k, v) in s.truth.iter().enumerate() {
+            let (mx, my) = (
+                (s.robots[0][k].e_x + s.robots[1][k].e_x) / 2.0,
+                (s.robots[0][k].e_y + s.robots[1][k].e_y) / 2.0,
+            );
+            assert!(
+                (mx - v.e_x).abs() < 1e-9 && (my - v.e_y).abs() < 1e-9,
+                "{c:?} scan {k}: V {v:?}, robots' mean ({mx}, {my})"
+            );
+        }
     }
     // The summary's statistics are those of the raw errors.
     let summary = summarise("straight", std::slice::from_ref(&trial));
@@ -151,6 +189,9 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
         assert_eq!(sum.pooled_truth.unwrap(), raw);
         assert_eq!(sum.trial_rmse_2d.unwrap().mean, raw.d2.rmse);
         assert_eq!(sum.trial_rmse_2d.unwrap().n, 1);
+        let robots: Vec<f64> = s.robots.iter().map(|r| AxisStats::of(r).unwrap().d2.rmse).collect();
+        assert_eq!(sum.robot_rmse_2d.iter().map(|m| m.unwrap().mean).collect::<Vec<_>>(), robots);
+        assert_eq!(sum.worst_robot_rmse_2d.unwrap().mean, robots[0].max(robots[1]));
     }
     assert_eq!(summary[3].paper_rmse_2d, Some((0.0412, 0.0083)));
 }
