@@ -94,13 +94,7 @@ pub fn wheel_odometry_increment(
     track_width_m: f64,
 ) -> Se2 {
     let (sl, sr) = (d_left_rad * wheel_radius_m, d_right_rad * wheel_radius_m);
-    let ds = 0.5 * (sl + sr);
-    let dtheta = (sr - sl) / track_width_m;
-    if dtheta.abs() < 1e-12 {
-        return Se2::new(ds, 0.0, 0.0);
-    }
-    let r = ds / dtheta;
-    Se2::new(r * dtheta.sin(), r * (1.0 - dtheta.cos()), dtheta)
+    crate::odometry::arc(0.5 * (sl + sr), (sr - sl) / track_width_m)
 }
 
 #[cfg(test)]

@@ -20,6 +20,7 @@ pub mod formation;
 pub mod geometry;
 pub mod map;
 pub mod metrics;
+pub mod odometry;
 pub mod plan;
 pub mod rng;
 pub mod scan;

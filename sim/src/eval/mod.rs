@@ -1,8 +1,10 @@
 //! The paper's experiments in simulated time (issue 8): the world, the Virtual-AMR pipeline and AMCL,
 //! with T1–T4 run side by side on identical sensor streams.
 //!
-//! The pair follows its plan with the Eq. 20 controller closed on each robot's wheel odometry, never
-//! on the estimates, so every configuration sees exactly the same scans. The localisation is the
+//! The pair follows its plan with the Eq. 20 controller closed on each robot's true pose, never on
+//! the estimates, so every configuration sees exactly the same scans and the formation keeps the
+//! scenario's geometry. The localisers get each robot's own odometry (wheels and gyro, as `amr
+//! robot` computes it, with the systematic wheel errors of the world's noise). The localisation is the
 //! server's own sans-IO core (`amr_actors::server::core`), the code `amr server` and `amr replay`
 //! run: per-robot AMCL runs once and serves T1 (V from the robots' own poses) and T2/T3 (relative
 //! pose sources); T2, T3 and T4 each have their own pipeline and their own AMCL on the virtual scan.
@@ -16,9 +18,10 @@ use std::time::Instant;
 use amr_actors::server::core::{CoreSetup, Lap, Member, ServerCore};
 use amr_core::amcl::{Amcl, LikelihoodField};
 use amr_core::config::{AmclParams, Configuration, ScenarioConfig, VamrParams};
-use amr_core::formation::{FormationGains, limit_twist, member_command, wheel_odometry_increment};
+use amr_core::formation::{FormationGains, limit_twist, member_command};
 use amr_core::map::OccupancyGrid;
 use amr_core::metrics::{AxisStats, MeanSd, Sample};
+use amr_core::odometry::{Odometer, Travel};
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::virtual_frame;
@@ -178,6 +181,9 @@ pub struct TrialFrame<'a> {
 const MAX_SPREAD_S: f64 = 0.05;
 const MAX_AGE_S: f64 = 0.1;
 const RX_DELAY_S: f64 = 0.01;
+/// Time the robots stand still before the reference starts, s (their odometry learns the gyro
+/// bias meanwhile; no scan is taken).
+const STANDSTILL_S: f64 = 2.0;
 
 /// [`run_trial`], calling `observe` after every scan step.
 ///
@@ -218,10 +224,37 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         seed,
         oracle: setup.oracle,
     });
-    // Odometry poses in the map frame, starting from the known start poses.
-    let mut odom: Vec<Se2> = robots.iter().map(|r| world.pose(*r).unwrap_or(start_v)).collect();
+    // Odometry poses in the map frame, starting from the known start poses: each robot's own
+    // odometry (wheels for distance, the gyro for heading), as `amr robot` computes it.
+    let starts: Vec<Se2> = robots.iter().map(|r| world.pose(*r).unwrap_or(start_v)).collect();
+    let mut odom = starts.clone();
+    let mut odometers = vec![Odometer::new(); robots.len()];
     let mut last_enc: Vec<[f64; 2]> =
         robots.iter().map(|r| world.encoders_rad(*r).unwrap_or([0.0; 2])).collect();
+    let mut dead_reckon = |world: &mut World, odom: &mut [Se2]| {
+        let t = world.time_s();
+        for (i, rid) in robots.iter().enumerate() {
+            if let Some(rate) = world.gyro_radps(*rid) {
+                odometers[i].gyro(t, rate);
+            }
+            let enc = world.encoders_rad(*rid).unwrap_or(last_enc[i]);
+            let r = setup.robot.wheel_radius_m;
+            let travel = Travel {
+                stamp_s: t,
+                dt_s: setup.physics_dt_s,
+                left_m: (enc[0] - last_enc[i][0]) * r,
+                right_m: (enc[1] - last_enc[i][1]) * r,
+            };
+            odometers[i].step(&travel, setup.robot.track_width_m);
+            odom[i] = starts[i] * odometers[i].pose();
+            last_enc[i] = enc;
+        }
+    };
+    // The robots stand still first, as after power-up: their odometry learns each gyro's bias.
+    for _ in 0..(STANDSTILL_S / setup.physics_dt_s).round() as usize {
+        world.step(setup.physics_dt_s);
+        dead_reckon(&mut world, &mut odom);
+    }
     let mut last_cmd = vec![(0.0, 0.0); robots.len()];
     let mut series: Vec<(Configuration, Series)> = CONFIGS.iter().map(|c| (*c, Series::default())).collect();
     let beams = tim551_beams();
@@ -252,17 +285,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             world.command(*rid, cmd.0, cmd.1);
         }
         world.step(setup.physics_dt_s);
-        for (i, rid) in robots.iter().enumerate() {
-            let enc = world.encoders_rad(*rid).unwrap_or(last_enc[i]);
-            let inc = wheel_odometry_increment(
-                enc[0] - last_enc[i][0],
-                enc[1] - last_enc[i][1],
-                setup.robot.wheel_radius_m,
-                setup.robot.track_width_m,
-            );
-            odom[i] = odom[i] * inc;
-            last_enc[i] = enc;
-        }
+        dead_reckon(&mut world, &mut odom);
         if step % setup.steps_per_scan != 0 {
             continue;
         }
