@@ -54,6 +54,27 @@ fn short_setup() -> Setup {
     }
 }
 
+/// Each robot is placed wherever V is, and against its own truth: V (the robots' centroid) errs by
+/// the mean of their errors at every scan, and no robot is compared with its neighbour's pose
+/// (0.9 m away).
+fn assert_robots_placed(c: Configuration, s: &Series, robots: usize) {
+    assert_eq!(s.robots.len(), robots, "{c:?}");
+    for r in &s.robots {
+        assert_eq!(r.len(), s.truth.len(), "{c:?}: a robot placed with every estimate of V");
+        let rmse = AxisStats::of(r).unwrap().d2.rmse;
+        assert!(rmse < 0.3, "{c:?}: a robot's 2D RMSE {rmse:.3} m");
+    }
+    let n = robots as f64;
+    for (k, v) in s.truth.iter().enumerate() {
+        let mx = s.robots.iter().map(|r| r[k].e_x).sum::<f64>() / n;
+        let my = s.robots.iter().map(|r| r[k].e_y).sum::<f64>() / n;
+        assert!(
+            (mx - v.e_x).abs() < 1e-9 && (my - v.e_y).abs() < 1e-9,
+            "{c:?} scan {k}: V {v:?}, robots' mean ({mx}, {my})"
+        );
+    }
+}
+
 #[test]
 fn slots_put_the_reference_robot_where_it_sees_the_others() {
     assert_eq!(slots(2, 0.9), vec![0.45, -0.45]);
@@ -72,24 +93,7 @@ fn three_robots_run_through_the_same_pipeline() {
         assert!(s.truth.len() > trial.scans / 2, "{c:?}: {} of {} scans", s.truth.len(), trial.scans);
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
         assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
-        // Each robot is placed wherever V is, and against its own truth: V (the robots' centroid)
-        // errs by the mean of their errors, and no robot is compared with its neighbour's pose
-        // (0.9 m away).
-        assert_eq!(s.robots.len(), 3, "{c:?}");
-        for r in &s.robots {
-            assert_eq!(r.len(), s.truth.len(), "{c:?}: a robot placed with every estimate of V");
-            let rmse = AxisStats::of(r).unwrap().d2.rmse;
-            assert!(rmse < 0.3, "{c:?}: a robot's 2D RMSE {rmse:.3} m");
-        }
-        for (k, v) in s.truth.iter().enumerate() {
-            let n = s.robots.len() as f64;
-            let mx = s.robots.iter().map(|r| r[k].e_x).sum::<f64>() / n;
-            let my = s.robots.iter().map(|r| r[k].e_y).sum::<f64>() / n;
-            assert!(
-                (mx - v.e_x).abs() < 1e-9 && (my - v.e_y).abs() < 1e-9,
-                "{c:?} scan {k}: V {v:?}, robots' mean ({mx}, {my})"
-            );
-        }
+        assert_robots_placed(*c, s, 3);
     }
 }
 
@@ -161,24 +165,7 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
         // the paper's comparison, which `amr eval` reports).
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
         assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
-        // Each robot is placed wherever V is, and against its own truth: V (the robots' centroid)
-        // errs by the mean of their errors, and no robot is compared with its neighbour's pose
-        // (0.9 m away).
-        assert_eq!(s.robots.len(), 2, "{c:?}");
-        for r in &s.robots {
-            assert_eq!(r.len(), s.truth.len(), "{c:?}: a robot placed with every estimate of V");
-            let rmse = AxisStats::of(r).unwrap().d2.rmse;
-            assert!(rmse < 0.3, "{c:?}: a robot's 2D RMSE {rmse:.3} m");
-        }
-        for (k, v) in s.truth.iter().enumerate() {
-            let n = s.robots.len() as f64;
-            let mx = s.robots.iter().map(|r| r[k].e_x).sum::<f64>() / n;
-            let my = s.robots.iter().map(|r| r[k].e_y).sum::<f64>() / n;
-            assert!(
-                (mx - v.e_x).abs() < 1e-9 && (my - v.e_y).abs() < 1e-9,
-                "{c:?} scan {k}: V {v:?}, robots' mean ({mx}, {my})"
-            );
-        }
+        assert_robots_placed(*c, s, 2);
     }
     // The summary's statistics are those of the raw errors.
     let summary = summarise("straight", std::slice::from_ref(&trial));
