@@ -212,24 +212,34 @@ struct StudyRow {
 }
 
 impl StudyRow {
+    /// One of configuration `c`'s figures (`pick`: V's RMSE or the worst robot's), mean, cm.
+    fn mean_cm(&self, c: Configuration, pick: fn(&Figures) -> Option<MeanSd>) -> Option<f64> {
+        self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| pick(f)).map(|m| 100.0 * m.mean)
+    }
+
     fn rmse_cm(&self, c: Configuration) -> Option<f64> {
-        self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| f.rmse).map(|m| 100.0 * m.mean)
+        self.mean_cm(c, |f| f.rmse)
     }
 
-    fn worst_robot_cm(&self, c: Configuration) -> Option<f64> {
-        self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| f.worst_robot).map(|m| 100.0 * m.mean)
+    /// T4 − min(T1, T2, T3) of a figure, cm.
+    fn t4_over_best(&self, pick: fn(&Figures) -> Option<MeanSd>) -> Option<f64> {
+        let best = CONFIGS[..3].iter().filter_map(|c| self.mean_cm(*c, pick)).fold(f64::INFINITY, f64::min);
+        Some(self.mean_cm(Configuration::T4, pick)? - best).filter(|d| d.is_finite())
     }
 
-    /// T4 − min(T1, T2, T3) for the worst-placed robot, cm.
-    fn t4_worst_over_best_cm(&self) -> Option<f64> {
-        let best = CONFIGS[..3].iter().filter_map(|c| self.worst_robot_cm(*c)).fold(f64::INFINITY, f64::min);
-        Some(self.worst_robot_cm(Configuration::T4)? - best).filter(|d| d.is_finite())
-    }
-
-    /// T4 − min(T1, T2, T3), cm.
+    /// T4 − min(T1, T2, T3) of V's RMSE, cm.
     fn t4_over_best_cm(&self) -> Option<f64> {
-        let best = CONFIGS[..3].iter().filter_map(|c| self.rmse_cm(*c)).fold(f64::INFINITY, f64::min);
-        Some(self.rmse_cm(Configuration::T4)? - best).filter(|d| d.is_finite())
+        self.t4_over_best(|f| f.rmse)
+    }
+
+    /// T4 − min(T1, T2, T3) of the worst-placed robot's RMSE, cm.
+    fn t4_worst_over_best_cm(&self) -> Option<f64> {
+        self.t4_over_best(|f| f.worst_robot)
+    }
+
+    /// The first cells of the row's line in a table: scenario, motion, robots, spacing.
+    fn lead(&self) -> String {
+        format!("| {} | {} | {} | {} |", self.scenario, self.motion, self.robots, self.spacing_m)
     }
 }
 
@@ -381,11 +391,8 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
         if let Some(why) = &row.skipped {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | does not fit: {} |||||||",
-                row.scenario,
-                row.motion,
-                row.robots,
-                row.spacing_m,
+                "{} does not fit: {} |||||||",
+                row.lead(),
                 why.replace('|', "/").lines().next().unwrap_or_default()
             );
             continue;
@@ -398,11 +405,8 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
         };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            row.scenario,
-            row.motion,
-            row.robots,
-            row.spacing_m,
+            "{} {} | {} | {} | {} | {} | {} | {} | {} |",
+            row.lead(),
             cell(Configuration::T1),
             cell(Configuration::T2),
             cell(Configuration::T3),
@@ -439,17 +443,15 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
                 .and_then(|(_, f)| f.worst_robot)
                 .map_or("—".into(), |m| format!("{:.2} ± {:.2}", 100.0 * m.mean, 100.0 * m.sd))
         };
-        let ratio = match (row.worst_robot_cm(Configuration::T1), row.worst_robot_cm(Configuration::T4)) {
+        let worst = |c| row.mean_cm(c, |f| f.worst_robot);
+        let ratio = match (worst(Configuration::T1), worst(Configuration::T4)) {
             (Some(a), Some(b)) if b > 0.0 => format!("{:.2}", a / b),
             _ => "—".into(),
         };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {ratio} |",
-            row.scenario,
-            row.motion,
-            row.robots,
-            row.spacing_m,
+            "{} {} | {} | {} | {} | {} | {ratio} |",
+            row.lead(),
             cell(Configuration::T1),
             cell(Configuration::T2),
             cell(Configuration::T3),
