@@ -26,7 +26,7 @@ fn setups() -> (Setup, ServerSetup) {
     let map = config.maps[&scenario.map].clone();
     let eval = Setup {
         site: paper_site().unwrap().into(),
-        map: map.clone(),
+        map: amr_sim::eval::EvalMap::Given(map.clone()),
         robot: amr_sim::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),
         amcl: amcl.clone(),

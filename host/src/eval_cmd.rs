@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 
 use amr_actors::config::Config;
 use amr_core::metrics::{AxisStats, MeanSd};
-use amr_sim::eval::{ConfigSummary, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise};
+use amr_sim::eval::{
+    ConfigSummary, EvalMap, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise,
+};
 use anyhow::Context as _;
 use hil_mocks::world::Noise;
 use serde::Serialize;
@@ -66,7 +68,6 @@ pub(crate) fn setup(
     chosen: &amr_actors::config::ChosenScenario,
     robots: usize,
     map: MapSource,
-    seed: u64,
 ) -> anyhow::Result<Setup> {
     let sc = &chosen.scenario;
     let robot = config.robots.first().context("the configuration has no robot")?;
@@ -75,9 +76,9 @@ pub(crate) fn setup(
     let formation: Vec<_> = std::iter::repeat_n(robot.clone(), robots).collect();
     amr_sim::check_formation(&site, sc, &formation).with_context(|| format!("scenario {}", chosen.name))?;
     let map = match map {
-        MapSource::True => chosen.map.clone(),
+        MapSource::True => EvalMap::Given(chosen.map.clone()),
         MapSource::Surveyed => {
-            amr_sim::survey::surveyed_map(&site, &chosen.map, &amr_sim::survey::SurveyOptions::TYPICAL, seed)
+            EvalMap::Surveyed { like: chosen.map.clone(), options: amr_sim::survey::SurveyOptions::TYPICAL }
         }
     };
     Ok(Setup {
@@ -128,7 +129,9 @@ fn markdown(report: &Report<'_>) -> String {
         report.site,
         Noise::TYPICAL.range_sigma_m,
         match report.map {
-            MapSource::Surveyed => "surveyed (a simulated SLAM-style survey of the site: amr_sim::survey)",
+            MapSource::Surveyed => {
+                "surveyed (each trial its own simulated SLAM-style survey of the site, its grid at a random sub-cell offset: amr_sim::survey)"
+            }
             MapSource::True => "the site's own map",
         }
     );
@@ -194,7 +197,7 @@ pub(crate) fn run(
 ) -> anyhow::Result<PathBuf> {
     let Outputs { dir: out_dir, record, live } = outputs;
     let chosen = config.scenario(scenario)?;
-    let setup = setup(config, &chosen, robots, map, seed)?;
+    let setup = setup(config, &chosen, robots, map)?;
     let site = site_words(&chosen);
     // A scenario file's stem names its output directory and its report.
     let scenario = chosen.stem.as_str();
@@ -307,7 +310,7 @@ pub(crate) fn sweep(
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
     let chosen = config.scenario(scenario)?;
-    let base = setup(config, &chosen, 2, map, seed)?;
+    let base = setup(config, &chosen, 2, map)?;
     let scenario = chosen.stem.as_str();
     let (label, settings, paper): (&str, Vec<f64>, Vec<[f64; 4]>) = match which {
         // Table 6 (ε_d in mm) and Table 7 (Δθ in degrees) of the paper.
@@ -442,7 +445,7 @@ fn record_trial(
     let shown = file.map_or_else(|| "the live view".to_owned(), |f| f.display().to_string());
     let mut rec = amr_record::FileRecorder::to(file, live, names.clone(), meta)
         .with_context(|| format!("creating {shown}"))?;
-    rec.put(0.0, &Event::Map(setup.map.clone()))?;
+    rec.put(0.0, &Event::Map(setup.map.for_trial(&setup.site, seed).into_owned()))?;
     let mount = setup.robot.lidar_mount;
     rec.put(0.0, &Event::Mounts(names.iter().map(|n| (n.clone(), mount)).collect()))?;
     let mut failed: Option<amr_record::RecordError> = None;

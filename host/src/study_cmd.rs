@@ -117,7 +117,7 @@ pub(crate) fn budget(
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
     let chosen = config.scenario(scenario)?;
-    let base = setup(config, &chosen, robots, map, seed)?;
+    let base = setup(config, &chosen, robots, map)?;
     let stem = chosen.stem.as_str();
     let none = Oracle::default();
     let rows: [(&'static str, Oracle); 5] = [
@@ -300,7 +300,7 @@ pub(crate) fn occlusion(
                     site_left: Vec::new(),
                     site_share: Vec::new(),
                 };
-                match setup(config, &c, robots, map, seed) {
+                match setup(config, &c, robots, map) {
                     Err(e) => row.skipped = Some(format!("{e:#}")),
                     Ok(s) => {
                         let what = format!("{} · {robots} robots · {spacing} m", chosen.stem);

@@ -50,9 +50,15 @@ pub fn surveyed_map(site: &Site, like: &OccupancyGrid, options: &SurveyOptions, 
     let res = like.resolution_m;
     let (x0, y0, x1, y1) = like.extent();
     let margin = 0.5;
-    let (ox, oy) = (x0 - margin, y0 - margin);
-    let width = ((x1 - x0 + 2.0 * margin) / res).ceil() as usize;
-    let height = ((y1 - y0 + 2.0 * margin) / res).ceil() as usize;
+    let mut rng = Rng::seed(seed ^ 0x5eed_5a7e);
+    // SLAM lays its grid from where the mapping run started, not from the building's walls: the
+    // grid stands at a random sub-cell offset from the site. (On the truth map's own grid every
+    // wall face of our round-numbered sites lies on a cell boundary, so the endpoints' scatter
+    // occupies the cell in front of every face: each wall sat half a cell inside the room, all
+    // at once, and the map was a shrunken site.)
+    let (ox, oy) = (x0 - margin - rng.uniform() * res, y0 - margin - rng.uniform() * res);
+    let width = ((x1 - x0 + 2.0 * margin) / res).ceil() as usize + 1;
+    let height = ((y1 - y0 + 2.0 * margin) / res).ceil() as usize + 1;
     let mut survey = Survey::new([ox, oy], width, height, res);
     let noise = Noise { range_sigma_m: options.range_sigma_m, ..Noise::NONE };
     let mut world = World::new(site.clone(), noise, seed);
@@ -67,7 +73,6 @@ pub fn surveyed_map(site: &Site, like: &OccupancyGrid, options: &SurveyOptions, 
     };
     let me = world.add_robot(spec, Se2::IDENTITY);
     let beams = tim551_beams();
-    let mut rng = Rng::seed(seed ^ 0x5eed_5a7e);
     let step = options.spacing_m.max(res);
     let (nx, ny) = (((x1 - x0) / step).floor() as usize, ((y1 - y0) / step).floor() as usize);
     // Bounded: (nx + 1) · (ny + 1) positions, two scans each.
@@ -147,5 +152,36 @@ mod tests {
         );
         let (i, j) = map.cell_of([0.0, 2.5]).unwrap();
         assert_eq!(map.get(i, j), Some(UNKNOWN));
+    }
+
+    /// The room as AMCL's likelihood field sees it across the paper's site, on the column through
+    /// x = `x`: from the innermost occupied cell centre below the middle to the innermost above.
+    fn surveyed_width(map: &OccupancyGrid, x: f64) -> Option<f64> {
+        let (i, mid) = map.cell_of([x, 0.0])?;
+        let below = (0..mid).rev().find(|j| map.is_occupied(i, *j))?;
+        let above = (mid..map.height).find(|j| map.is_occupied(i, *j))?;
+        Some(map.cell_center(i, above)[1] - map.cell_center(i, below)[1])
+    }
+
+    /// The survey's grid does not stand on the site's walls. On the truth map's grid every face of
+    /// the paper's site lies on a cell boundary, the endpoints' scatter occupies the cell in front
+    /// of each face, and the 3.10 m site measured 3.05 m in every survey: every robot was pulled
+    /// towards the wall nearest it. At a random sub-cell offset a wall's cell is sometimes in
+    /// front of its face and sometimes behind it; over surveys the site keeps its width.
+    #[test]
+    fn a_surveyed_site_keeps_its_width_over_surveys() {
+        let config = amr_actors::config::load(&amr_actors::config::ConfigSource::Embedded).unwrap();
+        let truth = &config.maps["paper-site"];
+        let site: Site = paper_site().unwrap().into();
+        let widths: Vec<f64> = (1..=12)
+            .map(|seed| {
+                let map = surveyed_map(&site, truth, &SurveyOptions::TYPICAL, seed);
+                surveyed_width(&map, 0.0).unwrap()
+            })
+            .collect();
+        let mean = widths.iter().sum::<f64>() / widths.len() as f64;
+        assert!((mean - 3.10).abs() < 0.015, "mean surveyed width {mean:.3} m: {widths:?}");
+        let spread = widths.iter().fold(0.0f64, |m, w| m.max((w - mean).abs()));
+        assert!(spread > 0.01, "every survey measures the same width: {widths:?}");
     }
 }

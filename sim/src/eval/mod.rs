@@ -12,6 +12,7 @@
 //! the true V (from the world) and against the paper's reference (its planned path + encoders, here the
 //! odometry midpoint), each labelled.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -29,15 +30,44 @@ use amr_msgs::{EstimateSource, ScanMsg, Uplink};
 use hil_mocks::world::{Noise, RobotSpec, World, tim551_beams};
 use serde::Serialize;
 
+use crate::survey::SurveyOptions;
+
 pub use amr_core::formation::slots;
 pub use amr_core::plan::{Reference, reference};
+
+/// AMCL's map in an evaluation.
+#[derive(Debug, Clone)]
+pub enum EvalMap {
+    /// This map in every trial (the site's own).
+    Given(OccupancyGrid),
+    /// Each trial's own survey of the site ([`crate::survey::surveyed_map`] on `like`'s grid),
+    /// seeded by the trial's seed: a map is one more draw of the trial, as the robots' noise is,
+    /// and the trials' spread includes how good the survey happened to be.
+    Surveyed { like: OccupancyGrid, options: SurveyOptions },
+}
+
+/// The survey's seed is the trial's, on a stream of its own (not the trial world's noise).
+const SURVEY_STREAM: u64 = 0x5ee0_0000_0000_0000;
+
+impl EvalMap {
+    /// The map of the trial seeded with `seed` on `site`.
+    #[must_use]
+    pub fn for_trial(&self, site: &hil_mocks::world::Site, seed: u64) -> Cow<'_, OccupancyGrid> {
+        match self {
+            EvalMap::Given(m) => Cow::Borrowed(m),
+            EvalMap::Surveyed { like, options } => {
+                Cow::Owned(crate::survey::surveyed_map(site, like, options, seed ^ SURVEY_STREAM))
+            }
+        }
+    }
+}
 
 /// Everything a run needs besides the seed.
 #[derive(Debug, Clone)]
 pub struct Setup {
     /// What the world ray-casts (the paper's site's polygons, or a map's occupied cells).
     pub site: hil_mocks::world::Site,
-    pub map: OccupancyGrid,
+    pub map: EvalMap,
     pub robot: RobotSpec,
     pub vamr: VamrParams,
     pub amcl: AmclParams,
@@ -219,7 +249,11 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         max_spread_s: MAX_SPREAD_S,
         max_age_s: MAX_AGE_S,
         amcl: setup.amcl.clone(),
-        field: Arc::new(LikelihoodField::new(&setup.map, &setup.amcl, tim551_beams().range_max_m)),
+        field: Arc::new(LikelihoodField::new(
+            &setup.map.for_trial(&setup.site, seed),
+            &setup.amcl,
+            tim551_beams().range_max_m,
+        )),
         initial_v: start_v,
         seed,
         oracle: setup.oracle,

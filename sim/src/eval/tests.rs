@@ -41,7 +41,7 @@ fn short_setup() -> Setup {
     amcl.max_particles = Count::new(200).unwrap();
     Setup {
         site: paper_site().unwrap().into(),
-        map: config.maps["paper-site"].clone(),
+        map: EvalMap::Given(config.maps["paper-site"].clone()),
         robot: crate::robot_spec(&config.robots[0]),
         vamr: config.vamr.clone(),
         amcl,
@@ -181,11 +181,28 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
     assert_eq!(summary[3].paper_rmse_2d, Some((0.0412, 0.0083)));
 }
 
+/// Each trial surveys the site afresh from its own seed (and the same seed, the same map); a
+/// given map is every trial's.
+#[test]
+fn each_trial_has_its_own_survey() {
+    let setup = short_setup();
+    let EvalMap::Given(truth) = &setup.map else { panic!("the short setup gives the site's map") };
+    assert_eq!(setup.map.for_trial(&setup.site, 4).as_ref(), truth);
+    let surveyed = EvalMap::Surveyed { like: truth.clone(), options: SurveyOptions::TYPICAL };
+    let a = surveyed.for_trial(&setup.site, 4);
+    assert_eq!(a, surveyed.for_trial(&setup.site, 4));
+    assert_ne!(a, surveyed.for_trial(&setup.site, 5));
+    assert_ne!(a.as_ref(), truth);
+}
+
 #[test]
 fn same_seed_same_trial() {
     let setup = short_setup();
     let mut shorter = setup.clone();
     shorter.scenario.segments.truncate(1);
+    if let EvalMap::Given(truth) = &setup.map {
+        shorter.map = EvalMap::Surveyed { like: truth.clone(), options: SurveyOptions::TYPICAL };
+    }
     let a = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
     let b = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
     let c = serde_json::to_string(&run_trial(&shorter, 5)).unwrap();
