@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use amr_actors::config::Config;
 use amr_core::metrics::{AxisStats, MeanSd};
 use amr_sim::eval::{
-    ConfigSummary, EvalMap, Setup, Trial, TrialFrame, run_trial, run_trial_observed, summarise,
+    ConfigSummary, EvalMap, Setup, Surveys, Trial, TrialFrame, run_trial, run_trial_observed, summarise,
 };
 use anyhow::Context as _;
 use hil_mocks::world::Noise;
@@ -77,9 +77,11 @@ pub(crate) fn setup(
     amr_sim::check_formation(&site, sc, &formation).with_context(|| format!("scenario {}", chosen.name))?;
     let map = match map {
         MapSource::True => EvalMap::Given(chosen.map.clone()),
-        MapSource::Surveyed => {
-            EvalMap::Surveyed { like: chosen.map.clone(), options: amr_sim::survey::SurveyOptions::TYPICAL }
-        }
+        MapSource::Surveyed => EvalMap::Surveyed(Surveys::new(
+            site.clone(),
+            chosen.map.clone(),
+            amr_sim::survey::SurveyOptions::TYPICAL,
+        )),
     };
     Ok(Setup {
         site,
@@ -445,7 +447,7 @@ fn record_trial(
     let shown = file.map_or_else(|| "the live view".to_owned(), |f| f.display().to_string());
     let mut rec = amr_record::FileRecorder::to(file, live, names.clone(), meta)
         .with_context(|| format!("creating {shown}"))?;
-    rec.put(0.0, &Event::Map(setup.map.for_trial(&setup.site, seed).into_owned()))?;
+    rec.put(0.0, &Event::Map(setup.map.for_trial(seed).into_owned()))?;
     let mount = setup.robot.lidar_mount;
     rec.put(0.0, &Event::Mounts(names.iter().map(|n| (n.clone(), mount)).collect()))?;
     let mut failed: Option<amr_record::RecordError> = None;

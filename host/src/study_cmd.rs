@@ -279,6 +279,7 @@ pub(crate) fn occlusion(
         let chosen = config.scenario(name)?;
         let site =
             if chosen.map_name == "paper-site" { "paper site".to_owned() } else { chosen.map_name.clone() };
+        let mut surveys = None;
         for robots in TEAMS {
             for spacing in SPACINGS_M {
                 let mut c = chosen.clone();
@@ -302,7 +303,12 @@ pub(crate) fn occlusion(
                 };
                 match setup(config, &c, robots, map) {
                     Err(e) => row.skipped = Some(format!("{e:#}")),
-                    Ok(s) => {
+                    Ok(mut s) => {
+                        // One site, so one survey per trial seed for all its configurations.
+                        match &surveys {
+                            Some(m) => s.map = amr_sim::eval::EvalMap::clone(m),
+                            None => surveys = Some(s.map.clone()),
+                        }
                         let what = format!("{} · {robots} robots · {spacing} m", chosen.stem);
                         let results = run_trials(&s, seed, trials, &what);
                         row.figures = CONFIGS.iter().map(|k| (*k, figures(&results, *k))).collect();

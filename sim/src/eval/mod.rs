@@ -13,7 +13,8 @@
 //! odometry midpoint), each labelled.
 
 use std::borrow::Cow;
-use std::sync::Arc;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use amr_actors::server::core::{CoreSetup, Lap, Member, ServerCore};
@@ -40,24 +41,55 @@ pub use amr_core::plan::{Reference, reference};
 pub enum EvalMap {
     /// This map in every trial (the site's own).
     Given(OccupancyGrid),
-    /// Each trial's own survey of the site ([`crate::survey::surveyed_map`] on `like`'s grid),
-    /// seeded by the trial's seed: a map is one more draw of the trial, as the robots' noise is,
-    /// and the trials' spread includes how good the survey happened to be.
-    Surveyed { like: OccupancyGrid, options: SurveyOptions },
+    /// Each trial's own survey of the site: a map is one more draw of the trial, as the robots'
+    /// noise is, and the trials' spread includes how good the survey happened to be.
+    Surveyed(Surveys),
+}
+
+/// Surveys of one site ([`crate::survey::surveyed_map`] on `like`'s grid), one per trial seed, each
+/// made once and shared by every clone (a study's configurations on one site run the same seeds).
+#[derive(Debug, Clone)]
+pub struct Surveys {
+    site: hil_mocks::world::Site,
+    like: OccupancyGrid,
+    options: SurveyOptions,
+    made: Arc<Mutex<BTreeMap<u64, Arc<OccupancyGrid>>>>,
 }
 
 /// The survey's seed is the trial's, on a stream of its own (not the trial world's noise).
 const SURVEY_STREAM: u64 = 0x5ee0_0000_0000_0000;
 
-impl EvalMap {
-    /// The map of the trial seeded with `seed` on `site`.
+impl Surveys {
     #[must_use]
-    pub fn for_trial(&self, site: &hil_mocks::world::Site, seed: u64) -> Cow<'_, OccupancyGrid> {
+    pub fn new(site: hil_mocks::world::Site, like: OccupancyGrid, options: SurveyOptions) -> Self {
+        Surveys { site, like, options, made: Arc::default() }
+    }
+
+    /// The survey of the trial seeded with `seed`.
+    #[must_use]
+    pub fn of_trial(&self, seed: u64) -> Arc<OccupancyGrid> {
+        let lock = || self.made.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(m) = lock().get(&seed) {
+            return Arc::clone(m);
+        }
+        // Made outside the lock: trials of other seeds survey in parallel.
+        let map = Arc::new(crate::survey::surveyed_map(
+            &self.site,
+            &self.like,
+            &self.options,
+            seed ^ SURVEY_STREAM,
+        ));
+        Arc::clone(lock().entry(seed).or_insert(map))
+    }
+}
+
+impl EvalMap {
+    /// The map of the trial seeded with `seed`.
+    #[must_use]
+    pub fn for_trial(&self, seed: u64) -> Cow<'_, OccupancyGrid> {
         match self {
             EvalMap::Given(m) => Cow::Borrowed(m),
-            EvalMap::Surveyed { like, options } => {
-                Cow::Owned(crate::survey::surveyed_map(site, like, options, seed ^ SURVEY_STREAM))
-            }
+            EvalMap::Surveyed(s) => Cow::Owned(OccupancyGrid::clone(&s.of_trial(seed))),
         }
     }
 }
@@ -250,7 +282,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         max_age_s: MAX_AGE_S,
         amcl: setup.amcl.clone(),
         field: Arc::new(LikelihoodField::new(
-            &setup.map.for_trial(&setup.site, seed),
+            &setup.map.for_trial(seed),
             &setup.amcl,
             tim551_beams().range_max_m,
         )),

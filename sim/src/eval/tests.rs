@@ -187,11 +187,15 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
 fn each_trial_has_its_own_survey() {
     let setup = short_setup();
     let EvalMap::Given(truth) = &setup.map else { panic!("the short setup gives the site's map") };
-    assert_eq!(setup.map.for_trial(&setup.site, 4).as_ref(), truth);
-    let surveyed = EvalMap::Surveyed { like: truth.clone(), options: SurveyOptions::TYPICAL };
-    let a = surveyed.for_trial(&setup.site, 4);
-    assert_eq!(a, surveyed.for_trial(&setup.site, 4));
-    assert_ne!(a, surveyed.for_trial(&setup.site, 5));
+    assert_eq!(setup.map.for_trial(4).as_ref(), truth);
+    let surveyed = EvalMap::Surveyed(Surveys::new(setup.site.clone(), truth.clone(), SurveyOptions::TYPICAL));
+    let a = surveyed.for_trial(4);
+    // Made once: a clone (another configuration of a study) gets the same map; a fresh survey of
+    // the same seed makes the same map again.
+    assert_eq!(a, surveyed.clone().for_trial(4));
+    let fresh = EvalMap::Surveyed(Surveys::new(setup.site.clone(), truth.clone(), SurveyOptions::TYPICAL));
+    assert_eq!(a, fresh.for_trial(4));
+    assert_ne!(a, surveyed.for_trial(5));
     assert_ne!(a.as_ref(), truth);
 }
 
@@ -201,7 +205,8 @@ fn same_seed_same_trial() {
     let mut shorter = setup.clone();
     shorter.scenario.segments.truncate(1);
     if let EvalMap::Given(truth) = &setup.map {
-        shorter.map = EvalMap::Surveyed { like: truth.clone(), options: SurveyOptions::TYPICAL };
+        shorter.map =
+            EvalMap::Surveyed(Surveys::new(setup.site.clone(), truth.clone(), SurveyOptions::TYPICAL));
     }
     let a = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
     let b = serde_json::to_string(&run_trial(&shorter, 4)).unwrap();
