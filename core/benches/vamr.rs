@@ -26,7 +26,8 @@ fn bench(c: &mut Criterion) {
         let (site, scans, truth) = (&pair.site, &pair.scans, pair.truth());
         let pa = preprocess(&scans[0], &site.mount, &params.preprocess);
         let pb = preprocess(&scans[1], &site.mount, &params.preprocess);
-        let target = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
+        let target =
+            TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points).with_surface(h.surface_jump_m());
         let problem = HeadingProblem::new(&pb.smoothed_points, &target, [truth.x, truth.y], &h);
         let full = AngleGrid::full(h.step_deg.get());
         let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());

@@ -123,7 +123,8 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
         jump_m: params.preprocess.segment_jump_m.get(),
     };
     let h = &params.heading;
-    let target = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
+    let target =
+        TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points).with_surface(h.surface_jump_m());
     let problem = HeadingProblem::new(&pb.smoothed_points, &target, [truth.x, truth.y], h);
     let full = AngleGrid::full(h.step_deg.get());
     let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());

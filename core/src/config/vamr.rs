@@ -93,6 +93,11 @@ pub struct HeadingParams {
     /// Ours: the uncertainty (1σ) of one refined estimate, for the blend above.
     #[serde(default)]
     pub search_sigma_deg: Option<Positive>,
+    /// Ours: Eq. 11 counts a source point that lands within ε_d of the target scan's surface (the
+    /// segments between neighbouring beams whose ranges differ by at most this), not only of its
+    /// points. Absent: points only (the paper).
+    #[serde(default)]
+    pub surface_max_jump_m: Option<Positive>,
 }
 
 impl HeadingParams {
@@ -100,6 +105,12 @@ impl HeadingParams {
     #[must_use]
     pub fn blend_rad(&self) -> Option<(f64, f64)> {
         Some((self.drift_deg_per_sqrt_s?.get().to_radians(), self.search_sigma_deg?.get().to_radians()))
+    }
+
+    /// The surface's range jump, m, when matching against the surface.
+    #[must_use]
+    pub fn surface_jump_m(&self) -> Option<f64> {
+        self.surface_max_jump_m.map(Positive::get)
     }
 }
 

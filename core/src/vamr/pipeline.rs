@@ -301,11 +301,10 @@ impl Pipeline {
         if heading_from_search {
             for &o in &self.observers {
                 if targets[o].is_none() {
-                    targets[o] = Some(TargetScan::new(
-                        packets[o].scan,
-                        &packets[o].lidar_to_base,
-                        &pre[o].smoothed_points,
-                    ));
+                    targets[o] = Some(
+                        TargetScan::new(packets[o].scan, &packets[o].lidar_to_base, &pre[o].smoothed_points)
+                            .with_surface(self.params.heading.surface_jump_m()),
+                    );
                 }
             }
         }
