@@ -168,7 +168,11 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
     pipeline.update(&packets)?;
     let end_to_end = time(n, || pipeline.update(&packets));
 
-    let ours = search(&problem, &full, &mut scratch).map(|e| e.theta_rad);
+    // The baseline is Eq. 11 against the target's points: the same with our search. (Against the
+    // surface, as shipped, the scores differ by design and so may the best angle.)
+    let points = TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points);
+    let paper_problem = HeadingProblem::new(&pb.smoothed_points, &points, [truth.x, truth.y], h);
+    let ours = search(&paper_problem, &full, &mut scratch).map(|e| e.theta_rad);
     let theirs = kdtree_baseline::search(
         &pb.smoothed_points,
         &target_pts,
@@ -339,8 +343,9 @@ pub(crate) fn markdown(r: &Report) -> String {
     }
     let _ = writeln!(
         out,
-        "\nFull heading search vs the KD-tree baseline (same run): {:.0}× faster at 2 × 271, {:.0}× at 2 × 655; \
-         same best angle: {} / {}.",
+        "\nFull heading search vs the KD-tree baseline (same run): {:.0}× faster at 2 × 271, {:.0}× at 2 × 655 \
+         (ours as configured; against the target's surface it scores more than the baseline's points); \
+         ours against the points alone finds the baseline's best angle: {} / {}.",
         r.full_search_speedup[0], r.full_search_speedup[1], r.baseline_agrees[0], r.baseline_agrees[1]
     );
     let _ = writeln!(
