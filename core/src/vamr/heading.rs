@@ -407,6 +407,11 @@ mod tests {
         }
     }
 
+    /// A problem with the robots' frames coinciding, the paper's ε_d and ±10 beams.
+    fn at_origin<'a>(source: &'a [BeamPoint], target: &'a TargetScan) -> HeadingProblem<'a> {
+        HeadingProblem { source, target, translation: [0.0, 0.0], distance_gate_m: 0.003, window_beams: 10 }
+    }
+
     #[test]
     fn score_by_hand() {
         // Two target points; a source point that lands exactly on one at δθ = 90°.
@@ -414,13 +419,7 @@ mod tests {
         let target_pts = [BeamPoint { index: 225, p: [0.0, 1.0] }, BeamPoint { index: 135, p: [1.0, 0.0] }];
         let target = TargetScan::new(&geom, &Se2::IDENTITY, &target_pts);
         let source = [BeamPoint { index: 135, p: [1.0, 0.0] }, BeamPoint { index: 0, p: [5.0, 5.0] }];
-        let pb = HeadingProblem {
-            source: &source,
-            target: &target,
-            translation: [0.0, 0.0],
-            distance_gate_m: 0.003,
-            window_beams: 10,
-        };
+        let pb = at_origin(&source, &target);
         let grid = AngleGrid::full(0.1);
         let e = search_exhaustive(&pb, &grid).unwrap();
         // At δθ = 0 the first source point sits on the second target point. At 1 m a 0.1° turn moves
@@ -450,13 +449,7 @@ mod tests {
         let source = [BeamPoint { index: 135, p: mid }];
         let grid = AngleGrid::around(0.0, 0.0, 0.1);
         let score = |target: &TargetScan| {
-            let pb = HeadingProblem {
-                source: &source,
-                target,
-                translation: [0.0, 0.0],
-                distance_gate_m: 0.003,
-                window_beams: 10,
-            };
+            let pb = at_origin(&source, target);
             let fast = search(&pb, &grid, &mut SearchScratch::default());
             assert_eq!(fast, search_exhaustive(&pb, &grid));
             fast.map_or(0.0, |e| e.score)
@@ -468,13 +461,7 @@ mod tests {
         let far = BeamPoint { index: 136, p: [3.2, 3.2 * geom.angle(136).tan()] };
         let jump = TargetScan::new(&geom, &Se2::IDENTITY, &[target_pts[0], far]).with_surface(Some(0.1));
         let source = [BeamPoint { index: 135, p: [3.1, 0.5 * (target_pts[0].p[1] + far.p[1])] }];
-        let pb = HeadingProblem {
-            source: &source,
-            target: &jump,
-            translation: [0.0, 0.0],
-            distance_gate_m: 0.003,
-            window_beams: 10,
-        };
+        let pb = at_origin(&source, &jump);
         assert_eq!(search_exhaustive(&pb, &grid).map_or(0.0, |e| e.score), 0.0, "across a jump");
     }
 
