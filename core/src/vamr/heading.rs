@@ -2,9 +2,12 @@
 //!
 //! `s(δθ) = (1/N_p) Σ_k 1[min_{q ∈ S_j, |idx(q) − idx(R(δθ)p_k + t)| ≤ W} |R(δθ)·p_k + t − q| < ε_d]`,
 //! maximised over a grid of angles `Ω` (the full circle, or a window around the previous estimate).
+//! With [`TargetScan::with_surface`] (ours; the shipped configuration) a point also counts when it
+//! lies within `ε_d` of a segment between neighbouring target points of one surface.
 //!
 //! Exact and fast: as δθ varies, `R(δθ)·p_k + t` moves on a circle of radius `|p_k|` around `t`, so
-//! it can come within `ε_d` of a target point `q` only on one arc, found in closed form. The search
+//! it can come within `ε_d` of a target point `q` only on one arc, found in closed form (of a
+//! segment, only inside the disc about its midpoint of its half-length plus `ε_d`: one arc too). The search
 //! evaluates the indicator only at the grid steps inside those arcs (widened by a step for rounding),
 //! with the same function the exhaustive sweep uses at every step. Every `(k, step)` whose indicator
 //! is 1 lies inside some arc, so the score of every step, and therefore the argmax, equals the
@@ -75,13 +78,13 @@ impl TargetScan {
         self
     }
 
-    /// The surface segments, as (beam of their first point, first point, second point).
-    fn segments(&self) -> impl Iterator<Item = (usize, [f64; 2], [f64; 2])> + '_ {
+    /// The surface segments, as their two end points.
+    fn segments(&self) -> impl Iterator<Item = ([f64; 2], [f64; 2])> + '_ {
         self.joined
             .iter()
             .enumerate()
             .filter(|(_, j)| **j)
-            .filter_map(|(m, _)| Some((m, (*self.by_beam.get(m)?)?, (*self.by_beam.get(m + 1)?)?)))
+            .filter_map(|(m, _)| Some(((*self.by_beam.get(m)?)?, (*self.by_beam.get(m + 1)?)?)))
     }
 
     /// The (possibly out-of-range) beam index a base-frame point falls on.
@@ -264,7 +267,7 @@ pub fn search(
         (dx.hypot(dy), dy.atan2(dx), reach)
     };
     scratch.sorted.extend(problem.target.points.iter().map(|q| polar(*q, eps_wide)));
-    scratch.sorted.extend(problem.target.segments().map(|(_, a, b)| {
+    scratch.sorted.extend(problem.target.segments().map(|(a, b)| {
         let half = 0.5 * (b[0] - a[0]).hypot(b[1] - a[1]);
         polar([0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])], (half + eps) * (1.0 + 1e-9) + 1e-12)
     }));
