@@ -4,7 +4,7 @@
 
 use std::sync::Arc;
 
-use amr_core::odometry::{Odometer, Travel};
+use amr_core::odometry::Odometer;
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::{ImuReading, RobotPorts, WheelTravel};
@@ -74,9 +74,7 @@ impl Actor for OdometryActor {
                 if !(w.left_m.is_finite() && w.right_m.is_finite()) {
                     return Ok(());
                 }
-                let travel =
-                    Travel { stamp_s: w.stamp_s, dt_s: w.dt_s, left_m: w.left_m, right_m: w.right_m };
-                let gyro = state.odometer.step(&travel, self.track_width_m);
+                let gyro = state.odometer.step(&w, self.track_width_m);
                 state.seq += 1;
                 let dt = if w.dt_s > 0.0 { w.dt_s } else { f64::INFINITY };
                 let twist =

@@ -24,15 +24,8 @@ pub struct ImuReading {
     pub yaw_rate_radps: f64,
 }
 
-/// Wheel travel since the previous cycle, from the encoders.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WheelTravel {
-    pub stamp_s: f64,
-    /// Time since the previous travel, s.
-    pub dt_s: f64,
-    pub left_m: f64,
-    pub right_m: f64,
-}
+/// Wheel travel since the previous cycle, from the encoders: what the odometer folds in.
+pub use amr_core::odometry::Travel as WheelTravel;
 
 /// What the safety layer asks of the drives, every cycle.
 #[derive(Debug, Clone, Copy, PartialEq)]
