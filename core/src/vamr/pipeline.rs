@@ -128,7 +128,7 @@ pub enum UpdateError {
 }
 
 /// Refined heading estimates refused in a row (they disagree with the odometry's prediction)
-/// before the prediction is given up for a full search: 1 s of scans at 15 Hz.
+/// before the prediction is questioned by a full search: 1 s of scans at 15 Hz.
 pub const MAX_REFUSED: u32 = 15;
 
 /// The pipeline's state across updates: one tracker and one heading per non-reference robot.
@@ -143,11 +143,12 @@ pub struct Pipeline {
     /// Per non-reference robot: its and its observer's odometry yaw when its heading was last
     /// carried forward.
     heading_yaws: Vec<Option<(f64, f64)>>,
-    /// Per non-reference robot: search results refused in a row (a prediction gone wrong is
-    /// given up after [`MAX_REFUSED`], for a full search).
+    /// Per non-reference robot: search results refused in a row (after [`MAX_REFUSED`] the
+    /// prediction is questioned by a full search).
     refused: Vec<u32>,
-    /// Per non-reference robot: its track was lost, so the next search sweeps the full circle;
-    /// the heading carried by odometry stays as the fallback should that search find nothing.
+    /// Per non-reference robot: its track was lost or its prediction questioned, so the next
+    /// search sweeps the full circle; the heading carried by odometry stays as the fallback
+    /// should that search find nothing.
     reacquire: Vec<bool>,
     /// Per non-reference robot: the kept heading's variance (rad²) and when it was last carried
     /// forward (`heading.drift_deg_per_sqrt_s` and `search_sigma_deg`).
@@ -439,7 +440,13 @@ impl Pipeline {
                         Ok(theta)
                     }
                     None if self.refused[i - 1] > MAX_REFUSED => {
-                        self.headings[i - 1] = None;
+                        // The prediction is questioned, not dropped: the next search sweeps the
+                        // full circle and whatever distinct peak it finds replaces the prediction,
+                        // but if it finds none the prediction is still the best there is. (Dropped,
+                        // the fallback was the formation's expected heading: 47° off in the middle of
+                        // a turn of `turning`, 2 robots 1 m apart, seed 11, where the prediction was
+                        // 1.1° off and the refused estimates 4°.)
+                        self.reacquire[i - 1] = true;
                         self.refused[i - 1] = 0;
                         report.heading_source = Source::PreviousHeading;
                         predicted.ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })

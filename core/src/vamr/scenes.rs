@@ -437,6 +437,39 @@ fn a_lost_track_keeps_its_heading_carried_by_odometry() {
     );
 }
 
+/// A prediction the refined search disagrees with for more than [`super::pipeline::MAX_REFUSED`]
+/// updates is questioned by a full search: a distinct peak there replaces it, and if that search
+/// finds nothing (robot 1's scan lost) the prediction is fused, not the formation's expected
+/// heading (which is tens of degrees off in the middle of a turn).
+#[test]
+fn a_prediction_refused_too_long_is_questioned_by_a_full_search() {
+    let w = site();
+    let odom = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 4.0)];
+    // Robot 1 is at 8°, its odometry says 4°: every refined estimate (8°) is refused.
+    let turned = [odom[0], Se2::from_degrees(0.0, -0.45, 8.0)];
+    let start: Vec<Scan> = (0..2).map(|i| w.scan(&odom, i)).collect();
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&turned, i)).collect();
+    let blank = scans[1].with_ranges(vec![f64::NAN; scans[1].len()]);
+    let refusals = super::pipeline::MAX_REFUSED as usize + 1;
+    for (last, want) in [(&scans[1], 8.0), (&blank, 4.0)] {
+        let mut p = Pipeline::new(2, shipped_params(), Configuration::T4, 0.05, 0.1);
+        p.set_expected(1, [0.0, -0.9], 0.5);
+        p.set_expected_heading(1, 0.0);
+        let first = p.update(&odometered(&w, &start, odom, 0.0)).unwrap();
+        assert!((first.relative[1].theta.to_degrees() - 4.0).abs() < 0.2, "{:?}", first.relative[1]);
+        for k in 1..=refusals {
+            let out = p.update(&odometered(&w, &scans, odom, 0.1 * k as f64)).unwrap();
+            assert_eq!(out.pairs[0].heading_source, Source::PreviousHeading, "update {k}");
+            assert!(!out.pairs[0].full_search, "update {k}");
+        }
+        let scans = [scans[0].clone(), last.clone()];
+        let out = p.update(&odometered(&w, &scans, odom, 0.1 * (refusals + 1) as f64)).unwrap();
+        assert!(out.pairs[0].full_search, "the prediction is questioned by a full search");
+        let fused = out.relative[1].theta.to_degrees();
+        assert!((fused - want).abs() < 0.25, "fused {fused}°, want {want}°");
+    }
+}
+
 /// With `drift_deg_per_sqrt_s` and `search_sigma_deg` set, a refined estimate is blended with the
 /// odometry's prediction: where the odometry missed 1° of a turn, the first estimate after it moves
 /// the heading part of the way, and the estimates that follow bring it to the searched heading.
