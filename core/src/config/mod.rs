@@ -27,4 +27,6 @@ pub use amcl::{AmclParams, InitialPose, LaserModel};
 pub use robot::{ChassisConfig, KinematicsConfig, MotionLimits, MountConfig, RobotId, SafetyConfig};
 pub use scenario::{ScenarioConfig, ScenarioLimits, Segment, StartPose};
 pub use server::{Configuration, FormationMember, OnRobotLost, ServerConfig, SyncGates};
-pub use vamr::{ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams};
+pub use vamr::{
+    AmclFrame, ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams,
+};

@@ -181,6 +181,33 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
     assert_eq!(summary[3].paper_rmse_2d, Some((0.0412, 0.0083)));
 }
 
+/// With `fusion.amcl_frame = reference` the virtual-scan filters track the reference robot, 0.45 m
+/// beside V, and give V through its place in that robot's frame: through a turn on the spot T2–T4
+/// still place V and each robot, and their clouds, seen as V, stand around V.
+#[test]
+fn a_filter_in_the_reference_robots_frame_still_places_v() {
+    let mut setup = short_setup();
+    let finite = |v: f64| Some(amr_core::config::value::Finite::new(v).unwrap());
+    setup.scenario.segments = vec![
+        amr_core::config::Segment { straight_m: finite(0.3), turn_deg: finite(90.0) },
+        amr_core::config::Segment { straight_m: finite(0.3), turn_deg: None },
+    ];
+    setup.vamr.fusion.amcl_frame = amr_core::config::AmclFrame::Reference;
+    let trial = run_trial(&setup, 3);
+    let turned = trial.truth_v.iter().map(|v| v[2]).fold(0.0f64, f64::max);
+    assert!(turned > 80f64.to_radians(), "V turned {:.1}°", turned.to_degrees());
+    for (c, s) in trial.series.iter().skip(1) {
+        let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
+        assert!(rmse < 0.06, "{c:?}: 2D RMSE {rmse:.3} m");
+        assert_robots_placed(*c, s, 2);
+    }
+    let v = trial.truth_v.last().unwrap();
+    let n = trial.final_particles_t4.len() as f64;
+    let mean = trial.final_particles_t4.iter().fold([0.0, 0.0], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
+    let off = (mean[0] - v[0]).hypot(mean[1] - v[1]);
+    assert!(off < 0.06, "T4's cloud is centred {off:.3} m from V");
+}
+
 /// Each trial surveys the site afresh from its own seed (and the same seed, the same map); a
 /// given map is every trial's.
 #[test]
