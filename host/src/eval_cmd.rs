@@ -493,7 +493,7 @@ fn record_trial(
         }
         // The complete method's particle cloud (the encoder keeps one a second).
         if let Some((c, filter)) = f.filters.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4) {
-            let poses: Vec<amr_core::se2::Se2> = filter.poses().collect();
+            let poses: Vec<amr_core::se2::Se2> = filter.particles().iter().map(|p| p.pose).collect();
             events.push(Event::Particles(amr_msgs::ParticleCloud {
                 source: amr_msgs::EstimateSource::Fused(*c),
                 stamp_s: t,

@@ -17,7 +17,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
-use amr_core::config::{AmclFrame, AmclParams, Configuration, VamrParams};
+use amr_core::config::{AmclMotion, AmclParams, Configuration, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::{PacketTimes, virtual_frame};
@@ -198,25 +198,7 @@ struct Channel {
     pipeline: Pipeline,
     /// AMCL on the virtual scan (T2–T4).
     filter: Option<Amcl>,
-    /// What carries the filter's pose to V: identity when it tracks V, V's place in the
-    /// reference robot's frame (the last fused) when it tracks that robot (`fusion.amcl_frame`).
-    to_v: Se2,
     seq: u64,
-}
-
-/// A filter behind an estimate source, and what carries its particles to the pose they stand for.
-#[derive(Debug, Clone, Copy)]
-pub struct FilterView<'a> {
-    pub amcl: &'a Amcl,
-    /// Particle pose → the estimated pose (V for a virtual-scan filter, the robot for its own).
-    pub to_estimate: Se2,
-}
-
-impl FilterView<'_> {
-    /// The particles as poses of what the filter estimates.
-    pub fn poses(&self) -> impl Iterator<Item = Se2> + '_ {
-        self.amcl.particles().iter().map(|p| p.pose * self.to_estimate)
-    }
 }
 
 /// A scan as the core keeps it.
@@ -236,8 +218,8 @@ pub struct ServerCore {
     members: Vec<Member>,
     amcl: AmclParams,
     robot_filters: Vec<Amcl>,
-    /// Whose pose the virtual-scan filters track.
-    amcl_frame: AmclFrame,
+    /// Whose motion the virtual-scan filters' motion model samples (`fusion.amcl_motion`).
+    amcl_motion: AmclMotion,
     /// Per robot: map ← odometry from its own AMCL.
     corrections: Vec<Option<Se2>>,
     channels: Vec<Channel>,
@@ -294,29 +276,19 @@ impl ServerCore {
                     pipeline.set_expected_heading(i, 0.0);
                 }
                 pipeline.set_oracle(setup.oracle);
-                // A filter that tracks the reference robot starts at its slot, one that tracks V at
-                // V; either way V starts at the slots' centroid.
-                let to_v = match setup.vamr.fusion.amcl_frame {
-                    AmclFrame::Virtual => Se2::IDENTITY,
-                    AmclFrame::Reference => Se2::new(0.0, y0, 0.0).inverse() * v_in_slots,
-                };
                 let filter = (*c != Configuration::T1).then(|| {
                     let mut f =
                         Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed);
-                    f.init_pose(
-                        setup.initial_v * v_in_slots * to_v.inverse(),
-                        INITIAL_STD_XY_M,
-                        INITIAL_STD_YAW_RAD,
-                    );
+                    f.init_pose(setup.initial_v * v_in_slots, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
                     f
                 });
-                Channel { configuration: *c, pipeline, filter, to_v, seq: 0 }
+                Channel { configuration: *c, pipeline, filter, seq: 0 }
             })
             .collect();
         ServerCore {
             amcl: setup.amcl,
             robot_filters,
-            amcl_frame: setup.vamr.fusion.amcl_frame,
+            amcl_motion: setup.vamr.fusion.amcl_motion,
             corrections: vec![None; n],
             channels,
             scans: vec![VecDeque::new(); n],
@@ -349,16 +321,12 @@ impl ServerCore {
 
     /// The filter behind an estimate source (its particles, for recording and the live view).
     #[must_use]
-    pub fn filter(&self, source: EstimateSource) -> Option<FilterView<'_>> {
+    pub fn filter(&self, source: EstimateSource) -> Option<&Amcl> {
         match source {
-            EstimateSource::Robot(i) => {
-                self.robot_filters.get(i).map(|amcl| FilterView { amcl, to_estimate: Se2::IDENTITY })
+            EstimateSource::Robot(i) => self.robot_filters.get(i),
+            EstimateSource::Fused(c) => {
+                self.channels.iter().find(|ch| ch.configuration == c).and_then(|ch| ch.filter.as_ref())
             }
-            EstimateSource::Fused(c) => self
-                .channels
-                .iter()
-                .find(|ch| ch.configuration == c)
-                .and_then(|ch| ch.filter.as_ref().map(|amcl| FilterView { amcl, to_estimate: ch.to_v })),
         }
     }
 
@@ -558,26 +526,14 @@ impl ServerCore {
             };
             let v = match (&frame.points, ch.filter.as_mut()) {
                 (Some(points), Some(filter)) => {
-                    // The filter tracks V on V's odometry, or the reference robot on its own with
-                    // the points carried into its frame (`fusion.amcl_frame`).
-                    let (odom, carried) = match self.amcl_frame {
-                        AmclFrame::Virtual => (frame.v_odom, None),
-                        AmclFrame::Reference => {
-                            ch.to_v = true_v_in_reference.unwrap_or(u.v_in_reference);
-                            let to_v = ch.to_v;
-                            (
-                                first_odom,
-                                Some(points.iter().map(|p| to_v.transform_point(*p)).collect::<Vec<_>>()),
-                            )
-                        }
-                    };
-                    if matches!(
-                        filter.update(odom, carried.as_deref().unwrap_or(points), false),
-                        UpdateOutcome::Updated { .. }
-                    ) {
+                    if self.amcl_motion == AmclMotion::Reference {
+                        // The reference robot stands where V's odometry was composed from.
+                        filter.set_motion_body(true_v_in_reference.unwrap_or(u.v_in_reference).inverse());
+                    }
+                    if matches!(filter.update(frame.v_odom, points, false), UpdateOutcome::Updated { .. }) {
                         step.updated.push(EstimateSource::Fused(ch.configuration));
                     }
-                    filter.pose_at(&odom).map(|p| p * ch.to_v)
+                    filter.pose_at(&frame.v_odom)
                 }
                 // T1: V from the reference robot's own AMCL (the relative poses came from AMCL).
                 _ => self.corrections.first().copied().flatten().map(|c| c * frame.v_odom),

@@ -149,7 +149,7 @@ impl LocalizerActor {
             if let Some(f) = core.filter(*source) {
                 // The stamp of the estimate the update gave.
                 let stamp_s = step.estimates.iter().find(|e| e.source == *source).map_or(0.0, |e| e.stamp_s);
-                let poses = Arc::new(f.poses().collect());
+                let poses = Arc::new(f.particles().iter().map(|p| p.pose).collect());
                 ports.particles.send(ParticleCloud { source: *source, stamp_s, poses });
             }
         }

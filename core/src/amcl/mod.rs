@@ -43,6 +43,9 @@ pub struct Amcl {
     w_slow: f64,
     w_fast: f64,
     last_odom: Option<Se2>,
+    /// Where the wheeled body whose odometry moves the tracked frame stands in that frame
+    /// ([`Amcl::set_motion_body`]); the identity when the filter tracks the body itself.
+    motion_body: Se2,
     updates: u64,
     injections: u64,
     estimate: Option<Estimate>,
@@ -90,6 +93,7 @@ impl Amcl {
             w_slow: 0.0,
             w_fast: 0.0,
             last_odom: None,
+            motion_body: Se2::IDENTITY,
             updates: 0,
             injections: 0,
             estimate: None,
@@ -126,6 +130,17 @@ impl Amcl {
             Some(at_update) => e.pose * (at_update.inverse() * *odom),
             None => e.pose,
         })
+    }
+
+    /// The tracked frame is not the wheeled body whose odometry moves it, but a frame rigidly
+    /// attached to it, and the body stands at `body_in_tracked` in that frame (a formation's
+    /// virtual robot V, and the reference robot beside it). The odometry given to
+    /// [`Amcl::update`] stays the tracked frame's; the motion model samples the increment as the
+    /// body drove it. When V turns on the spot the body drives an arc: its noise then spreads V's
+    /// samples sideways too, where a pure rotation of V itself would move them only along its
+    /// heading and a cloud that has drifted sideways could not be pulled back by the scans.
+    pub fn set_motion_body(&mut self, body_in_tracked: Se2) {
+        self.motion_body = body_in_tracked;
     }
 
     /// The odometry restarted in a new frame (the robot restarted): keep the particles, and take
@@ -221,10 +236,23 @@ impl Amcl {
 
     /// Motion step: every particle moves by a noisy sample of the odometry increment.
     fn predict(&mut self, old: &Se2, new: &Se2) {
-        let mut d = motion::delta(old, new, motion::alphas(&self.params));
+        let body = self.motion_body;
+        if body == Se2::IDENTITY {
+            let mut d = motion::delta(old, new, motion::alphas(&self.params));
+            d.slip_share = self.params.odom_slip_share.get();
+            for p in &mut self.particles {
+                motion::sample(&mut p.pose, &d, &mut self.rng);
+            }
+            return;
+        }
+        // The body's increment, sampled for the body under each particle and carried back.
+        let mut d = motion::delta(&(*old * body), &(*new * body), motion::alphas(&self.params));
         d.slip_share = self.params.odom_slip_share.get();
+        let back = body.inverse();
         for p in &mut self.particles {
-            motion::sample(&mut p.pose, &d, &mut self.rng);
+            let mut at = p.pose * body;
+            motion::sample(&mut at, &d, &mut self.rng);
+            p.pose = at * back;
         }
     }
 
@@ -485,6 +513,39 @@ pub(crate) mod tests {
             (p.x - e.x).abs() < 1e-9 && (p.y - (e.y + 0.03)).abs() < 1e-9,
             "forward is +y for this heading: {p:?} vs {e:?}"
         );
+    }
+
+    /// A pure rotation of the tracked frame moves its samples along their heading only; with the
+    /// wheeled body 0.45 m to its side ([`Amcl::set_motion_body`]) the body drives an arc, and its
+    /// noise spreads the samples sideways too, around the same mean.
+    #[test]
+    fn a_motion_body_beside_the_frame_spreads_a_turn_sideways() {
+        let g = crate::map::OccupancyGrid::filled(40, 40, 0.1, Se2::IDENTITY, crate::map::FREE);
+        let mut params = shipped_params();
+        // Without the slip tail (its samples do not follow the increment, which moves the mean).
+        params.odom_slip_share = crate::config::value::Fraction::new(0.0).unwrap();
+        let field = Arc::new(LikelihoodField::new(&g, &params, 10.0));
+        let spread = |body: Option<Se2>| {
+            let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 1);
+            if let Some(b) = body {
+                amcl.set_motion_body(b);
+            }
+            amcl.init_pose(Se2::new(2.0, 2.0, 0.0), 0.0, 0.0);
+            assert!(matches!(amcl.update(Se2::IDENTITY, &[], true), UpdateOutcome::Updated { .. }));
+            // The frame turns 0.3 rad on the spot.
+            amcl.predict(&Se2::IDENTITY, &Se2::new(0.0, 0.0, 0.3));
+            let n = amcl.particles.len() as f64;
+            let (mx, my) =
+                amcl.particles.iter().fold((0.0, 0.0), |(x, y), p| (x + p.pose.x / n, y + p.pose.y / n));
+            // Across the starting heading (x): y.
+            let sd_y = (amcl.particles.iter().map(|p| (p.pose.y - my).powi(2)).sum::<f64>() / n).sqrt();
+            (mx, my, sd_y)
+        };
+        let (_, my, sd_alone) = spread(None);
+        assert!(sd_alone < 1e-9 && (my - 2.0).abs() < 1e-9, "V alone: sideways spread {sd_alone}");
+        let (mx, my, sd_body) = spread(Some(Se2::new(0.0, -0.45, 0.0)));
+        assert!(sd_body > 0.003, "with the body beside it: sideways spread {sd_body}");
+        assert!((mx - 2.0).abs() < 0.01 && (my - 2.0).abs() < 0.01, "mean ({mx}, {my})");
     }
 
     /// With beam skipping the recovery averages are per-beam means over every beam, skipped or not:

@@ -28,5 +28,5 @@ pub use robot::{ChassisConfig, KinematicsConfig, MotionLimits, MountConfig, Robo
 pub use scenario::{ScenarioConfig, ScenarioLimits, Segment, StartPose};
 pub use server::{Configuration, FormationMember, OnRobotLost, ServerConfig, SyncGates};
 pub use vamr::{
-    AmclFrame, ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams,
+    AmclMotion, ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams,
 };

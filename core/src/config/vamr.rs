@@ -123,25 +123,23 @@ pub struct FusionParams {
     /// Angular bin of the virtual scan; absent → the finest step among the source scans.
     #[serde(default)]
     pub virtual_bin_deg: Option<Positive>,
-    /// Whose pose AMCL on the virtual scan tracks; absent → V's (the paper).
+    /// Whose motion the motion model of AMCL on the virtual scan samples; absent → V's (the paper).
     #[serde(default)]
-    pub amcl_frame: AmclFrame,
+    pub amcl_motion: AmclMotion,
 }
 
-/// Whose pose AMCL on the virtual scan tracks. Either way it weighs the same points against the
-/// same map and gives V; what differs is the odometry its motion model samples from.
+/// Whose motion the motion model of AMCL on the virtual scan samples. Either way the filter
+/// tracks V, on V's odometry, with the same points and map; what differs is the noise.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum AmclFrame {
-    /// V's (the paper, §3.2): V's odometry is the reference robot's composed with V's place in its
-    /// frame. When the formation turns on the spot, V only rotates, and the differential-drive
-    /// model spreads samples only along the direction of travel: the cloud loses its sideways
-    /// spread and cannot follow the scan's pull.
+pub enum AmclMotion {
+    /// V's own (the paper, §3.2). When the formation turns on the spot V only rotates, and the
+    /// differential-drive model moves its samples along their heading only: a cloud that has
+    /// drifted sideways keeps no sideways spread and cannot follow the scan's pull back.
     #[default]
     Virtual,
-    /// The reference robot's (ours): the virtual scan is given in that robot's frame and V is the
-    /// estimate composed with V's place in it, so the motion model samples a wheeled robot's own
-    /// motion, arcs in the formation's turns included, as each robot's own filter does.
+    /// The reference robot's (ours): V's increment is sampled as the reference robot drove it (an
+    /// arc in the formation's turns) and carried back to V ([`crate::amcl::Amcl::set_motion_body`]).
     Reference,
 }
 

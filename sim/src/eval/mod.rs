@@ -17,8 +17,8 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use amr_actors::server::core::{CoreSetup, FilterView, Lap, Member, ServerCore};
-use amr_core::amcl::LikelihoodField;
+use amr_actors::server::core::{CoreSetup, Lap, Member, ServerCore};
+use amr_core::amcl::{Amcl, LikelihoodField};
 use amr_core::config::{AmclParams, Configuration, ScenarioConfig, VamrParams};
 use amr_core::formation::{FormationGains, limit_twist, member_command};
 use amr_core::map::OccupancyGrid;
@@ -231,9 +231,8 @@ pub struct TrialFrame<'a> {
     pub estimates: &'a [(Configuration, Option<Se2>)],
     /// T2–T4: the virtual scan (points in V) each fused, when it did.
     pub virtual_scans: &'a [(Configuration, Option<Points>)],
-    /// T2–T4: the AMCL filter on each one's virtual scan (its particles as poses of V, for a
-    /// recorder).
-    pub filters: &'a [(Configuration, FilterView<'a>)],
+    /// T2–T4: the AMCL filter on each one's virtual scan (its particles, for a recorder).
+    pub filters: &'a [(Configuration, &'a Amcl)],
     /// What the server core was given at this step: each robot's scan as its uplink (robot `i`
     /// is `robot<i>`), with the time it was received. A recording of these replays the trial.
     pub uplink: &'a [(Uplink, f64)],
@@ -450,7 +449,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
                 }
             }
         }
-        let filters: Vec<(Configuration, FilterView<'_>)> = CONFIGS[1..]
+        let filters: Vec<(Configuration, &Amcl)> = CONFIGS[1..]
             .iter()
             .filter_map(|c| core.filter(EstimateSource::Fused(*c)).map(|f| (*c, f)))
             .collect();
@@ -467,7 +466,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
     }
     let final_particles_t4 = core
         .filter(EstimateSource::Fused(Configuration::T4))
-        .map(|f| f.poses().map(|p| [p.x, p.y]).collect())
+        .map(|f| f.particles().iter().map(|p| [p.pose.x, p.pose.y]).collect())
         .unwrap_or_default();
     let visibility = views
         .iter()

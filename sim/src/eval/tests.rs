@@ -181,18 +181,18 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
     assert_eq!(summary[3].paper_rmse_2d, Some((0.0412, 0.0083)));
 }
 
-/// With `fusion.amcl_frame = reference` the virtual-scan filters track the reference robot, 0.45 m
-/// beside V, and give V through its place in that robot's frame: through a turn on the spot T2–T4
-/// still place V and each robot, and their clouds, seen as V, stand around V.
+/// With `fusion.amcl_motion = reference` the virtual-scan filters sample V's motion as the
+/// reference robot, 0.45 m beside V, drove it: through a turn on the spot T2–T4 still place V and
+/// each robot, and T4's cloud stands around V.
 #[test]
-fn a_filter_in_the_reference_robots_frame_still_places_v() {
+fn with_the_reference_robots_motion_the_filters_still_place_v() {
     let mut setup = short_setup();
     let finite = |v: f64| Some(amr_core::config::value::Finite::new(v).unwrap());
     setup.scenario.segments = vec![
         amr_core::config::Segment { straight_m: finite(0.3), turn_deg: finite(90.0) },
         amr_core::config::Segment { straight_m: finite(0.3), turn_deg: None },
     ];
-    setup.vamr.fusion.amcl_frame = amr_core::config::AmclFrame::Reference;
+    setup.vamr.fusion.amcl_motion = amr_core::config::AmclMotion::Reference;
     let trial = run_trial(&setup, 3);
     let turned = trial.truth_v.iter().map(|v| v[2]).fold(0.0f64, f64::max);
     assert!(turned > 80f64.to_radians(), "V turned {:.1}°", turned.to_degrees());
@@ -206,6 +206,12 @@ fn a_filter_in_the_reference_robots_frame_still_places_v() {
     let mean = trial.final_particles_t4.iter().fold([0.0, 0.0], |m, p| [m[0] + p[0] / n, m[1] + p[1] / n]);
     let off = (mean[0] - v[0]).hypot(mean[1] - v[1]);
     assert!(off < 0.06, "T4's cloud is centred {off:.3} m from V");
+    // The setting reaches the filters: with V's own motion the same seed gives other estimates.
+    setup.vamr.fusion.amcl_motion = amr_core::config::AmclMotion::Virtual;
+    let own = run_trial(&setup, 3);
+    let t4 = |t: &Trial| t.series[3].1.estimates.clone();
+    assert_ne!(t4(&trial), t4(&own), "T4 the same with either motion");
+    assert_eq!(trial.series[0].1.estimates, own.series[0].1.estimates, "T1 has no virtual-scan filter");
 }
 
 /// Each trial surveys the site afresh from its own seed (and the same seed, the same map); a

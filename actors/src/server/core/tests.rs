@@ -260,9 +260,9 @@ fn a_virtual_filter_starts_at_the_centroid_with_every_robots_beams() {
     let slots = amr_core::formation::slots(4, 0.6);
     let core = core_with(&slots);
     let f = core.filter(EstimateSource::Fused(Configuration::T4)).unwrap();
-    let n = f.amcl.particles().len() as f64;
-    let mean_y = f.poses().map(|p| p.y).sum::<f64>() / n;
-    let mean_x = f.poses().map(|p| p.x).sum::<f64>() / n;
+    let n = f.particles().len() as f64;
+    let mean_y = f.particles().iter().map(|p| p.pose.y).sum::<f64>() / n;
+    let mean_x = f.particles().iter().map(|p| p.pose.x).sum::<f64>() / n;
     // initial_v is (-2, 0); the slots 0, 0.6, -0.6, 1.2 average to 0.3.
     assert!((mean_y - 0.3).abs() < 0.05 && (mean_x + 2.0).abs() < 0.05, "{mean_x} {mean_y}");
     let config = load(&ConfigSource::Embedded).unwrap();
