@@ -45,10 +45,13 @@ pub(crate) fn run_trials(setup: &Setup, seed: u64, trials: usize, what: &str) ->
 }
 
 /// One configuration's trial-level figures.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub(crate) struct Figures {
     /// Trial-level 2D RMSE against the truth, m: mean and SD over trials.
     pub rmse: Option<MeanSd>,
+    /// Per trial, in trial order, its 2D RMSE against the truth, m (none if the trial gave no
+    /// estimate): what a comparison of two configurations on the same trials pairs.
+    pub trial_rmse: Vec<Option<f64>>,
     /// Trials whose error exceeded [`DIVERGED_M`] at any scan, or that never gave an estimate.
     pub diverged: usize,
     /// Scans without an estimate, over all trials.
@@ -64,8 +67,9 @@ pub(crate) const DIVERGED_M: f64 = 0.5;
 pub(crate) fn figures(trials: &[Trial], c: Configuration) -> Figures {
     let series: Vec<&amr_sim::eval::Series> =
         trials.iter().filter_map(|t| t.series.iter().find(|(k, _)| *k == c).map(|(_, s)| s)).collect();
-    let per_trial: Vec<f64> =
-        series.iter().filter_map(|s| AxisStats::of(&s.truth).map(|a| a.d2.rmse)).collect();
+    let trial_rmse: Vec<Option<f64>> =
+        series.iter().map(|s| AxisStats::of(&s.truth).map(|a| a.d2.rmse)).collect();
+    let per_trial: Vec<f64> = trial_rmse.iter().flatten().copied().collect();
     let diverged = series
         .iter()
         .filter(|s| s.truth.is_empty() || s.truth.iter().any(|e| e.e_x.hypot(e.e_y) > DIVERGED_M))
@@ -76,11 +80,42 @@ pub(crate) fn figures(trials: &[Trial], c: Configuration) -> Figures {
         .collect();
     Figures {
         rmse: MeanSd::of(&per_trial),
+        trial_rmse,
         diverged,
         missing: series.iter().map(|s| s.missing).sum(),
         worst_robot: MeanSd::of(&worst),
     }
 }
+
+/// Per trial `a − b` in cm over the trials where both gave an estimate (none if the two are of
+/// different trials, or no trial has both).
+fn paired_difference_cm(a: &[Option<f64>], b: &[Option<f64>]) -> Option<MeanSd> {
+    if a.len() != b.len() {
+        return None;
+    }
+    let d: Vec<f64> =
+        a.iter().zip(b).filter_map(|(x, y)| Some(100.0 * (x.as_ref()? - y.as_ref()?))).collect();
+    MeanSd::of(&d)
+}
+
+/// A paired difference as `+0.55 ± 0.12`: its mean and the standard error of that mean.
+fn with_se(d: &MeanSd) -> String {
+    format!("{:+.2} ± {:.2}", d.mean, standard_error(d))
+}
+
+fn standard_error(d: &MeanSd) -> f64 {
+    d.sd / (d.n.max(1) as f64).sqrt()
+}
+
+/// The criterion of issue 18 §4 (T4 ≤ min(T1, T2, T3) + 0.5 cm) as the study judges it: missed
+/// when the mean difference is above the margin, and missed beyond the trials' noise when it is
+/// above it by more than two standard errors of the paired differences.
+fn over_margin(d: &MeanSd) -> (bool, bool) {
+    (d.mean > MARGIN_CM, d.mean - 2.0 * standard_error(d) > MARGIN_CM)
+}
+
+/// Issue 18 §4's margin: how much worse than the best of T1–T3 T4 may be, cm.
+const MARGIN_CM: f64 = 0.5;
 
 fn cm(f: &Figures) -> String {
     f.rmse.map_or("—".into(), |m| format!("{:.2} ± {:.2}", 100.0 * m.mean, 100.0 * m.sd))
@@ -227,9 +262,19 @@ impl StudyRow {
         Some(self.mean_cm(Configuration::T4, pick)? - best).filter(|d| d.is_finite())
     }
 
-    /// T4 − min(T1, T2, T3) of V's RMSE, cm.
-    fn t4_over_best_cm(&self) -> Option<f64> {
-        self.t4_over_best(|f| f.rmse)
+    /// T4 − the best of T1–T3 (the lowest mean RMSE of V), trial by trial on the same trials, cm:
+    /// its mean is T4's mean RMSE less the best one's, and its SD is what says whether a difference is
+    /// the configurations' or the trials' (the trials share the sensor streams, so the pairs' spread
+    /// is well below either column's).
+    fn t4_over_best_paired_cm(&self) -> Option<MeanSd> {
+        let best = CONFIGS[..3]
+            .iter()
+            .filter_map(|c| Some((*c, self.rmse_cm(*c)?)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))?
+            .0;
+        let trials =
+            |c: Configuration| self.figures.iter().find(|(k, _)| *k == c).map(|(_, f)| &f.trial_rmse);
+        paired_difference_cm(trials(Configuration::T4)?, trials(best)?)
     }
 
     /// T4 − min(T1, T2, T3) of the worst-placed robot's RMSE, cm.
@@ -383,7 +428,8 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
          diverged (error above {DIVERGED_M} m at some scan, or no estimate at all). Per robot (robot 0 first): \
          the share of its beams on other robots' bodies (occluded %), the share of the site returns it would \
          have alone that are left (site left %), and the share of its beams that return from the site at all \
-         (site %). Δ = T4 − min(T1, T2, T3).\n\n\
+         (site %). Δ = T4 − min(T1, T2, T3), ± the standard error of its mean over the trials' paired \
+         differences (T4 and the best of T1–T3 on the same trial).\n\n\
          | scenario | motion | robots | spacing m | T1 | T2 | T3 | T4 | Δ cm | occluded % | site left % | site % |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         r.trials,
@@ -417,18 +463,22 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
             cell(Configuration::T2),
             cell(Configuration::T3),
             cell(Configuration::T4),
-            row.t4_over_best_cm().map_or("—".into(), |d| format!("{d:+.2}")),
+            row.t4_over_best_paired_cm().map_or("—".into(), |d| with_se(&d)),
             pct(&row.occluded),
             pct(&row.site_left),
             pct(&row.site_share),
         );
     }
     let run: Vec<&StudyRow> = r.rows.iter().filter(|x| x.skipped.is_none()).collect();
-    let worse = run.iter().filter(|x| x.t4_over_best_cm().is_some_and(|d| d > 0.5)).count();
+    let judged: Vec<(bool, bool)> =
+        run.iter().filter_map(|x| x.t4_over_best_paired_cm()).map(|d| over_margin(&d)).collect();
+    let worse = judged.iter().filter(|j| j.0).count();
+    let beyond_noise = judged.iter().filter(|j| j.1).count();
     let _ = writeln!(
         md,
-        "\n{} configurations run, {} skipped (the formation does not fit the site); T4 more than 0.5 cm worse \
-         than the best of T1–T3 in {worse}.",
+        "\n{} configurations run, {} skipped (the formation does not fit the site); T4 more than {MARGIN_CM} cm \
+         worse than the best of T1–T3 in {worse}, and by more than two standard errors beyond that in \
+         {beyond_noise}.",
         run.len(),
         r.rows.len() - run.len()
     );
@@ -465,10 +515,41 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
             row.t4_worst_over_best_cm().map_or("—".into(), |d| format!("{d:+.2}")),
         );
     }
-    let worse = run.iter().filter(|x| x.t4_worst_over_best_cm().is_some_and(|d| d > 0.5)).count();
+    let worse = run.iter().filter(|x| x.t4_worst_over_best_cm().is_some_and(|d| d > MARGIN_CM)).count();
     let _ = writeln!(
         md,
-        "\nFor the worst-placed robot, T4 more than 0.5 cm worse than the best of T1–T3 in {worse}."
+        "\nFor the worst-placed robot, T4 more than {MARGIN_CM} cm worse than the best of T1–T3 in {worse}."
     );
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The pairs are taken trial by trial: a difference the trials share cancels, a trial without an
+    /// estimate on either side is left out, and a margin missed by less than two standard errors is
+    /// told apart from one missed beyond the noise.
+    #[test]
+    fn the_criterion_pairs_trials_and_weighs_the_noise() {
+        let t4 = [Some(0.030), Some(0.020), None, Some(0.041)];
+        let best = [Some(0.024), Some(0.014), Some(0.010), Some(0.034)];
+        let d = paired_difference_cm(&t4, &best).unwrap();
+        assert_eq!(d.n, 3);
+        assert!((d.mean - 0.6333).abs() < 1e-3, "{d:?}");
+        // 0.6, 0.6, 0.7: SD 0.0577, standard error 0.0333; 0.63 − 0.07 > 0.5 is beyond the noise.
+        assert!((standard_error(&d) - 0.0333).abs() < 1e-3, "{d:?}");
+        assert_eq!(over_margin(&d), (true, true));
+        assert_eq!(with_se(&d), "+0.63 ± 0.03");
+        // The same mean with trials that disagree: over the margin, not beyond the noise.
+        let noisy = paired_difference_cm(
+            &[Some(0.040), Some(0.020), Some(0.031)],
+            &[Some(0.024), Some(0.024), Some(0.024)],
+        )
+        .unwrap();
+        assert!((noisy.mean - 0.6333).abs() < 1e-3, "{noisy:?}");
+        assert_eq!(over_margin(&noisy), (true, false));
+        assert_eq!(over_margin(&MeanSd { mean: 0.4, sd: 0.0, n: 5 }), (false, false));
+        assert!(paired_difference_cm(&t4, &best[..3]).is_none());
+    }
 }
