@@ -263,7 +263,8 @@ impl StudyRow {
     }
 
     /// T4 − the best of T1–T3 (the lowest mean RMSE of V), trial by trial on the same trials, cm:
-    /// its mean is T4's mean RMSE less the best one's, and its SD is what says whether a difference is
+    /// when every trial gave both an estimate, its mean is T4's mean RMSE less the best one's (a
+    /// trial without one is left out of the pairs), and its SD is what says whether a difference is
     /// the configurations' or the trials' (the trials share the sensor streams, so the pairs' spread
     /// is well below either column's).
     fn t4_over_best_paired_cm(&self) -> Option<MeanSd> {
