@@ -237,17 +237,17 @@ impl Amcl {
     /// Motion step: every particle moves by a noisy sample of the odometry increment.
     fn predict(&mut self, old: &Se2, new: &Se2) {
         let body = self.motion_body;
+        let (old, new) = if body == Se2::IDENTITY { (*old, *new) } else { (*old * body, *new * body) };
+        let mut d = motion::delta(&old, &new, motion::alphas(&self.params));
+        d.slip_share = self.params.odom_slip_share.get();
+        // Every robot's own filter tracks its body: no compositions per particle on that path.
         if body == Se2::IDENTITY {
-            let mut d = motion::delta(old, new, motion::alphas(&self.params));
-            d.slip_share = self.params.odom_slip_share.get();
             for p in &mut self.particles {
                 motion::sample(&mut p.pose, &d, &mut self.rng);
             }
             return;
         }
         // The body's increment, sampled for the body under each particle and carried back.
-        let mut d = motion::delta(&(*old * body), &(*new * body), motion::alphas(&self.params));
-        d.slip_share = self.params.odom_slip_share.get();
         let back = body.inverse();
         for p in &mut self.particles {
             let mut at = p.pose * body;
