@@ -56,8 +56,8 @@ pub const SLIP_REACH: f64 = 1.5;
 /// of +16° and −25° within three scans where the odometry says +1° and −4°).
 pub const SLIP_HEADING_SIGMA: f64 = 0.2;
 
-/// Move one pose by a noisy sample of the increment.
-pub fn sample(pose: &mut Se2, d: &OdometryDelta, rng: &mut Rng) {
+/// Move one pose by a noisy sample of the increment; true if the sample took the slip tail.
+pub fn sample(pose: &mut Se2, d: &OdometryDelta, rng: &mut Rng) -> bool {
     let rot1 = angle_diff(d.rot1, rng.gaussian(d.sigma_rot1));
     let slip = d.slip_share > 0.0 && rng.uniform() < d.slip_share;
     let trans = if slip {
@@ -71,6 +71,7 @@ pub fn sample(pose: &mut Se2, d: &OdometryDelta, rng: &mut Rng) {
     );
     let (sin, cos) = (pose.theta + rot1).sin_cos();
     *pose = Se2::new(pose.x + trans * cos, pose.y + trans * sin, pose.theta + rot1 + rot2);
+    slip
 }
 
 #[cfg(test)]

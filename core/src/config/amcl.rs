@@ -46,6 +46,15 @@ pub struct AmclParams {
     /// reverses 83 times). Absent: 0, nav2's pure Gaussian model.
     #[serde(default = "zero_fraction")]
     pub odom_slip_share: Fraction,
+    /// Not in nav2: how likely the odometry is to have lied over one update (the prior of the slip
+    /// tail), when it differs from `odom_slip_share` (how many samples try it). Slipped samples weigh
+    /// `probability / share`, the others `(1 − probability) / (1 − share)` (importance sampling),
+    /// so the tail is explored by as many samples while it moves the cloud's mean only by the
+    /// probability's share of each increment: where the scans do not hold the filter along its way,
+    /// a tail believed at 0.1 puts the estimate 10 % of the distance behind the robot. Absent: the
+    /// share (every trying sample believed). Needs `odom_slip_share > 0` if above 0.
+    #[serde(default)]
+    pub odom_slip_probability: Option<Fraction>,
     /// Distance-map cutoff of the likelihood field.
     pub laser_likelihood_max_dist: Positive,
     /// ≤ 0: use the scan's own maximum range (nav2 convention).
@@ -132,6 +141,12 @@ impl AmclParams {
     pub fn min_range_m(&self) -> Option<f64> {
         Some(self.laser_min_range.get()).filter(|r| *r > 0.0)
     }
+
+    /// The prior probability of a slip per update (`odom_slip_probability`, else the share).
+    #[must_use]
+    pub fn slip_probability(&self) -> f64 {
+        self.odom_slip_probability.unwrap_or(self.odom_slip_share).get()
+    }
 }
 
 impl ConfigFileType for AmclParams {
@@ -162,6 +177,11 @@ impl ConfigFileType for AmclParams {
                 format!("must be less than laser_max_range ({min} m >= {max} m)"),
             )?;
         }
+        rule(
+            self.slip_probability() == 0.0 || self.odom_slip_share.get() > 0.0,
+            "odom_slip_probability",
+            "needs odom_slip_share > 0: without samples that try the slip tail, it cannot be believed",
+        )?;
         rule(
             !self.do_beamskip || self.laser_model_type == LaserModel::LikelihoodFieldProb,
             "do_beamskip",
