@@ -18,7 +18,9 @@ use amr_core::rng::Rng;
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
 
-pub use site::{PAPER_SITE_LENGTH_M, PAPER_SITE_WIDTH_M, corridor, one_sided_hall, paper_site, short_racks};
+pub use site::{
+    PAPER_SITE_LENGTH_M, PAPER_SITE_WIDTH_M, corridor, one_sided_hall, paper_site, shipped_site, short_racks,
+};
 
 /// A robot's physical description (from its configuration).
 #[derive(Debug, Clone)]

@@ -76,3 +76,16 @@ pub fn short_racks() -> Result<Vec<Polygon>, PolygonError> {
     }
     Ok(out)
 }
+
+/// The polygons of the shipped map `name` (`config/maps/<name>.*` is their rendering), or `None`
+/// for a map that is not one of ours.
+#[must_use]
+pub fn shipped_site(name: &str) -> Option<Result<Vec<Polygon>, PolygonError>> {
+    match name {
+        "paper-site" => Some(paper_site()),
+        "one-sided-hall" => Some(one_sided_hall()),
+        "corridor" => Some(corridor()),
+        "short-racks" => Some(short_racks()),
+        _ => None,
+    }
+}
