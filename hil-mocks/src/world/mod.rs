@@ -165,12 +165,14 @@ impl Site {
     }
 
     /// Whether a disc of `radius_m` around `c` is clear of every wall: inside the first polygon
-    /// (the room) and away from every polygon's edges; on a grid, on a free cell with no occupied
-    /// or unknown cell within the radius. The world does not model collisions, so a scenario that
-    /// drives a robot through a wall is refused with this.
+    /// (the room), outside every other (the obstacles: a rack is solid) and away from every
+    /// polygon's edges; on a grid, on a free cell with no occupied or unknown cell within the
+    /// radius. The world does not model collisions, so a scenario that drives a robot through a
+    /// wall is refused with this, and a survey stands only where this holds.
     #[must_use]
     pub fn is_clear(&self, c: [f64; 2], radius_m: f64) -> bool {
         let polygons_ok = self.polygons.first().is_none_or(|room| room.contains(c))
+            && self.polygons.iter().skip(1).all(|obstacle| !obstacle.contains(c))
             && self.polygons.iter().all(|p| p.distance_to_boundary(c) > radius_m);
         let grid_ok = self.grid.as_ref().is_none_or(|g| {
             let Some((ci, cj)) = g.cell_of(c) else { return false };
