@@ -507,12 +507,27 @@ fn observe_server(server: &ServerTree, observer: &ActorRef<ObserverMsg>) {
 /// layers: on `short-racks` (2 robots 0.5 m apart, 10 trials, seed 7) every configuration was
 /// placed 5.0 cm towards the racks, and T4 erred by 6.3 cm on the site's own map against 2.9 on a
 /// survey. As polygons: 0.9 cm. A map given by path has no polygons; there `--map true` keeps
-/// that offset (README).
+/// that offset (README). A configuration's own map that only shares a name with one of ours (a
+/// `maps/corridor.yaml` of another building) is not our rendering, and is ray-cast as its cells.
 pub fn site_for(map_name: &str, map: &OccupancyGrid) -> Result<Site, SimError> {
-    match hil_mocks::world::shipped_site(map_name) {
-        Some(polygons) => Ok(polygons.map_err(|e| SimError::Site(format!("{e:?}")))?.into()),
-        None => Ok(map.clone().into()),
-    }
+    let Some(polygons) = hil_mocks::world::shipped_site(map_name) else { return Ok(map.clone().into()) };
+    let polygons = polygons.map_err(|e| SimError::Site(format!("{e:?}")))?;
+    let Some(room) = polygons.first() else { return Ok(map.clone().into()) };
+    let rendering = amr_core::map::rasterize_outlines(
+        &polygons,
+        room,
+        map.resolution_m,
+        map.origin,
+        map.width,
+        map.height,
+    );
+    let same = (0..map.height).all(|j| {
+        (0..map.width).all(|i| {
+            rendering.is_occupied(i, j) == map.is_occupied(i, j)
+                && rendering.is_free(i, j) == map.is_free(i, j)
+        })
+    });
+    Ok(if same { polygons.into() } else { map.clone().into() })
 }
 
 /// The site of the configuration's map named by `sc`.

@@ -308,6 +308,15 @@ fn on_a_shipped_sites_own_map_the_robots_are_placed_where_they_stand() {
         straight_m: Some(amr_core::config::value::Finite::new(0.6).unwrap()),
         turn_deg: None,
     }];
+    for name in ["paper-site", "one-sided-hall", "corridor", "short-racks"] {
+        let site = crate::site_for(name, &config.maps[name]).unwrap();
+        assert!(site.grid.is_none() && !site.polygons.is_empty(), "{name} is ray-cast as its polygons");
+    }
+    // A map of another building that shares the name is ray-cast as its own cells.
+    let mut other = config.maps["short-racks"].clone();
+    let (i, j) = other.cell_of([0.0, 0.0]).unwrap();
+    other.set(i, j, amr_core::map::OCCUPIED);
+    assert!(crate::site_for("short-racks", &other).unwrap().grid.is_some(), "not our rendering");
     let trial = run_trial(&setup, 1);
     for (c, s) in &trial.series {
         let stats = AxisStats::of(&s.truth).unwrap();
