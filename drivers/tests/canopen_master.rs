@@ -446,4 +446,53 @@ mod canopen {
         )));
         assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 1);
     }
+
+    /// The master stalls for 2 s (its process frozen) while the drive runs on: the drive's consumer
+    /// of the master's heartbeat expires and it quick-stops itself (0x6007); the heartbeats it sent
+    /// meanwhile wait in the receive queue. Thawed, the shell may hand the master a queued
+    /// heartbeat before its overdue timers (tokio's select picks among ready branches at random):
+    /// the drive must still be found lost, not re-enabled out of Quick stop active unseen by an
+    /// "Enable operation" sent from the state read before the stall (the robot-freeze drill's
+    /// intermittent "Disarmed(DeviceLost): not within 2s").
+    #[test]
+    fn canopen_master_finds_a_drive_lost_after_its_own_stall_even_if_a_queued_heartbeat_comes_first() {
+        let mut sim = Sim::new();
+        sim.master.enable(sim.now);
+        sim.run(500);
+        assert_eq!(sim.master.drive_status(NODE).unwrap().state, Some(State402::OperationEnabled));
+        let n = sim.events.len();
+        sim.drive.state = State402::QuickStopActive;
+        sim.now += Duration::from_secs(2);
+        let from = sim.sent.len();
+        // Thawed: the worst order, a heartbeat from the queue before any timer.
+        sim.master.handle_frame(sim.now, &NmtState::Operational.heartbeat(NODE));
+        sim.run(100);
+        let after = &sim.events[n..];
+        assert!(
+            after.contains(&MasterEvent::Error(CanopenError::Link(LinkError::HeartbeatLost { node: NODE }))),
+            "a stale heartbeat hid the loss: {after:?}"
+        );
+        assert!(sim.sent[from..].contains(&Cob::Nmt.frame(&[0x82, NODE])), "the lost drive is reset");
+    }
+
+    /// The drive reports the loss of the master's heartbeat itself (EMCY 0x8130) before the master's
+    /// own consumer time has run out (a shorter stall, or a shorter 0x1016 than the master's): the
+    /// master must not take the drive out of Quick stop active with "Enable operation" from its
+    /// stale view; it walks it from Switch on disabled and reports the state change.
+    #[test]
+    fn canopen_master_reports_a_drive_that_stopped_on_the_lost_master_heartbeat() {
+        let mut sim = Sim::new();
+        sim.master.enable(sim.now);
+        sim.run(500);
+        let n = sim.events.len();
+        sim.drive.state = State402::QuickStopActive;
+        sim.master.handle_frame(sim.now, &Emcy { code: 0x8130, register: 0x10, data: [0; 5] }.frame(NODE));
+        sim.run(300);
+        let after = &sim.events[n..];
+        let left = after.iter().position(
+            |e| matches!(e, MasterEvent::StateChanged { state, .. } if *state != State402::OperationEnabled),
+        );
+        let back = after.iter().rposition(|e| *e == MasterEvent::Enabled { node: NODE });
+        assert!(left.is_some() && back > left, "the quick stop went unseen: {after:?}");
+    }
 }

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use super::cia402::{Goal, State402, controlword, next_controlword};
 use super::config::BusConfig;
-use super::emcy::Emcy;
+use super::emcy::{EMCY_HEARTBEAT, Emcy};
 use super::error::{CanopenError, DeviceError, LinkError};
 use super::frame::{CanFrame, Cob, NodeId};
 use super::heartbeat::{ConsumerState, HeartbeatConsumer, HeartbeatProducer};
@@ -563,6 +563,13 @@ impl Master {
 
     /// A frame from the bus at `now`.
     pub fn handle_frame(&mut self, now: Instant, frame: &CanFrame) {
+        // What fell due before this frame is done first. After a stall (a frozen process, a
+        // starved thread) frames have waited in the receive queue and are handled late: a drive's
+        // heartbeat that waited there would otherwise count as heard at `now` and hide a consumer
+        // time that ran out meanwhile (the shell's select takes ready branches in random order).
+        if self.poll_timeout().is_some_and(|t| t <= now) {
+            self.handle_timeout(now);
+        }
         let cob = frame.cob();
         let node = match cob {
             Cob::Heartbeat(n) | Cob::SdoResponse(n) | Cob::Emcy(n) | Cob::Tpdo(_, n) => n,
@@ -592,6 +599,14 @@ impl Master {
                         self.events.push_back(MasterEvent::EmcyReset { node });
                     } else {
                         self.drives[i].last_emcy_code = emcy.code;
+                        if emcy.code == EMCY_HEARTBEAT {
+                            // The drive lost our heartbeat and took its 0x6007 reaction (quick
+                            // stop, disable or fault): what we last read of its state is stale.
+                            // Unknown, it is walked from Switch on disabled and its next TPDO is
+                            // reported as a change, instead of "Enable operation" taking it out
+                            // of Quick stop active (transition 16) unseen.
+                            self.drives[i].state = None;
+                        }
                         tracing::warn!(node, code = emcy.code, class = emcy.class_name(), "EMCY");
                         self.error(
                             DeviceError::Emcy {
