@@ -11,8 +11,13 @@ use crate::se2::Se2;
 /// the product model, with `d` capped at `laser_likelihood_max_dist`.
 ///
 /// `d` is the distance from the endpoint to the nearest *surface cell*'s centre: an occupied cell
-/// with at least one non-occupied 4-neighbour (or on the map's border). Why this and not either of
-/// the two obvious choices:
+/// with a free cell among its 8 neighbours, a face a beam can reach. A wall that the mapping saw
+/// from one side is a band of occupied cells with unknown ones behind it; the band's far side is no
+/// surface (counting it, as this field once did, put a second optimum behind every such wall).
+/// Measured on four public CARMEN logs (`amr bench localize`, seeds 1–5, tracking RMSE): aces
+/// 8.1–9.2 → 8.2–9.2 cm, freiburg-079 7.0–7.3 → 6.2–6.4, freiburg-101 6.1–6.5 → 5.9–6.5, intel
+/// 6.8–6.9 → 6.5–6.6; freiburg-079's global run with seed 4, lost before (9.4 m), 7.3 cm.
+/// Why the surface and not either of the two obvious choices:
 ///
 /// - nav2 (and a plain distance transform) measures to the nearest occupied centre, so `d` is 0
 ///   anywhere inside an obstacle. Where the faces that fix a direction are seen from one side only
@@ -354,22 +359,16 @@ impl LikelihoodField {
     }
 }
 
-/// Occupied cells with a non-occupied 4-neighbour, or on the map's border.
+/// Occupied cells with a free cell among their 8 neighbours: the faces a beam can reach.
 fn surface_cells(grid: &OccupancyGrid) -> Vec<bool> {
     let (w, h) = (grid.width, grid.height);
-    let occ = |i: usize, j: usize| grid.cells[j * w + i] == crate::map::OCCUPIED;
+    let free = |i: usize, j: usize| grid.cells[j * w + i] == crate::map::FREE;
     (0..w * h)
         .map(|k| {
             let (i, j) = (k % w, k / w);
-            occ(i, j)
-                && (i == 0
-                    || j == 0
-                    || i + 1 == w
-                    || j + 1 == h
-                    || !occ(i - 1, j)
-                    || !occ(i + 1, j)
-                    || !occ(i, j - 1)
-                    || !occ(i, j + 1))
+            grid.cells[k] == crate::map::OCCUPIED
+                && (j.saturating_sub(1)..(j + 2).min(h))
+                    .any(|jj| (i.saturating_sub(1)..(i + 2).min(w)).any(|ii| free(ii, jj)))
         })
         .collect()
 }
@@ -377,7 +376,7 @@ fn surface_cells(grid: &OccupancyGrid) -> Vec<bool> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::{FREE, OCCUPIED};
+    use crate::map::{FREE, OCCUPIED, UNKNOWN};
 
     #[test]
     fn factor_by_hand() {
@@ -423,6 +422,37 @@ mod tests {
         f.quantised_distances(&Se2::IDENTITY, &FixedPoints::new(&[[0.06, 0.15], [-3.0, 0.0]]), &mut qd);
         assert_eq!(qd, [3, 255]);
         assert!((f.factor(3) - pz(q(0.025)).ln()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_unseen_side_of_a_wall_is_no_surface() {
+        // A wall two cells thick (columns 4 and 5), seen from the left as a survey sees it: free
+        // before it, unknown behind. Only column 4 borders free space; column 5 borders unknown
+        // cells, which no beam has crossed, so an endpoint there is a cell behind the surface.
+        let mut g = OccupancyGrid::filled(10, 5, 0.1, Se2::IDENTITY, UNKNOWN);
+        for j in 0..5 {
+            for i in 0..4 {
+                g.set(i, j, FREE);
+            }
+            g.set(4, j, OCCUPIED);
+            g.set(5, j, OCCUPIED);
+        }
+        // An occupied cell that touches free space only at a corner is a surface: (8, 1) with
+        // (9, 0) free.
+        g.set(8, 1, OCCUPIED);
+        g.set(9, 0, FREE);
+        // An occupied cell with no free cell anywhere around it is none: (8, 4).
+        g.set(8, 4, OCCUPIED);
+        let surface = surface_cells(&g);
+        let at = |i: usize, j: usize| surface[j * 10 + i];
+        assert!((0..5).all(|j| at(4, j) && !at(5, j)));
+        assert!(at(8, 1) && !at(8, 4));
+        let f = LikelihoodField::new(&g, &crate::amcl::tests::shipped_params(), 10.0);
+        let d = |x: f64| f.distance([x, 0.25]).unwrap();
+        // Fine cells are 0.05 m; the one centred at 0.575 is a cell behind the surface's centre.
+        assert!(d(0.46) < 0.03, "{}", d(0.46));
+        assert!((d(0.56) - 0.125).abs() < 0.01, "{}", d(0.56));
+        assert!(d(0.56) > d(0.46));
     }
 
     #[test]

@@ -207,9 +207,9 @@ fn the_gyro_reads_the_true_yaw_rate_plus_its_bias() {
 fn shipped_study_maps_match_their_sites() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
     let sites = [
-        ("one-sided-hall", one_sided_hall().unwrap(), Se2::new(-20.25, -12.25, 0.0), 810, 410, [2.0, 7.2]),
-        ("corridor", corridor().unwrap(), Se2::new(-20.25, -2.05, 0.0), 810, 82, [3.5, 1.8]),
-        ("short-racks", short_racks().unwrap(), Se2::new(-20.25, -12.25, 0.0), 810, 410, [-5.0, 7.2]),
+        ("one-sided-hall", one_sided_hall().unwrap(), Se2::new(-20.275, -12.275, 0.0), 810, 410, [2.0, 7.2]),
+        ("corridor", corridor().unwrap(), Se2::new(-20.275, -2.075, 0.0), 810, 82, [3.5, 1.8]),
+        ("short-racks", short_racks().unwrap(), Se2::new(-20.275, -12.275, 0.0), 810, 410, [-5.0, 7.2]),
     ];
     for (name, site, origin, w, h, feature) in sites {
         let grid = rasterize_outlines(&site, &site[0], 0.05, origin, w, h);
@@ -233,7 +233,7 @@ fn shipped_study_maps_match_their_sites() {
 #[test]
 fn shipped_paper_site_map_matches_the_site() {
     let site = paper_site().unwrap();
-    let grid = rasterize_outlines(&site, &site[0], 0.05, Se2::new(-5.25, -1.8, 0.0), 210, 76);
+    let grid = rasterize_outlines(&site, &site[0], 0.05, Se2::new(-5.275, -1.825, 0.0), 210, 76);
     let (yaml, image) = save_map(&grid, MapMode::Trinary, 0.65, 0.196, "paper-site.pgm").unwrap();
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
     if std::env::var_os("AMR_WRITE_MAPS").is_some() {
@@ -249,8 +249,8 @@ fn shipped_paper_site_map_matches_the_site() {
 }
 
 /// The world on a grid (any ROS map) sees what it sees on polygons: on the shipped map of the
-/// paper's site, every beam returns in both, a wall's face is one cell nearer (its cells are
-/// those the polygon edges pass through), and another robot is still seen as its polygon.
+/// paper's site, every beam returns in both, a wall's face is half a cell nearer (its cells are
+/// those centred on the polygon edges), and another robot is still seen as its polygon.
 #[test]
 fn a_world_on_a_grid_sees_the_site_as_on_its_polygons() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../config/maps");
@@ -276,14 +276,14 @@ fn a_world_on_a_grid_sees_the_site_as_on_its_polygons() {
     // The other robot is a polygon in both worlds: the same ranges.
     let same = diffs.iter().filter(|d| d.abs() < 1e-9).count();
     assert!(same >= 5, "{same} beams on the other robot");
-    // The site's walls lie on cell borders, so the map's walls take the cells on both sides and
-    // their inner face is one 5 cm cell in front of the polygon's edge: 5 cm more along the
-    // normal, 5 cm / cos(incidence) along a beam (more for a beam grazing a wall).
+    // The map's cells are centred on the site's walls (its origin is half a cell off the round
+    // coordinates), so a wall's cells reach half a 5 cm cell in front of the polygon's edge: 2.5 cm
+    // more along the normal, 2.5 cm / cos(incidence) along a beam (more for a beam grazing a wall).
     let mut walls: Vec<f64> = diffs.into_iter().filter(|d| d.abs() >= 1e-9).collect();
     walls.sort_by(f64::total_cmp);
     let (median, p90) = (walls[walls.len() / 2], walls[walls.len() * 9 / 10]);
     assert!(
-        (0.045..0.08).contains(&median) && p90 < 0.2,
+        (0.022..0.04).contains(&median) && p90 < 0.1,
         "walls nearer by: median {median}, 90th percentile {p90}"
     );
 }
