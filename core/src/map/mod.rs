@@ -94,7 +94,10 @@ impl OccupancyGrid {
 }
 
 /// A map of polygon outlines (walls are polygon edges, as the ray caster sees them): cells an edge
-/// passes through or touches are occupied, cells inside `free_region` are free, the rest unknown.
+/// passes through or touches are occupied, cells inside `free_region` are free, the rest unknown —
+/// the inside of every other outline too (a rack or a column within the room is solid, and no
+/// LiDAR sees into it: a map built from scans leaves it unknown, and AMCL must not draw particles
+/// there).
 #[must_use]
 pub fn rasterize_outlines(
     outlines: &[crate::geometry::Polygon],
@@ -109,12 +112,13 @@ pub fn rasterize_outlines(
     // wall. An edge on a cell border is exactly half a side from both neighbours, so allow for
     // rounding, or such a wall can vanish from the map altogether.
     let half = resolution_m / 2.0 * (1.0 + 1e-9);
+    let obstacles: Vec<&crate::geometry::Polygon> = outlines.iter().filter(|p| *p != free_region).collect();
     for j in 0..height {
         for i in 0..width {
             let c = g.cell_center(i, j);
             if outlines.iter().any(|p| p.distance_to_boundary(c) <= half) {
                 g.set(i, j, OCCUPIED);
-            } else if free_region.contains(c) {
+            } else if free_region.contains(c) && !obstacles.iter().any(|p| p.contains(c)) {
                 g.set(i, j, FREE);
             }
         }
@@ -136,6 +140,16 @@ mod tests {
         assert!(!g.is_occupied(10, 4) && !g.is_occupied(13, 4));
         assert!(g.is_free(7, 4), "the room's middle is free");
         assert_eq!(g.get(0, 0), Some(UNKNOWN), "outside is unknown");
+        // An obstacle within a room, both with their edges on cell centres: the obstacle is solid
+        // and never seen inside.
+        let hall = crate::geometry::Polygon::centered_rectangle(2.0, 1.0).unwrap();
+        let rack = crate::geometry::Polygon::centered_rectangle(0.6, 0.4).unwrap();
+        let g3 = rasterize_outlines(&[hall.clone(), rack], &hall, 0.1, Se2::new(-1.15, -0.65, 0.0), 23, 13);
+        assert!(g3.cell_center(11, 6)[0].abs() < 1e-9 && g3.cell_center(14, 6)[0] > 0.29);
+        assert_eq!(g3.get(11, 6), Some(UNKNOWN), "the inside of a rack is unknown");
+        assert_eq!(g3.get(12, 6), Some(UNKNOWN), "within a cell of its face too");
+        assert!(g3.is_occupied(14, 6) && g3.is_occupied(11, 8), "its faces are walls");
+        assert!(g3.is_free(16, 6) && g3.is_free(11, 10), "the room beside it is free");
         // A wall on cell borders, at an origin where the cell centres do not come out exact in
         // binary: x = 8.0 with 0.05 m cells from −0.5 (this wall once vanished from the map).
         let big = crate::geometry::Polygon::centered_rectangle(16.0, 2.0).unwrap();
