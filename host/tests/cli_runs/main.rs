@@ -1,0 +1,11 @@
+//! The `amr` binary as a user runs it, one test binary (six before, so that the test build links
+//! once): the CLI, `amr eval`, `amr localize` on CARMEN logs and ROS 2 bags, the mocks, recording.
+//! The fleet test (`fleet.rs`) stays on its own: its processes keep real-time deadlines, and
+//! `amr eval` beside it would take the cores they need.
+
+mod cli;
+mod eval;
+mod localize;
+mod mocks;
+mod record;
+mod ros2_bag;
