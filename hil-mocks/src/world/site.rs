@@ -63,14 +63,19 @@ pub fn corridor() -> Result<Vec<Polygon>, PolygonError> {
     Ok(vec![Polygon::new(room)?])
 }
 
-/// The occlusion study's blind-robot site (issue 18 §4), `config/maps/short-racks.*`: the hall of
-/// [`one_sided_hall`] with only three of its racks, against the +y wall from x = −14 to −4 m. A
-/// formation driving on past their end (`short-racks`) sees them only behind its shoulder: the
-/// robot nearest them sees them still, while its neighbour's lines of sight to them pass through
-/// that robot's body (a TiM551 mounted at the front sees nothing beyond 135° from ahead). Nothing
-/// else stands within the LiDARs' 10 m, so the far robot, alone, loses every constraint.
+/// The occlusion study's blind-robot site (issue 18 §4), `config/maps/short-racks.*`: three of
+/// [`one_sided_hall`]'s racks (x from −14 to −4 m) against a partition wall 0.2 m thick that runs
+/// from the hall's −x end wall to the racks' end, in a hall 40 m × 28 m (x from −20 to 20, y from
+/// −12 to 16). A formation driving on past the partition's end (`short-racks`, along y = 2) sees
+/// the racks only behind its shoulder: the robot nearest them sees them still, while its
+/// neighbour's lines of sight to them pass through that robot's body (a TiM551 mounted at the
+/// front sees nothing beyond 135° from ahead). The hall's walls stand 11 m and more from where
+/// the formations drive, out of the LiDARs' 10 m, so the far robot, alone, loses every
+/// constraint. (Until December 2026 the racks stood against the hall's +y wall at y = 8, which
+/// ran on past them 6 m from the formation: the far robot kept its side and heading from it.)
 pub fn short_racks() -> Result<Vec<Polygon>, PolygonError> {
-    let mut out = vec![Polygon::new(rect(-20.0, -12.0, 20.0, 8.0))?];
+    let mut out =
+        vec![Polygon::new(rect(-20.0, -12.0, 20.0, 16.0))?, Polygon::new(rect(-20.0, 8.0, -4.0, 8.2))?];
     for x0 in [-14.0, -10.5, -6.0] {
         out.push(Polygon::new(rect(x0, 7.2, x0 + 2.0, 8.0))?);
     }

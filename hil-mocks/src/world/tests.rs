@@ -209,7 +209,7 @@ fn shipped_study_maps_match_their_sites() {
     let sites = [
         ("one-sided-hall", one_sided_hall().unwrap(), Se2::new(-20.275, -12.275, 0.0), 810, 410, [2.0, 7.2]),
         ("corridor", corridor().unwrap(), Se2::new(-20.275, -2.075, 0.0), 810, 82, [3.5, 1.8]),
-        ("short-racks", short_racks().unwrap(), Se2::new(-20.275, -12.275, 0.0), 810, 410, [-5.0, 7.2]),
+        ("short-racks", short_racks().unwrap(), Se2::new(-20.275, -12.275, 0.0), 810, 570, [-5.0, 7.2]),
     ];
     for (name, site, origin, w, h, feature) in sites {
         let grid = rasterize_outlines(&site, &site[0], 0.05, origin, w, h);
@@ -308,4 +308,31 @@ fn visibility_counts_the_beams_a_neighbour_takes() {
     assert_eq!(v.site_left, v.site_alone - v.on_robots);
     assert_eq!(w.visibility(b, &beams).unwrap().on_robots, v.on_robots);
     assert!(w.visibility(5, &beams).is_none());
+}
+
+/// `short-racks` is the blind-robot site: once the formation (along y = 2, up to 2 m either side)
+/// has passed the partition's end at x = −4, nothing but the racks and the partition behind it
+/// stands within the TiM551's 10 m. Until December 2026 the hall's +y wall ran on 6 m away, and
+/// the far robot kept its side and heading from it.
+#[test]
+fn past_the_short_racks_nothing_else_is_in_range() {
+    let site = short_racks().unwrap();
+    let grid = rasterize_outlines(&site, &site[0], 0.05, Se2::new(-20.275, -12.275, 0.0), 810, 570);
+    let mut behind = 0;
+    for j in 0..grid.height {
+        for i in 0..grid.width {
+            if !grid.is_occupied(i, j) {
+                continue;
+            }
+            let c = grid.cell_center(i, j);
+            let near = [[-4.0, 0.0], [-4.0, 4.0], [0.5, 0.0], [0.5, 4.0]]
+                .iter()
+                .any(|p| (c[0] - p[0]).hypot(c[1] - p[1]) <= 10.0);
+            if near {
+                assert!(c[0] <= -3.95 && c[1] >= 7.15, "a feature at {c:?} in range of the blind stretch");
+                behind += 1;
+            }
+        }
+    }
+    assert!(behind > 200, "the racks and the partition are in range ({behind} cells)");
 }
