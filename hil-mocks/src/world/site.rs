@@ -69,9 +69,9 @@ pub fn corridor() -> Result<Vec<Polygon>, PolygonError> {
 /// −12 to 16). A formation driving on past the partition's end (`short-racks`, along y = 2) sees
 /// the racks only behind its shoulder: the robot nearest them sees them still, while its
 /// neighbour's lines of sight to them pass through that robot's body (a TiM551 mounted at the
-/// front sees nothing beyond 135° from ahead). The hall's walls stand 11 m and more from where
-/// the formations drive, out of the LiDARs' 10 m, so the far robot, alone, loses every
-/// constraint. (Until December 2026 the racks stood against the hall's +y wall at y = 8, which
+/// front sees nothing beyond 135° from ahead). The hall's walls stand 10 m and more from every
+/// robot of the study's formations (13.75 m from two robots 0.5 m apart), at and beyond the
+/// LiDARs' reach, so the far robot, alone, loses every constraint. (Until December 2026 the racks stood against the hall's +y wall at y = 8, which
 /// ran on past them 6 m from the formation: the far robot kept its side and heading from it.)
 pub fn short_racks() -> Result<Vec<Polygon>, PolygonError> {
     let mut out =
