@@ -1,7 +1,7 @@
 //! One server core, three drivers: `amr eval`'s runner, `amr replay`'s engine (fed what a recording
 //! gives back) and the same engine fed what the network link gives back produce the same estimates,
 //! bit for bit, in every configuration. (That the live server's actors and a replay of their
-//! recording agree is `record/tests/record_replay.rs`.)
+//! recording agree is `record/tests/recording/record_replay.rs`.)
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use amr_actors::config::{ConfigSource, load};

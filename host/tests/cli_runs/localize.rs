@@ -31,8 +31,9 @@ fn write_inputs(dir: &Path) -> Vec<(f64, Se2)> {
     let mut rng = Rng::seed(4);
     let mut truth = Se2::new(1.0, 1.0, 0.0);
     let mut odom = Se2::new(10.0, -3.0, 1.0);
-    let mut log =
-        String::from("# synthetic log written by host/tests/localize.rs\nPARAM robot_frontlaser_max 80\n");
+    let mut log = String::from(
+        "# synthetic log written by host/tests/cli_runs/localize.rs\nPARAM robot_frontlaser_max 80\n",
+    );
     let mut scans = Vec::new();
     let mut t = 100.0;
     for k in 0..120 {

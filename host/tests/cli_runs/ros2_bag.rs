@@ -21,7 +21,7 @@ use amr_core::rng::Rng;
 use amr_core::se2::{Se2, angle_diff};
 use serde_json::{Value, json};
 
-/// An L-shaped room with a pillar: asymmetric, so a pose is unique (as host/tests/localize.rs).
+/// An L-shaped room with a pillar: asymmetric, so a pose is unique (as host/tests/cli_runs/localize.rs).
 fn world() -> (Polygon, Vec<Polygon>) {
     let room =
         Polygon::new(vec![[0.0, 0.0], [8.0, 0.0], [8.0, 3.0], [5.0, 3.0], [5.0, 5.0], [0.0, 5.0]]).unwrap();
