@@ -80,6 +80,11 @@ pub struct HeadingParams {
     /// A best score less than this many times the runner-up (the best more than 1° away) is a
     /// failed estimate: the peak is not distinct.
     pub min_peak_ratio: Positive,
+    /// Ours: a best angle matched by fewer source points than this is a failed estimate, whatever
+    /// its score: a score is a share of the source points, and where the scans barely overlap a
+    /// peak of one or two chance matches still stands out. Absent: any count (the paper).
+    #[serde(default)]
+    pub min_matches: Option<Count>,
     /// A refined estimate further than this from the prediction (the last heading carried
     /// forward by both robots' odometry) is refused as an outlier; absent: none is (the paper).
     #[serde(default)]

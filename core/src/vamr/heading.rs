@@ -158,6 +158,12 @@ impl HeadingEstimate {
     pub fn margin(&self) -> f64 {
         self.score - self.runner_up
     }
+
+    /// The source points matched at the best angle.
+    #[must_use]
+    pub fn matches(&self) -> u32 {
+        self.counts.iter().copied().max().unwrap_or(0)
+    }
 }
 
 impl<'a> HeadingProblem<'a> {

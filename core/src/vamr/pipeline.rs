@@ -64,9 +64,9 @@ pub enum Source {
     FullSearch,
     /// The heading search ran around the previous estimate.
     RefinedSearch,
-    /// The search failed (score below `min_score` or no distinct peak) or its estimate was
-    /// refused (`prior_gate_deg` from the prediction): the previous estimate, carried forward by
-    /// the robots' odometry, was used.
+    /// The search failed (score below `min_score`, no distinct peak, or fewer matches than
+    /// `min_matches`) or its estimate was refused (`prior_gate_deg` from the prediction): the
+    /// previous estimate, carried forward by the robots' odometry, was used.
     PreviousHeading,
 }
 
@@ -403,7 +403,9 @@ impl Pipeline {
                 report.heading_score = estimate.as_ref().map(|e| e.score);
                 report.heading_margin = estimate.as_ref().map(|e| e.margin());
                 let distinct = |e: &super::heading::HeadingEstimate| {
-                    e.score >= h.min_score.get() && e.score >= h.min_peak_ratio.get() * e.runner_up
+                    e.score >= h.min_score.get()
+                        && e.score >= h.min_peak_ratio.get() * e.runner_up
+                        && h.min_matches.is_none_or(|m| e.matches() >= m.get())
                 };
                 // A refined estimate far from the prediction is refused; after MAX_REFUSED in a
                 // row the prediction is the suspect, and the next update searches the full circle.

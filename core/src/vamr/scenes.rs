@@ -528,6 +528,44 @@ fn a_failed_acquisition_falls_back_on_the_formations_heading() {
     );
 }
 
+/// A peak matched by fewer than `heading.min_matches` source points is a failed search, however
+/// distinct: robot 1's scan cut down to its returns within ±5° of straight ahead (the wall ahead,
+/// where a turn moves the points along the wall) peaks at 5 of 11 points, 1.6° from its true heading,
+/// and passes the score and peak-ratio tests; only the count refuses it. Within ±10° (more matches)
+/// the estimate stands either way.
+#[test]
+fn a_peak_of_few_matches_is_a_failed_search() {
+    let w = site();
+    let poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 1.0)];
+    let full: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    for half_deg in [5.0, 10.0] {
+        let ranges: Vec<f64> = (0..full[1].len())
+            .map(|k| {
+                if full[1].angle(k).to_degrees().abs() <= half_deg { full[1].ranges_m()[k] } else { f64::NAN }
+            })
+            .collect();
+        let scans = [full[0].clone(), full[1].with_ranges(ranges)];
+        for min_matches in [None, Some(8)] {
+            let mut params = shipped_params();
+            params.heading.min_matches = min_matches.map(|m| crate::config::value::Count::new(m).unwrap());
+            let mut p = Pipeline::new(2, params, Configuration::T4, 0.05, 0.1);
+            p.set_expected(1, [0.0, -0.9], 0.5);
+            p.set_expected_heading(1, 0.0);
+            let out = p.update(&packets(&w, &scans, &poses, false)).unwrap();
+            let pair = &out.pairs[0];
+            let theta = out.relative[1].theta.to_degrees();
+            let refused = half_deg < 8.0 && min_matches.is_some();
+            let want = if refused { Source::PreviousHeading } else { Source::FullSearch };
+            assert_eq!(pair.heading_source, want, "±{half_deg}°, {min_matches:?}: {pair:?}");
+            if refused {
+                assert!(theta.abs() < 1e-9, "the formation's heading stands: {theta}°");
+            } else {
+                assert!(theta.abs() > 1e-9, "the search's heading: {theta}°");
+            }
+        }
+    }
+}
+
 /// Heading-search failures and the worst heading error (degrees) of `updates` T4 updates of a
 /// [`super::synthetic::Team::fan`] of `robots` at `beams`, the acquisition first.
 fn fan_headings(
