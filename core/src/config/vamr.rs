@@ -98,6 +98,11 @@ pub struct HeadingParams {
     /// Ours: the uncertainty (1σ) of one refined estimate, for the blend above.
     #[serde(default)]
     pub search_sigma_deg: Option<Positive>,
+    /// Ours: the blend also learns the rate at which the two robots' odometry headings drift
+    /// apart (the residuals of their gyro biases), whose prior 1σ this is, and carries the
+    /// heading forward with it. Absent: a random walk only.
+    #[serde(default)]
+    pub drift_rate_sigma_deg_per_s: Option<Positive>,
     /// Ours: Eq. 11 counts a source point that lands within ε_d of the target scan's surface (the
     /// segments between neighbouring beams whose ranges differ by at most this), not only of its
     /// points. Absent: points only (the paper).

@@ -131,6 +131,64 @@ pub enum UpdateError {
 /// before the prediction is questioned by a full search: 1 s of scans at 15 Hz.
 pub const MAX_REFUSED: u32 = 15;
 
+/// Memory of the drift rate's estimate, s: its variance grows by its prior's over this long (the
+/// robots' gyro biases wander with temperature, and a robot standing still learns its bias again).
+pub const DRIFT_RATE_MEMORY_S: f64 = 60.0;
+
+/// The blend of a kept relative heading and the searches' estimates: a Kalman filter whose state
+/// is the error of the heading carried by both robots' odometry and, with
+/// `heading.drift_rate_sigma_deg_per_s`, the rate at which their odometry headings drift apart (the
+/// residuals of their gyro biases). Without that key the rate stays 0 and this is the scalar blend.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct HeadingBlend {
+    /// Covariance of (heading, drift rate): rad², rad²/s, rad²/s².
+    p: [[f64; 2]; 2],
+    /// The drift rate learnt, rad/s, added to the odometry's prediction.
+    rate: f64,
+    /// The rate's prior variance, rad²/s² (0: no rate).
+    rate_var: f64,
+}
+
+impl HeadingBlend {
+    fn new(heading_var: f64, params: &crate::config::HeadingParams) -> Self {
+        let rate_var = params.drift_rate_sigma_deg_per_s.map_or(0.0, |s| s.get().to_radians().powi(2));
+        HeadingBlend { p: [[heading_var, 0.0], [0.0, rate_var]], rate: 0.0, rate_var }
+    }
+
+    /// `dt` seconds of odometry: the heading's variance grows by `white_var` per second (the
+    /// gyros' white noise) and by what the rate's uncertainty makes of `dt`.
+    fn predict(&mut self, dt: f64, white_var: f64) {
+        let [[a, b], [_, d]] = self.p;
+        let p01 = b + d * dt;
+        self.p = [
+            [a + 2.0 * b * dt + d * dt * dt + white_var * dt, p01],
+            [p01, d + self.rate_var * dt / DRIFT_RATE_MEMORY_S],
+        ];
+    }
+
+    /// A search's estimate, `innovation` from the prediction, with variance `r`: returns the
+    /// heading's correction (and corrects the rate).
+    fn update(&mut self, innovation: f64, r: f64) -> f64 {
+        let [[a, b], [_, d]] = self.p;
+        let s = a + r;
+        if s <= 0.0 {
+            return 0.0;
+        }
+        let (k0, k1) = (a / s, b / s);
+        self.rate += k1 * innovation;
+        let p01 = (1.0 - k0) * b;
+        self.p = [[(1.0 - k0) * a, p01], [p01, d - k1 * b]];
+        k0 * innovation
+    }
+
+    /// The heading is replaced (a full search, or the formation's guess) with variance `var`;
+    /// what is known of the rate stays.
+    fn restart(&mut self, var: f64) {
+        self.p[0] = [var, 0.0];
+        self.p[1][0] = 0.0;
+    }
+}
+
 /// The pipeline's state across updates: one tracker and one heading per non-reference robot.
 #[derive(Debug)]
 pub struct Pipeline {
@@ -150,9 +208,10 @@ pub struct Pipeline {
     /// search sweeps the full circle; the heading carried by odometry stays as the fallback
     /// should that search find nothing.
     reacquire: Vec<bool>,
-    /// Per non-reference robot: the kept heading's variance (rad²) and when it was last carried
-    /// forward (`heading.drift_deg_per_sqrt_s` and `search_sigma_deg`).
-    heading_var: Vec<f64>,
+    /// Per non-reference robot: the blend of its kept heading and the searches, and when the
+    /// heading was last carried forward (`heading.drift_deg_per_sqrt_s`, `search_sigma_deg`,
+    /// `drift_rate_sigma_deg_per_s`).
+    blends: Vec<HeadingBlend>,
     heading_t: Vec<Option<f64>>,
     /// Where each non-reference robot is expected (its formation slot, in its observer's frame):
     /// the search area while its track is being acquired.
@@ -181,7 +240,7 @@ impl Pipeline {
             heading_yaws: vec![None; others],
             refused: vec![0; others],
             reacquire: vec![false; others],
-            heading_var: vec![0.0; others],
+            blends: vec![HeadingBlend::new(0.0, &params.heading); others],
             heading_t: vec![None; others],
             expected: vec![None; others],
             observers: vec![0; others],
@@ -247,6 +306,7 @@ impl Pipeline {
         if let Some(i) = robot.checked_sub(1).filter(|i| *i < self.trackers.len()) {
             self.trackers[i] = Tracker::new(self.params.tracker);
             self.headings[i] = None;
+            self.blends[i] = HeadingBlend::new(0.0, &self.params.heading);
             self.refused[i] = 0;
             self.reacquire[i] = false;
         }
@@ -375,18 +435,21 @@ impl Pipeline {
             lap(Stage::Tracking);
             let theta = if let Some(target) = &targets[observer] {
                 let h = &self.params.heading;
-                // The kept heading, carried forward by both robots' odometry turns since.
+                // The kept heading, carried forward by both robots' odometry turns since, and by
+                // the rate at which their odometry headings drift apart, as far as it is learnt.
+                let dt = self.heading_t[i - 1].map_or(0.0, |t0| (t_s - t0).max(0.0));
                 let yaws = other.odom.zip(reference.odom).map(|(a, b)| (a.theta, b.theta));
                 if let (Some(prev), Some((ti, to)), Some((pi, po))) =
                     (self.headings[i - 1], yaws, self.heading_yaws[i - 1])
                 {
                     self.headings[i - 1] = Some(crate::se2::normalize_angle(
-                        prev + crate::se2::angle_diff(ti, pi) - crate::se2::angle_diff(to, po),
+                        prev + crate::se2::angle_diff(ti, pi) - crate::se2::angle_diff(to, po)
+                            + self.blends[i - 1].rate * dt,
                     ));
                 }
                 self.heading_yaws[i - 1] = yaws;
-                if let (Some((drift, _)), Some(t0)) = (h.blend_rad(), self.heading_t[i - 1]) {
-                    self.heading_var[i - 1] += drift * drift * (t_s - t0).max(0.0);
+                if let Some((drift, _)) = h.blend_rad() {
+                    self.blends[i - 1].predict(dt, drift * drift);
                 }
                 self.heading_t[i - 1] = Some(t_s);
                 let full = std::mem::take(&mut self.reacquire[i - 1]);
@@ -424,15 +487,12 @@ impl Pipeline {
                     Some(e) => {
                         let theta = match (h.blend_rad(), predicted) {
                             (Some((_, sigma)), Some(prior)) if mode == Source::RefinedSearch => {
-                                let var = self.heading_var[i - 1];
-                                let gain = var / (var + sigma * sigma);
-                                self.heading_var[i - 1] = (1.0 - gain) * var;
-                                crate::se2::normalize_angle(
-                                    prior + gain * crate::se2::angle_diff(e.theta_rad, prior),
-                                )
+                                let innovation = crate::se2::angle_diff(e.theta_rad, prior);
+                                let step = self.blends[i - 1].update(innovation, sigma * sigma);
+                                crate::se2::normalize_angle(prior + step)
                             }
                             (blend, _) => {
-                                self.heading_var[i - 1] = blend.map_or(0.0, |(_, sigma)| sigma * sigma);
+                                self.blends[i - 1].restart(blend.map_or(0.0, |(_, sigma)| sigma * sigma));
                                 e.theta_rad
                             }
                         };
@@ -458,7 +518,7 @@ impl Pipeline {
                         if self.headings[i - 1].is_none() {
                             // The formation's heading is a guess: the next estimates replace it.
                             self.headings[i - 1] = self.expected_headings[i - 1];
-                            self.heading_var[i - 1] = h.refine_window_deg.get().to_radians().powi(2);
+                            self.blends[i - 1].restart(h.refine_window_deg.get().to_radians().powi(2));
                         }
                         self.headings[i - 1].ok_or(UpdateError::NoHeading { robot: i, why: "search failed" })
                     }

@@ -502,6 +502,43 @@ fn a_refined_heading_is_blended_with_the_odometrys_prediction() {
     assert!((last - 5.0).abs() < 0.2, "the searched heading in the end: {headings:?}");
 }
 
+/// Robot 1's odometry heading drifts from the truth at a steady 0.1°/s (a residual gyro bias). While
+/// its searches succeed, the blend learns that rate; when robot 1's scan is then lost for 10 s, the
+/// heading carried forward keeps to the truth. Without `drift_rate_sigma_deg_per_s` it drifts
+/// with the odometry.
+#[test]
+fn the_blend_learns_the_rate_at_which_the_odometry_headings_drift_apart() {
+    let w = site();
+    let poses = [Se2::new(0.0, 0.45, 0.0), Se2::from_degrees(0.0, -0.45, 4.0)];
+    let scans: Vec<Scan> = (0..2).map(|i| w.scan(&poses, i)).collect();
+    let blank = [scans[0].clone(), scans[1].with_ranges(vec![f64::NAN; scans[1].len()])];
+    let hz = 15.0;
+    let mut last = Vec::new();
+    for learn in [true, false] {
+        let mut params = shipped_params();
+        assert!(params.heading.drift_rate_sigma_deg_per_s.is_some(), "shipped with the rate");
+        if !learn {
+            params.heading.drift_rate_sigma_deg_per_s = None;
+        }
+        let mut p = Pipeline::new(2, params, Configuration::T4, 0.05, 0.1);
+        p.set_expected(1, [0.0, -0.9], 0.5);
+        let mut theta = f64::NAN;
+        for k in 0..450 {
+            let t = f64::from(k) / hz;
+            let odom = [poses[0], Se2::from_degrees(0.0, -0.45, 4.0 + 0.1 * t)];
+            let seen = if k < 300 { &scans[..] } else { &blank[..] };
+            let out = p.update(&odometered(&w, seen, odom, t)).unwrap();
+            if k >= 300 {
+                assert_eq!(out.pairs[0].heading_source, Source::PreviousHeading, "update {k}");
+            }
+            theta = out.relative[1].theta.to_degrees();
+        }
+        last.push(theta);
+    }
+    assert!((last[0] - 4.0).abs() < 0.2, "with the rate learnt: {:.3}° after 10 s blind", last[0]);
+    assert!((last[1] - 4.0).abs() > 0.5, "without it the odometry's drift: {:.3}°", last[1]);
+}
+
 /// Acquiring a heading that finds no distinct peak (robot 1's scan lost): with the formation's
 /// expected heading the update fuses with it (to be refined by later searches); without, it has
 /// no heading at all.
