@@ -132,6 +132,13 @@ pub(crate) fn drill(
         let known: Vec<&str> = amr_sim::drills::DRILLS.iter().map(|d| d.name).collect();
         anyhow::bail!("no drill `{name}` (have: all, {})", known.join(", "));
     };
+    let least = amr_sim::drills::SOAK_MIN.as_secs();
+    if names.contains(&"soak") && soak_seconds < least {
+        anyhow::bail!(
+            "--soak-seconds {soak_seconds} is too short: the soak injects a fault every 3-6 s and must see \
+             at least 3 of 3 kinds, so it needs at least {least} s (default 600)"
+        );
+    }
     let outcomes = runtime()?.block_on(async {
         let mut out = Vec::new();
         for n in names {

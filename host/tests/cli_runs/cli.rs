@@ -129,3 +129,17 @@ fn version_and_help() {
     let usage = amr(&["config", "frobnicate"], Path::new("."), &[]);
     assert_eq!(usage.status.code(), Some(2), "clap's usage error");
 }
+
+#[test]
+fn a_soak_too_short_to_mean_anything_is_refused_before_any_drill_runs() {
+    let out = amr(&["drill", "all", "--soak-seconds", "5"], Path::new("."), &[("RUST_LOG", "info")]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("--soak-seconds 5 is too short") && err.contains("30 s"), "{err}");
+    // Refused up front, not after the other drills' minutes: none started.
+    assert!(!err.contains("running"), "{err}");
+    assert!(text(&out.stdout).is_empty(), "{}", text(&out.stdout));
+    // The soak's floor is not a hurdle for one of the other drills.
+    let list = amr(&["drill", "list", "--soak-seconds", "5"], Path::new("."), &[]);
+    assert!(list.status.success(), "{}", text(&list.stderr));
+}

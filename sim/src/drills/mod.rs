@@ -304,7 +304,9 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
     Some(c.finish())
 }
 
-/// The soak drill for `length` (CI runs a shortened one).
+pub use soak::SOAK_MIN;
+
+/// The soak drill for `length` (CI runs a shortened one; at least [`SOAK_MIN`] to mean anything).
 pub async fn soak(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
     let mut c = Check::new("soak");
     soak::soak(config, seed, length, &mut c).await;

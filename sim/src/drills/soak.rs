@@ -46,6 +46,11 @@ use amr_actors::server::formation::Phase;
 /// The full soak: 10 minutes.
 pub const SOAK_FULL: Duration = Duration::from_secs(600);
 
+/// The shortest soak that means something: the first fault comes after 2 s, each lasts 1 s and
+/// the next follows 3–6 s later, so 30 s injects at least four, and the check wants three of
+/// three kinds. `amr drill` refuses a shorter one.
+pub const SOAK_MIN: Duration = Duration::from_secs(30);
+
 /// After Fault or EStop, every target zero within this.
 const ACTUATE_GRACE: Duration = Duration::from_millis(100);
 const LINK_DEADLINE: Duration = Duration::from_millis(350);
