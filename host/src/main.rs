@@ -131,6 +131,11 @@ enum Command {
         /// A scenario (name or file) for --study; repeat for several.
         #[arg(long = "study-scenario", value_name = "SCENARIO", requires = "study")]
         study_scenarios: Vec<String>,
+        /// For --study: a configuration whose --trials leave issue 18 §4's criterion open (its
+        /// margin within two standard errors of T4 − min(T1, T2, T3)) runs this many trials in all,
+        /// the same first ones and the next (0: none does).
+        #[arg(long, value_name = "N", default_value_t = 50, requires = "study")]
+        confirm_trials: usize,
         /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
         /// this file for one trial, FILE-<seed>.mcap for several.
         #[arg(long, value_name = "FILE.mcap")]
@@ -597,6 +602,7 @@ fn main() -> ExitCode {
             budget,
             study,
             study_scenarios,
+            confirm_trials,
             record,
             foxglove,
         } => (|| {
@@ -608,7 +614,7 @@ fn main() -> ExitCode {
                     } else {
                         study_scenarios
                     };
-                    study_cmd::occlusion(&config, &scenarios, map, trials, seed, &out)?
+                    study_cmd::occlusion(&config, &scenarios, map, trials, confirm_trials, seed, &out)?
                 }
                 None if budget => study_cmd::budget(&config, &scenario, map, robots, trials, seed, &out)?,
                 Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,

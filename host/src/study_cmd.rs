@@ -117,6 +117,34 @@ fn over_margin(d: &MeanSd) -> (bool, bool) {
 /// Issue 18 §4's margin: how much worse than the best of T1–T3 T4 may be, cm.
 const MARGIN_CM: f64 = 0.5;
 
+/// Whether the trials leave the criterion open: the margin lies within two standard errors of the
+/// paired difference's mean, so these trials can say neither that T4 holds it nor that it misses
+/// it. (One trial has no spread to judge by: never open.)
+fn verdict_open(d: &MeanSd) -> bool {
+    let se = standard_error(d);
+    d.n > 1 && d.mean - 2.0 * se <= MARGIN_CM && d.mean + 2.0 * se > MARGIN_CM
+}
+
+/// T1–T4 of one configuration on `trials` trials from `seed` (`run(first seed, count)`), and on
+/// `confirm` in all (the same first ones and the next) when those leave the criterion open: the
+/// trials' spread, not the configurations', decided it. Sets the row's figures and trial count.
+fn run_row(
+    row: &mut StudyRow,
+    trials: usize,
+    confirm: usize,
+    seed: u64,
+    run: &mut dyn FnMut(u64, usize) -> Vec<Trial>,
+) -> Vec<Trial> {
+    let mut results = run(seed, trials);
+    row.figures = CONFIGS.iter().map(|k| (*k, figures(&results, *k))).collect();
+    if confirm > trials && row.t4_over_best_paired_cm().is_some_and(|d| verdict_open(&d)) {
+        results.extend(run(seed.wrapping_add(trials as u64), confirm - trials));
+        row.figures = CONFIGS.iter().map(|k| (*k, figures(&results, *k))).collect();
+    }
+    row.trials = results.len();
+    results
+}
+
 fn cm(f: &Figures) -> String {
     f.rmse.map_or("—".into(), |m| format!("{:.2} ± {:.2}", 100.0 * m.mean, 100.0 * m.sd))
 }
@@ -236,6 +264,9 @@ struct StudyRow {
     spacing_m: f64,
     /// Why the configuration was not run (the formation does not fit the site), if it was not.
     skipped: Option<String>,
+    /// Trials run: the study's count, or its confirmation count where those left the criterion
+    /// open ([`verdict_open`]).
+    trials: usize,
     /// T1–T4.
     figures: Vec<(Configuration, Figures)>,
     /// Per robot, mean over trials: share of its beams on other robots' bodies.
@@ -293,6 +324,8 @@ impl StudyRow {
 struct StudyReport<'a> {
     map: MapSource,
     trials: usize,
+    /// Trials of a configuration whose first `trials` left the criterion open.
+    confirm_trials: usize,
     seed: u64,
     spacings_m: &'a [f64],
     teams: &'a [usize],
@@ -317,6 +350,7 @@ pub(crate) fn occlusion(
     scenarios: &[String],
     map: MapSource,
     trials: usize,
+    confirm_trials: usize,
     seed: u64,
     out_dir: &Path,
 ) -> anyhow::Result<PathBuf> {
@@ -342,6 +376,7 @@ pub(crate) fn occlusion(
                     robots,
                     spacing_m: spacing,
                     skipped: None,
+                    trials: 0,
                     figures: Vec::new(),
                     occluded: Vec::new(),
                     site_left: Vec::new(),
@@ -356,8 +391,11 @@ pub(crate) fn occlusion(
                             None => surveys = Some(s.map.clone()),
                         }
                         let what = format!("{} · {robots} robots · {spacing} m", chosen.stem);
-                        let results = run_trials(&s, seed, trials, &what);
-                        row.figures = CONFIGS.iter().map(|k| (*k, figures(&results, *k))).collect();
+                        let results = run_row(&mut row, trials, confirm_trials, seed, &mut |from, count| {
+                            let what =
+                                if from == seed { what.clone() } else { format!("{what} · confirming") };
+                            run_trials(&s, from, count, &what)
+                        });
                         let n = results.len().max(1) as f64;
                         let mean = |f: fn(&amr_sim::eval::View) -> f64| -> Vec<f64> {
                             (0..robots)
@@ -386,7 +424,15 @@ pub(crate) fn occlusion(
     }
     let dir = out_dir.join("study-occlusion");
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let report = StudyReport { map, trials, seed, spacings_m: &SPACINGS_M, teams: &TEAMS, rows: &rows };
+    let report = StudyReport {
+        map,
+        trials,
+        confirm_trials,
+        seed,
+        spacings_m: &SPACINGS_M,
+        teams: &TEAMS,
+        rows: &rows,
+    };
     std::fs::write(dir.join("study.json"), serde_json::to_string_pretty(&report)? + "\n")?;
     let mut md = study_markdown(&report);
     let _ = writeln!(md, "\n## Plots\n");
@@ -424,7 +470,7 @@ pub(crate) fn occlusion(
 
 fn study_markdown(r: &StudyReport<'_>) -> String {
     let mut md = format!(
-        "# amr eval --study occlusion: {} trials per configuration from seed {}, AMCL's map {}\n\n\
+        "# amr eval --study occlusion: {} trials per configuration from seed {}, AMCL's map {}\n\n{}\
          Trial-level 2D RMSE of V against the truth, cm (mean ± SD over trials); in brackets, trials that \
          diverged (error above {DIVERGED_M} m at some scan, or no estimate at all). Per robot (robot 0 first): \
          the share of its beams on other robots' bodies (occluded %), the share of the site returns it would \
@@ -438,6 +484,15 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
         match r.map {
             MapSource::Surveyed => "surveyed",
             MapSource::True => "true",
+        },
+        if r.confirm_trials > r.trials {
+            format!(
+                "Where those trials leave the criterion below open (the margin within two standard errors of Δ), \
+                 the configuration runs {} trials in all, the same first ones and the next: its Δ shows the count.\n\n",
+                r.confirm_trials
+            )
+        } else {
+            String::new()
         },
     );
     for row in r.rows {
@@ -464,7 +519,11 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
             cell(Configuration::T2),
             cell(Configuration::T3),
             cell(Configuration::T4),
-            row.t4_over_best_paired_cm().map_or("—".into(), |d| with_se(&d)),
+            row.t4_over_best_paired_cm().map_or("—".into(), |d| if row.trials == r.trials {
+                with_se(&d)
+            } else {
+                format!("{} ({} trials)", with_se(&d), row.trials)
+            }),
             pct(&row.occluded),
             pct(&row.site_left),
             pct(&row.site_share),
@@ -475,13 +534,15 @@ fn study_markdown(r: &StudyReport<'_>) -> String {
         run.iter().filter_map(|x| x.t4_over_best_paired_cm()).map(|d| over_margin(&d)).collect();
     let worse = judged.iter().filter(|j| j.0).count();
     let beyond_noise = judged.iter().filter(|j| j.1).count();
+    let confirmed = run.iter().filter(|x| x.trials > r.trials).count();
     let _ = writeln!(
         md,
-        "\n{} configurations run, {} skipped (the formation does not fit the site); T4 more than {MARGIN_CM} cm \
-         worse than the best of T1–T3 in {worse}, and by more than two standard errors beyond that in \
-         {beyond_noise}.",
+        "\n{} configurations run, {} skipped (the formation does not fit the site), {confirmed} of them on {} \
+         trials; T4 more than {MARGIN_CM} cm worse than the best of T1–T3 in {worse}, and by more than two \
+         standard errors beyond that in {beyond_noise}.",
         run.len(),
-        r.rows.len() - run.len()
+        r.rows.len() - run.len(),
+        r.confirm_trials,
     );
     let _ = writeln!(
         md,
@@ -552,5 +613,93 @@ mod tests {
         assert_eq!(over_margin(&noisy), (true, false));
         assert_eq!(over_margin(&MeanSd { mean: 0.4, sd: 0.0, n: 5 }), (false, false));
         assert!(paired_difference_cm(&t4, &best[..3]).is_none());
+    }
+
+    /// A trial whose V errs by a constant `rmse_m[k]` in configuration `CONFIGS[k]`.
+    fn trial(seed: u64, rmse_m: [f64; 4]) -> Trial {
+        let series = CONFIGS
+            .iter()
+            .zip(rmse_m)
+            .map(|(c, r)| {
+                let truth = vec![amr_core::metrics::Sample { e_x: r, e_y: 0.0 }; 3];
+                (*c, amr_sim::eval::Series { robots: vec![truth.clone()], truth, ..Default::default() })
+            })
+            .collect();
+        Trial {
+            seed,
+            scans: 3,
+            series,
+            times_s: vec![0.0; 3],
+            truth_v: vec![[0.0; 3]; 3],
+            truth_robots: Vec::new(),
+            final_particles_t4: Vec::new(),
+            visibility: Vec::new(),
+        }
+    }
+
+    fn row() -> StudyRow {
+        StudyRow {
+            scenario: "s".into(),
+            site: "s".into(),
+            motion: "straight",
+            robots: 2,
+            spacing_m: 1.0,
+            skipped: None,
+            trials: 0,
+            figures: Vec::new(),
+            occluded: Vec::new(),
+            site_left: Vec::new(),
+            site_share: Vec::new(),
+        }
+    }
+
+    /// Only a configuration whose trials leave the criterion open runs the confirmation trials: the
+    /// same first seeds and the next, and its figures are of all of them.
+    #[test]
+    fn an_open_verdict_is_settled_on_more_trials_and_a_clear_one_is_not() {
+        // T4 − T2 per trial, cm, by seed: the first three straddle the margin (+0.6 ± 0.31), the
+        // next seven hold it.
+        let d_cm = |seed: u64| match seed {
+            100 => 1.2,
+            101 => 0.1,
+            102 => 0.5,
+            _ => -0.3,
+        };
+        let mut calls = Vec::new();
+        let mut r = row();
+        let out = run_row(&mut r, 3, 10, 100, &mut |from, count| {
+            calls.push((from, count));
+            (from..from + count as u64)
+                .map(|s| trial(s, [0.05, 0.03, 0.04, 0.03 + d_cm(s) / 100.0]))
+                .collect()
+        });
+        assert_eq!(calls, [(100, 3), (103, 7)]);
+        assert_eq!(r.trials, 10);
+        assert_eq!(out.iter().map(|t| t.seed).collect::<Vec<_>>(), (100..110).collect::<Vec<_>>());
+        let d = r.t4_over_best_paired_cm().unwrap();
+        assert_eq!(d.n, 10);
+        assert!((d.mean - (1.8 - 2.1) / 10.0).abs() < 1e-9, "{d:?}");
+        assert!(!verdict_open(&d), "{d:?}");
+
+        // Clearly held, and clearly missed: three trials say so, and no more run.
+        for t4 in [0.028, 0.04] {
+            let mut calls = 0;
+            let mut r = row();
+            run_row(&mut r, 3, 10, 100, &mut |from, count| {
+                calls += 1;
+                (from..from + count as u64)
+                    .map(|s| trial(s, [0.05, 0.03, 0.04, t4 + s as f64 * 1e-5]))
+                    .collect()
+            });
+            assert_eq!((calls, r.trials), (1, 3), "T4 {t4}");
+        }
+        // No confirmation asked for: none.
+        let mut r = row();
+        run_row(&mut r, 3, 0, 100, &mut |from, count| {
+            (from..from + count as u64)
+                .map(|s| trial(s, [0.05, 0.03, 0.04, 0.03 + d_cm(s) / 100.0]))
+                .collect()
+        });
+        assert_eq!(r.trials, 3);
     }
 }

@@ -192,7 +192,8 @@ fn the_occlusion_study_runs_every_team_and_spacing_on_a_scenario_file() {
     short_config(&config);
     let scenario = hall(tmp.path(), 0.3);
     let run = Command::new(env!("CARGO_BIN_EXE_amr"))
-        .args(["eval", "--study", "occlusion", "--trials", "1", "--seed", "3", "--study-scenario"])
+        .args(["eval", "--study", "occlusion", "--trials", "1", "--confirm-trials", "3", "--seed", "3"])
+        .arg("--study-scenario")
         .arg(&scenario)
         .arg("--config")
         .arg(&config)
@@ -235,8 +236,13 @@ fn the_occlusion_study_runs_every_team_and_spacing_on_a_scenario_file() {
     // Three abreast the middle robot loses about twice the beams to its neighbours.
     let occluded = |r: &serde_json::Value| r["occluded"][0].as_f64().unwrap();
     assert!(occluded(three) > 1.6 * occluded(two) && occluded(two) > 0.1, "{two} {three}");
+    // One trial has no spread to leave the criterion open: no configuration ran the confirmation.
+    for r in rows.iter().filter(|r| r["skipped"].is_null()) {
+        assert_eq!(r["trials"], 1, "{r}");
+    }
     let md = std::fs::read_to_string(dir.join("study.md")).unwrap();
     assert!(md.contains("| hall-run | straight | 2 | 0.5 |") && md.contains("hall-run.png"), "{md}");
+    assert!(md.contains("runs 3 trials in all") && md.contains("0 of them on 3 trials"), "{md}");
     let worst_table = md.split("## The worst-placed robot").nth(1).unwrap_or_default();
     assert!(worst_table.contains("| hall-run | straight | 3 | 0.5 |"), "{md}");
     assert!(dir.join("hall-run.png").is_file());
