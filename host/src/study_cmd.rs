@@ -278,6 +278,23 @@ struct StudyRow {
 }
 
 impl StudyRow {
+    /// A configuration not yet run.
+    fn new(scenario: String, site: String, motion: &'static str, robots: usize, spacing_m: f64) -> Self {
+        StudyRow {
+            scenario,
+            site,
+            motion,
+            robots,
+            spacing_m,
+            skipped: None,
+            trials: 0,
+            figures: Vec::new(),
+            occluded: Vec::new(),
+            site_left: Vec::new(),
+            site_share: Vec::new(),
+        }
+    }
+
     /// One of configuration `c`'s figures (`pick`: V's RMSE or the worst robot's), mean, cm.
     fn mean_cm(&self, c: Configuration, pick: fn(&Figures) -> Option<MeanSd>) -> Option<f64> {
         self.figures.iter().find(|(k, _)| *k == c).and_then(|(_, f)| pick(f)).map(|m| 100.0 * m.mean)
@@ -369,19 +386,8 @@ pub(crate) fn occlusion(
                     c.scenario.laps =
                         amr_core::config::value::Count::new(STUDY_LAPS).map_err(anyhow::Error::msg)?;
                 }
-                let mut row = StudyRow {
-                    scenario: chosen.stem.clone(),
-                    site: site.clone(),
-                    motion: motion(&c.scenario),
-                    robots,
-                    spacing_m: spacing,
-                    skipped: None,
-                    trials: 0,
-                    figures: Vec::new(),
-                    occluded: Vec::new(),
-                    site_left: Vec::new(),
-                    site_share: Vec::new(),
-                };
+                let mut row =
+                    StudyRow::new(chosen.stem.clone(), site.clone(), motion(&c.scenario), robots, spacing);
                 match setup(config, &c, robots, map) {
                     Err(e) => row.skipped = Some(format!("{e:#}")),
                     Ok(mut s) => {
@@ -638,19 +644,7 @@ mod tests {
     }
 
     fn row() -> StudyRow {
-        StudyRow {
-            scenario: "s".into(),
-            site: "s".into(),
-            motion: "straight",
-            robots: 2,
-            spacing_m: 1.0,
-            skipped: None,
-            trials: 0,
-            figures: Vec::new(),
-            occluded: Vec::new(),
-            site_left: Vec::new(),
-            site_share: Vec::new(),
-        }
+        StudyRow::new("s".into(), "s".into(), "straight", 2, 1.0)
     }
 
     /// Only a configuration whose trials leave the criterion open runs the confirmation trials: the
