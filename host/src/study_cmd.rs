@@ -651,7 +651,7 @@ mod tests {
     /// same first seeds and the next, and its figures are of all of them.
     #[test]
     fn an_open_verdict_is_settled_on_more_trials_and_a_clear_one_is_not() {
-        // T4 − T2 per trial, cm, by seed: the first three straddle the margin (+0.6 ± 0.31), the
+        // T4 − T2 per trial, cm, by seed: the first three straddle the margin (+0.6 ± 0.32), the
         // next seven hold it.
         let d_cm = |seed: u64| match seed {
             100 => 1.2,
