@@ -7,8 +7,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use amr_core::amcl::UpdateOutcome;
-use amr_core::amcl::log::{LogLocalizer, RefPose, Score, Start, parse_reference, score};
+use amr_core::amcl::log::{Kidnap, LogLocalizer, RefPose, Score, Start, parse_reference, score};
+use amr_core::amcl::{IntegrityState, UpdateOutcome};
 use amr_core::carmen::{Record, parse_line};
 use amr_core::config::AmclParams;
 use amr_core::se2::Se2;
@@ -23,6 +23,113 @@ pub(crate) struct Run {
     pub update_median_ms: f64,
     pub update_p95_ms: f64,
     pub updates: usize,
+    pub integrity: IntegrityCounts,
+    /// With kidnappings written into the log: per kidnapping, the scans (from the kidnapping's on)
+    /// until the filter reported `Lost`, and until it was tracking again (reported `Tracking` with
+    /// the estimate within 0.5 m); `None`: not before the next kidnapping or the log's end.
+    pub kidnaps: Vec<KidnapOutcome>,
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub(crate) struct KidnapOutcome {
+    pub scan: usize,
+    pub jump_m: f64,
+    pub jump_deg: f64,
+    /// Whether the estimate went more than 0.5 m off at all (a filter can absorb a small jump).
+    pub carried_off: bool,
+    pub lost_after: Option<usize>,
+    pub tracked_after: Option<usize>,
+}
+
+/// Per laser record: its index, the error against the reference, and the state reported.
+type Judged = (usize, Option<f64>, IntegrityState);
+
+fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> {
+    kidnaps
+        .iter()
+        .enumerate()
+        .map(|(n, k)| {
+            let end = kidnaps.get(n + 1).map_or(usize::MAX, |x| x.scan);
+            let window = || judged.iter().filter(|(i, _, _)| *i >= k.scan && *i < end);
+            let lost_after = window().find(|(_, _, s)| *s == IntegrityState::Lost).map(|(i, _, _)| i - k.scan);
+            let tracked_after = window()
+                .find(|(i, e, s)| {
+                    *s == IntegrityState::Tracking
+                        && e.is_some_and(|e| e <= amr_core::amcl::log::DIVERGED_M)
+                        && lost_after.is_some_and(|l| *i >= k.scan + l)
+                })
+                .map(|(i, _, _)| i - k.scan);
+            let carried_off = window().any(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M));
+            KidnapOutcome {
+                carried_off,
+                scan: k.scan,
+                jump_m: k.jump.translation_norm(),
+                jump_deg: k.jump.theta.to_degrees(),
+                lost_after,
+                tracked_after,
+            }
+        })
+        .collect()
+}
+
+/// How the integrity states matched the truth over one run. A scan is off when its estimate is
+/// more than 0.5 m from the reference; a loss is a run of at least [`DETECT_WITHIN`] off scans
+/// (shorter runs are excursions the filter came back from by itself).
+#[derive(Debug, Clone, Default, Serialize)]
+pub(crate) struct IntegrityCounts {
+    /// Scans whose estimate is within 0.5 m.
+    pub on: usize,
+    /// Times the filter turned `Lost` with its estimate within 0.5 m, and within 0.5 m over the
+    /// [`DETECT_WITHIN`] scans before (false alarms: not the hysteresis after a real loss).
+    pub false_lost: usize,
+    /// Scans within 0.5 m reported `Uncertain`.
+    pub uncertain_on: usize,
+    /// Runs of off scans shorter than a loss.
+    pub excursions: usize,
+    /// Losses, those reported lost within [`DETECT_WITHIN`] scans of their start, and those the
+    /// filter came back from (the estimate within 0.5 m again before the log ended).
+    pub losses: usize,
+    pub detected: usize,
+    pub recovered: usize,
+    /// Updates that re-seeded particles because the filter was lost.
+    pub reseeds: u64,
+}
+
+/// A loss counts as detected when the filter reports `Lost` within this many scans of its first
+/// off scan; it is also the shortest run of off scans that counts as a loss.
+pub(crate) const DETECT_WITHIN: usize = 3;
+
+/// The integrity counts of a run: per scan, its error (None: no reference) and the state reported.
+pub(crate) fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
+    let mut c = IntegrityCounts { reseeds, ..IntegrityCounts::default() };
+    let scored: Vec<(f64, IntegrityState)> = per_scan.iter().filter_map(|(e, s)| e.map(|e| (e, *s))).collect();
+    let off = |k: usize| scored[k].0 > amr_core::amcl::log::DIVERGED_M;
+    let mut k = 0;
+    while k < scored.len() {
+        if !off(k) {
+            c.on += 1;
+            let s = scored[k].1;
+            c.uncertain_on += usize::from(s == IntegrityState::Uncertain);
+            let entered = s == IntegrityState::Lost && k > 0 && scored[k - 1].1 != IntegrityState::Lost;
+            let settled = k >= DETECT_WITHIN && (k - DETECT_WITHIN..k).all(|j| !off(j));
+            c.false_lost += usize::from(entered && settled);
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < scored.len() && off(k) {
+            k += 1;
+        }
+        if k - start < DETECT_WITHIN {
+            c.excursions += 1;
+            continue;
+        }
+        c.losses += 1;
+        let seen = scored[start..start + DETECT_WITHIN].iter().any(|(_, s)| *s == IntegrityState::Lost);
+        c.detected += usize::from(seen);
+        c.recovered += usize::from(k < scored.len());
+    }
+    c
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -34,8 +141,58 @@ pub(crate) struct LogReport {
     pub tracking: Vec<Run>,
     /// Global localisation (no initial pose), one run per seed.
     pub global: Vec<Run>,
+    /// Tracking with kidnappings written into the log (`--kidnap`), one run per seed.
+    pub kidnapped: Vec<Run>,
     /// nav2's scores on this log, from `<nav2-dir>/<name>.csv` if given.
     pub nav2: Option<Score>,
+    /// The integrity measure at the reference poses and displaced from them.
+    pub separation: Vec<SeparationRow>,
+}
+
+/// The explained share over one log's scans at one displacement from the reference, and how many
+/// scans the monitor's thresholds would call uncertain or lost (taking as the tracked level the
+/// mean share at the references, which the monitor's running mean learns).
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct SeparationRow {
+    pub displacement: String,
+    pub scans: usize,
+    pub median: f64,
+    pub p5: f64,
+    pub p95: f64,
+    /// Share of scans below `uncertain_ratio` × level, and below `lost_ratio` × level.
+    pub below_uncertain: f64,
+    pub below_lost: f64,
+}
+
+fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRow> {
+    let p = params.integrity;
+    let at_ref = shares.first().map_or(&[][..], Vec::as_slice);
+    let level = if at_ref.is_empty() {
+        p.initial_level
+    } else {
+        (at_ref.iter().sum::<f64>() / at_ref.len() as f64).clamp(p.floor, 1.0)
+    };
+    let labels = std::iter::once("reference".to_owned()).chain(amr_core::amcl::log::DISPLACEMENTS.iter().map(
+        |(d, a)| if *a == 0.0 { format!("{d} m") } else { format!("{:.0}°", a.to_degrees()) },
+    ));
+    labels
+        .zip(shares)
+        .map(|(displacement, v)| {
+            let mut v = v.clone();
+            v.sort_by(f64::total_cmp);
+            let n = v.len().max(1) as f64;
+            let below = |r: f64| v.iter().filter(|s| **s < r * level).count() as f64 / n;
+            SeparationRow {
+                displacement,
+                scans: v.len(),
+                median: percentile(&v, 0.5),
+                p5: percentile(&v, 0.05),
+                p95: percentile(&v, 0.95),
+                below_uncertain: below(p.uncertain_ratio),
+                below_lost: below(p.lost_ratio),
+            }
+        })
+        .collect()
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -87,10 +244,14 @@ fn run_once(
     start: Start,
     seed: u64,
     reference: &[RefPose],
+    kidnaps: &[Kidnap],
 ) -> Run {
     let mut loc = LogLocalizer::new(grid, params.clone(), start, seed);
     let mut est = Vec::new();
+    let mut states: Vec<Judged> = Vec::new();
     let mut ms = Vec::new();
+    let mut refs = reference.to_vec();
+    refs.sort_by(|a, b| a.timestamp_s.total_cmp(&b.timestamp_s));
     for r in records {
         let t0 = Instant::now();
         let fed = loc.feed(r);
@@ -101,9 +262,13 @@ fn run_once(
             }
             if let Some(p) = f.pose {
                 est.push((p.timestamp_s, p.pose));
+                let state = p.integrity.map_or(IntegrityState::Uncertain, |i| i.state);
+                states.push((loc.scans.saturating_sub(1), error_at(&refs, p.timestamp_s, &p.pose), state));
             }
         }
     }
+    let reseeds = loc.filter().map_or(0, amr_core::amcl::Amcl::reseeds);
+    let per_scan: Vec<(Option<f64>, IntegrityState)> = states.iter().map(|(_, e, s)| (*e, *s)).collect();
     // The first update builds the field: not an update's cost.
     if !ms.is_empty() {
         ms.remove(0);
@@ -114,7 +279,16 @@ fn run_once(
         update_median_ms: percentile(&ms, 0.5),
         update_p95_ms: percentile(&ms, 0.95),
         updates: ms.len(),
+        integrity: integrity_counts(&per_scan, reseeds),
+        kidnaps: kidnap_outcomes(&states, kidnaps),
     }
+}
+
+/// The translation error of `pose` against the reference pose stamped `t` (sorted references).
+fn error_at(refs: &[RefPose], t: f64, pose: &Se2) -> Option<f64> {
+    let k = refs.partition_point(|g| g.timestamp_s < t - amr_core::amcl::log::MATCH_TOLERANCE_S);
+    let g = refs.get(k).filter(|g| (g.timestamp_s - t).abs() <= amr_core::amcl::log::MATCH_TOLERANCE_S)?;
+    Some((g.pose.x - pose.x).hypot(g.pose.y - pose.y))
 }
 
 /// The odometry alone, rigidly aligned so that the first scan sits on the first reference pose.
@@ -139,6 +313,7 @@ pub(crate) fn run(
     only: &[String],
     seeds: &[u64],
     nav2_dir: Option<&Path>,
+    kidnap_every: Option<usize>,
 ) -> anyhow::Result<Report> {
     let names = if only.is_empty() { logs_in(dir)? } else { only.to_vec() };
     let mut logs = Vec::new();
@@ -156,9 +331,21 @@ pub(crate) fn run(
         tracing::info!(log = %name, scans, "localising");
         let tracked = Start::resolve(Some(first), params);
         let tracking =
-            seeds.iter().map(|&s| run_once(&grid, &records, params, tracked, s, &reference)).collect();
+            seeds.iter().map(|&s| run_once(&grid, &records, params, tracked, s, &reference, &[])).collect();
         let global =
-            seeds.iter().map(|&s| run_once(&grid, &records, params, Start::Global, s, &reference)).collect();
+            seeds.iter().map(|&s| run_once(&grid, &records, params, Start::Global, s, &reference, &[])).collect();
+        // The same log with its odometry teleported every `kidnap_every` scans (jumps drawn from
+        // the seed), tracked from the first reference pose.
+        let kidnapped: Vec<Run> = match kidnap_every {
+            Some(every) => seeds
+                .iter()
+                .map(|&s| {
+                    let (recs, k) = amr_core::amcl::log::kidnapped(&records, every, s);
+                    run_once(&grid, &recs, params, tracked, s, &reference, &k)
+                })
+                .collect(),
+            None => Vec::new(),
+        };
         let nav2 = match nav2_dir {
             Some(d) => {
                 let p: PathBuf = d.join(format!("{name}.csv"));
@@ -166,13 +353,16 @@ pub(crate) fn run(
             }
             None => None,
         };
+        let shares = amr_core::amcl::log::integrity_separation(&grid, &records, &reference, params, 1);
         logs.push(LogReport {
             name,
             scans,
             odometry_only: odometry_only(&records, &reference),
             tracking,
             global,
+            kidnapped,
             nav2,
+            separation: separation_rows(&shares, params),
         });
     }
     Ok(Report { seeds: seeds.to_vec(), logs })
@@ -182,13 +372,21 @@ fn cm(s: &Score) -> (f64, f64, f64) {
     s.translation.map_or((f64::NAN, f64::NAN, f64::NAN), |t| (t.rmse * 100.0, t.p95 * 100.0, t.max * 100.0))
 }
 
-fn row(out: &mut String, name: &str, what: &str, s: &Score, times: Option<(f64, f64)>) {
+fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
     let (rmse, p95, max) = cm(s);
-    let t = times.map_or("–".to_owned(), |(m, p)| format!("{m:.2} / {p:.2}"));
+    let t = run.map_or("–".to_owned(), |r| format!("{:.2} / {:.2}", r.update_median_ms, r.update_p95_ms));
+    let i = run.map_or("–".to_owned(), |r| {
+        let c = &r.integrity;
+        format!(
+            "{}/{} | {}/{} | {} | {} | {} / {} | {}",
+            c.detected, c.losses, c.recovered, c.losses, c.excursions, c.false_lost, c.uncertain_on, c.on, c.reseeds
+        )
+    });
+    let i = if run.is_none() { "– | – | – | – | – | –".to_owned() } else { i };
     let conv = s.converged_from.map_or("never".to_owned(), |c| c.to_string());
     let _ = writeln!(
         out,
-        "| {name} | {what} | {rmse:.1} | {p95:.1} | {max:.1} | {:.2} | {:.1} | {conv} | {t} |",
+        "| {name} | {what} | {rmse:.1} | {p95:.1} | {max:.1} | {:.2} | {:.1} | {conv} | {t} | {i} |",
         s.heading_rmse_deg,
         s.diverged_share * 100.0
     );
@@ -200,11 +398,18 @@ pub(crate) fn markdown(r: &Report) -> String {
         out,
         "AMCL on recorded logs against their references (seeds {:?}; one row per seed). Errors in cm; \
          'off' is the share of scans more than 0.5 m off; 'from' is the first scan from which every \
-         scan is within 0.5 m; times are per filter update (median / P95, ms).\n",
+         scan is within 0.5 m; times are per filter update (median / P95, ms). Integrity: losses \
+         (runs of at least {DETECT_WITHIN} off scans) reported lost within {DETECT_WITHIN} scans, \
+         losses recovered, brief excursions (shorter runs), false alarms (turned lost with the \
+         estimate within 0.5 m for {DETECT_WITHIN} scans), scans within 0.5 m reported uncertain / \
+         all scans within 0.5 m, updates that re-seeded particles.\n",
         r.seeds
     );
-    let _ = writeln!(out, "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms |");
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(
+        out,
+        "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms | detected | recovered | brief | false lost | uncertain / on | re-seeds |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for l in &r.logs {
         row(&mut out, &l.name, "odometry alone", &l.odometry_only, None);
         if let Some(n) = &l.nav2 {
@@ -216,7 +421,7 @@ pub(crate) fn markdown(r: &Report) -> String {
                 &l.name,
                 &format!("tracking, seed {s}"),
                 &run.score,
-                Some((run.update_median_ms, run.update_p95_ms)),
+                Some(run),
             );
         }
         for (s, run) in r.seeds.iter().zip(&l.global) {
@@ -225,7 +430,72 @@ pub(crate) fn markdown(r: &Report) -> String {
                 &l.name,
                 &format!("global, seed {s}"),
                 &run.score,
-                Some((run.update_median_ms, run.update_p95_ms)),
+                Some(run),
+            );
+        }
+        for (s, run) in r.seeds.iter().zip(&l.kidnapped) {
+            row(&mut out, &l.name, &format!("kidnapped, seed {s}"), &run.score, Some(run));
+        }
+    }
+    let kidnaps: Vec<(&str, u64, &KidnapOutcome)> = r
+        .logs
+        .iter()
+        .flat_map(|l| {
+            r.seeds.iter().zip(&l.kidnapped).flat_map(move |(s, run)| run.kidnaps.iter().map(move |k| (l.name.as_str(), *s, k)))
+        })
+        .collect();
+    if !kidnaps.is_empty() {
+        let n = kidnaps.len();
+        let off: Vec<&KidnapOutcome> = kidnaps.iter().filter(|(_, _, k)| k.carried_off).map(|(_, _, k)| *k).collect();
+        let lost3 = off.iter().filter(|k| k.lost_after.is_some_and(|a| a < DETECT_WITHIN)).count();
+        let back10 = off.iter().filter(|k| k.tracked_after.is_some_and(|a| a < 10)).count();
+        let back = off.iter().filter(|k| k.tracked_after.is_some()).count();
+        let _ = writeln!(
+            out,
+            "\nKidnappings (odometry teleported 1-5 m, any heading): {n} in all, {} of which carried the \
+             estimate more than 0.5 m off (the others the filter absorbed); of those, reported lost \
+             within {DETECT_WITHIN} scans: {lost3}; tracking again within 10 scans: {back10}; at all: \
+             {back}. Scans counted from the kidnapping's (0).\n",
+            off.len()
+        );
+        let _ = writeln!(out, "| log | seed | scan | jump (m, °) | carried off | lost after | tracking after |");
+        let _ = writeln!(out, "|---|---|---|---|---|---|---|");
+        let show = |a: Option<usize>| a.map_or("never".to_owned(), |a| a.to_string());
+        for (name, s, k) in kidnaps {
+            let _ = writeln!(
+                out,
+                "| {name} | {s} | {} | {:.1}, {:.0} | {} | {} | {} |",
+                k.scan,
+                k.jump_m,
+                k.jump_deg,
+                if k.carried_off { "yes" } else { "no" },
+                show(k.lost_after),
+                show(k.tracked_after)
+            );
+        }
+    }
+    let _ = writeln!(
+        out,
+        "\nIntegrity measure (share of the scan explained by the map) at the reference poses and \
+         displaced from them (direction and sign drawn per scan); 'uncertain' and 'lost' are the \
+         shares of scans below the monitor's ratios × the mean share at the references (false \
+         alarms on the reference row, detections on the others).\n"
+    );
+    let _ = writeln!(out, "| log | pose | scans | median | P5 | P95 | uncertain (%) | lost (%) |");
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
+    for l in &r.logs {
+        for s in &l.separation {
+            let _ = writeln!(
+                out,
+                "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.1} | {:.1} |",
+                l.name,
+                s.displacement,
+                s.scans,
+                s.median,
+                s.p5,
+                s.p95,
+                s.below_uncertain * 100.0,
+                s.below_lost * 100.0
             );
         }
     }

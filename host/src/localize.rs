@@ -63,6 +63,8 @@ pub(crate) struct Options {
     pub params: AmclParams,
     pub out: Option<PathBuf>,
     pub seed: u64,
+    /// Teleport the odometry every this many scans (`amcl::log::kidnapped`, jumps from `seed`).
+    pub kidnap: Option<usize>,
 }
 
 /// `x,y,θ` (θ in radians) → pose.
@@ -98,7 +100,10 @@ pub(crate) fn read_map(yaml_path: &Path) -> anyhow::Result<OccupancyGrid> {
     load_map(&yaml, &bytes).with_context(|| image.display().to_string())
 }
 
-const HEADER: &str = "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta";
+/// The pose, its covariance, and the integrity of the estimate (`amcl::integrity`): the state, the
+/// share of the scan the map explains at the estimate, and the level this sensor explains when
+/// tracked.
+const HEADER: &str = "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level";
 
 /// Summary of a run, for the log.
 #[derive(Debug, Default)]
@@ -187,6 +192,16 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
         }
         Input::Bag(path, bag) => bag_records(path, bag, &mut summary)?,
     };
+    let records = match opts.kidnap {
+        Some(every) => {
+            let (records, kidnaps) = amr_core::amcl::log::kidnapped(&records, every, opts.seed);
+            for k in &kidnaps {
+                tracing::info!(scan = k.scan, x = k.jump.x, y = k.jump.y, theta = k.jump.theta, "odometry teleported");
+            }
+            records
+        }
+        None => records,
+    };
     let mut out = String::from(HEADER);
     out.push('\n');
     let start = Start::resolve(opts.initial, &opts.params);
@@ -198,6 +213,12 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
                 for v in row {
                     let _ = write!(out, ",{v:.9}");
                 }
+            }
+            match p.integrity {
+                Some(i) => {
+                    let _ = write!(out, ",{},{:.4},{:.4}", i.state, i.explained, i.level);
+                }
+                None => out.push_str(",uncertain,,"),
             }
             out.push('\n');
             summary.poses += 1;

@@ -83,6 +83,10 @@ enum Command {
         /// Seed of the filter's random draws (same seed, same output).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Teleport the odometry every N scans by 1-5 m and any heading (drawn from the seed), as if
+        /// the robot had been carried away: to see the filter report `lost` and re-localise.
+        #[arg(long, value_name = "N")]
+        kidnap: Option<usize>,
     },
     /// Measure the algorithms (medians over repeated runs; nothing is asserted).
     #[command(subcommand)]
@@ -432,6 +436,10 @@ enum BenchCommand {
         /// Print JSON instead of a Markdown table.
         #[arg(long)]
         json: bool,
+        /// Also track each log with its odometry teleported every N scans (1-5 m, any heading;
+        /// drawn from the seed): whether the filter reports `Lost` and tracks again.
+        #[arg(long, value_name = "N")]
+        kidnap: Option<usize>,
     },
 }
 
@@ -485,10 +493,10 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Vamr(opts)) => {
             bench(opts, "the Virtual-AMR pipeline", |c, quick| bench::run(&c.vamr, quick), bench::markdown)
         }
-        Command::Bench(BenchCommand::Localize { logs, only, seeds, nav2, params, config, json }) => {
+        Command::Bench(BenchCommand::Localize { logs, only, seeds, nav2, params, config, json, kidnap }) => {
             (|| -> anyhow::Result<()> {
                 let params = localize::load_params(params.as_deref(), config)?;
-                let report = bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref())?;
+                let report = bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref(), kidnap)?;
                 let text = if json {
                     serde_json::to_string_pretty(&report)? + "\n"
                 } else {
@@ -636,14 +644,14 @@ fn main() -> ExitCode {
             }
             Ok(())
         })(),
-        Command::Localize { map, log, bag, ros2, initial, params, out, seed } => (|| {
+        Command::Localize { map, log, bag, ros2, initial, params, out, seed, kidnap } => (|| {
             let params = localize::load_params(params.as_deref(), None)?;
             let input = match (log, bag) {
                 (_, Some(bag)) => localize::Input::Bag(bag, ros2.options()),
                 (Some(log), None) => localize::Input::Carmen(log),
                 (None, None) => anyhow::bail!("give --log or --bag"),
             };
-            let s = localize::run(&localize::Options { map, input, initial, params, out, seed })?;
+            let s = localize::run(&localize::Options { map, input, initial, params, out, seed, kidnap })?;
             tracing::info!(
                 scans = s.scans,
                 poses = s.poses,

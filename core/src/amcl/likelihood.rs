@@ -177,6 +177,9 @@ impl FreeCells {
     }
 }
 
+/// Where [`LikelihoodField::ray_crosses_surface`] starts looking, from the sensor, m.
+const RAY_START_M: f64 = 0.1;
+
 /// The index of the largest quantised distance, which is also the value off the map.
 const OFF_MAP: u8 = u8::MAX;
 
@@ -318,6 +321,48 @@ impl LikelihoodField {
             return None;
         }
         Some(j as usize * self.fine_width + i as usize)
+    }
+
+    /// Whether the straight line from `from` to `to` (base-frame points seen from `pose`) comes
+    /// within half a map cell of a mapped surface before it is `stop_short_m` from `to`: a beam
+    /// from a sensor at `from` that passed through a wall to reach `to`. Sphere tracing on the
+    /// field's distances (each step as long as the distance to the nearest surface, at least half
+    /// a cell), so a ray costs a few dozen lookups; off the map ends the search (nothing mapped
+    /// there to cross). Distances beyond the field's cap are taken as the cap.
+    #[must_use]
+    pub fn ray_crosses_surface(&self, pose: &Se2, from: [f64; 2], to: [f64; 2], stop_short_m: f64) -> bool {
+        let (u0, v0, cr, sr) = self.fine_pose(pose);
+        let fine = |p: [f64; 2]| (u0 + cr * p[0] - sr * p[1], v0 + sr * p[0] + cr * p[1]);
+        let (a, b) = (fine(from), fine(to));
+        let length_m = (to[0] - from[0]).hypot(to[1] - from[1]);
+        let end_m = length_m - stop_short_m;
+        if !(end_m > 0.0 && end_m.is_finite()) {
+            return false;
+        }
+        let (dx, dy) = ((b.0 - a.0) / length_m, (b.1 - a.1) / length_m);
+        let near = self.resolution * 0.5;
+        let step_min = self.resolution * 0.5;
+        // Clear of the sensor itself (a pose a little off may stand it in a wall's cell).
+        let mut t = RAY_START_M;
+        // At most one step per half cell over the ray: bounded for any input.
+        let cap = (end_m / step_min).ceil().min(1e6) as usize + 1;
+        for _ in 0..cap {
+            if t >= end_m {
+                return false;
+            }
+            let (u, v) = (a.0 + dx * t, a.1 + dy * t);
+            if !(u >= 0.0 && v >= 0.0 && u < self.fine_width as f64 && v < self.fine_height as f64) {
+                return false;
+            }
+            let idx = v as usize * self.fine_width + u as usize;
+            let Some(&q) = self.cells.get(idx) else { return false };
+            let d = f64::from(q) * self.step_m;
+            if d < near {
+                return true;
+            }
+            t += d.max(step_min);
+        }
+        false
     }
 
     /// The per-beam factor of a quantised distance (`pz³` or `ln pz`, by model).

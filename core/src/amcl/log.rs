@@ -52,6 +52,8 @@ pub struct LogPose {
     pub pose: Se2,
     /// Of the last filter update, `[x, y, θ]`.
     pub covariance: [[f64; 3]; 3],
+    /// The last judged update's integrity (`None` before the first).
+    pub integrity: Option<super::Integrity>,
 }
 
 /// AMCL fed one log record at a time. The filter (and its field) is built at the first laser
@@ -118,6 +120,7 @@ impl<'g> LogLocalizer<'g> {
             let range_max = params.max_range_m().unwrap_or(laser.scan.range_max_m);
             let field = Arc::new(LikelihoodField::new(grid, params, range_max));
             let mut f = Amcl::new(params.clone(), field, seed);
+            f.set_sensor_origin(Some([laser.laser_in_robot.x, laser.laser_in_robot.y]));
             match start {
                 Start::Pose { pose, std_xy_m, std_yaw_rad } => f.init_pose(pose, std_xy_m, std_yaw_rad),
                 Start::Global => f.init_global(),
@@ -128,7 +131,12 @@ impl<'g> LogLocalizer<'g> {
         let outcome = filter.update(odom, &points, false);
         let pose = match (filter.estimate(), filter.pose_at(&odom)) {
             (Some(e), Some(pose)) => {
-                Some(LogPose { timestamp_s: laser.timestamp_s, pose, covariance: e.covariance })
+                Some(LogPose {
+                    timestamp_s: laser.timestamp_s,
+                    pose,
+                    covariance: e.covariance,
+                    integrity: filter.integrity(),
+                })
             }
             _ => None,
         };
@@ -228,6 +236,112 @@ pub fn score(reference: &[RefPose], estimate: &[(f64, Se2)]) -> Score {
         diverged_share: if matched > 0 { diverged as f64 / matched as f64 } else { f64::NAN },
         converged_from,
     }
+}
+
+/// A kidnapping written into a log: from laser record `scan` on (counting laser records), the
+/// odometry reports a jump `jump` (in the robot's frame) that the robot did not make.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kidnap {
+    pub scan: usize,
+    pub jump: Se2,
+}
+
+/// The log with its odometry teleported every `every` laser records (the first at `every`): each
+/// jump 1–5 m in a direction and with a heading change drawn uniformly from `seed`'s generator.
+/// Between the laser record before a kidnapping and the one at it, the odometry reports the jump
+/// followed by what the robot really drove; every later pose carries the jump on. Odometry lines
+/// between laser records take the same treatment. The robot's scans and the reference are
+/// untouched: the filter is carried away by its odometry, as when a robot is lifted or slips far.
+#[must_use]
+pub fn kidnapped(records: &[Record], every: usize, seed: u64) -> (Vec<Record>, Vec<Kidnap>) {
+    let mut rng = crate::rng::Rng::seed(seed);
+    let mut out = Vec::with_capacity(records.len());
+    let mut kidnaps = Vec::new();
+    // Maps the raw odometry to the reported one: reported = fix ∘ raw.
+    let mut fix = Se2::IDENTITY;
+    let mut last_raw: Option<Se2> = None;
+    let mut lasers = 0usize;
+    for r in records {
+        match r {
+            Record::Odometry { pose, timestamp_s } => {
+                last_raw = Some(*pose);
+                out.push(Record::Odometry { pose: fix * *pose, timestamp_s: *timestamp_s });
+            }
+            Record::Laser(l) => {
+                if every > 0 && lasers > 0 && lasers.is_multiple_of(every) {
+                    let base = l.odometry.or(last_raw);
+                    if let Some(prev) = last_raw.or(base) {
+                        let d = rng.range(1.0, 5.0);
+                        let dir = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+                        let turn = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+                        let jump = Se2::new(d * dir.cos(), d * dir.sin(), turn);
+                        // The reported previous pose P = fix ∘ prev; after the jump the reported
+                        // pose is P ∘ jump ∘ (prev⁻¹ ∘ raw): fix' = fix ∘ prev ∘ jump ∘ prev⁻¹.
+                        fix = fix * prev * jump * prev.inverse();
+                        kidnaps.push(Kidnap { scan: lasers, jump });
+                    }
+                }
+                let mut l = l.clone();
+                if let Some(o) = l.odometry {
+                    last_raw = Some(o);
+                    l.odometry = Some(fix * o);
+                }
+                lasers += 1;
+                out.push(Record::Laser(l));
+            }
+        }
+    }
+    (out, kidnaps)
+}
+
+/// The displacements the integrity measure is tested against (translation m, rotation rad): the
+/// estimate the map should call wrong.
+pub const DISPLACEMENTS: [(f64, f64); 4] =
+    [(0.3, 0.0), (0.5, 0.0), (1.0, 0.0), (0.0, 10.0 * std::f64::consts::PI / 180.0)];
+
+/// The explained share ([`super::integrity::explained_share`]) of every scan that has a reference
+/// pose, at that pose and at each of [`DISPLACEMENTS`] from it (each in a direction drawn from
+/// `seed`'s generator, a rotation of either sign): `shares[0]` at the references, `shares[1 + k]`
+/// displaced by `DISPLACEMENTS[k]`.
+#[must_use]
+pub fn integrity_separation(
+    grid: &crate::map::OccupancyGrid,
+    records: &[Record],
+    reference: &[RefPose],
+    params: &AmclParams,
+    seed: u64,
+) -> Vec<Vec<f64>> {
+    let mut out = vec![Vec::new(); 1 + DISPLACEMENTS.len()];
+    let mut field: Option<LikelihoodField> = None;
+    let mut rng = crate::rng::Rng::seed(seed);
+    let p = params.integrity;
+    let mut refs: Vec<RefPose> = reference.to_vec();
+    refs.sort_by(|a, b| a.timestamp_s.total_cmp(&b.timestamp_s));
+    for r in records {
+        let Record::Laser(l) = r else { continue };
+        let k = refs.partition_point(|g| g.timestamp_s < l.timestamp_s - MATCH_TOLERANCE_S);
+        let Some(g) = refs.get(k).filter(|g| (g.timestamp_s - l.timestamp_s).abs() <= MATCH_TOLERANCE_S)
+        else {
+            continue;
+        };
+        let field = field.get_or_insert_with(|| {
+            LikelihoodField::new(grid, params, params.max_range_m().unwrap_or(l.scan.range_max_m))
+        });
+        let points = super::subsample(&scan_points(&l.scan, &l.laser_in_robot, params), p.max_points);
+        let origin = Some([l.laser_in_robot.x, l.laser_in_robot.y]);
+        let share = |pose: &Se2| super::integrity::explained_share(field, pose, &points, origin, &p);
+        let Some(at_ref) = share(&g.pose) else { continue };
+        out[0].push(at_ref);
+        for (k, &(d, a)) in DISPLACEMENTS.iter().enumerate() {
+            let dir = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+            let sign = if rng.below(2) == 0 { -1.0 } else { 1.0 };
+            let moved = Se2::new(g.pose.x + d * dir.cos(), g.pose.y + d * dir.sin(), g.pose.theta + sign * a);
+            if let Some(s) = share(&moved) {
+                out[1 + k].push(s);
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@
 //! need not share one origin: the virtual scan of several LiDARs localises like a single scan.
 //! Deterministic: every draw comes from the filter's own seeded generator.
 
+pub mod integrity;
 pub mod likelihood;
 pub mod log;
 pub mod motion;
@@ -19,6 +20,7 @@ use crate::rng::Rng;
 use crate::scan::Scan;
 use crate::se2::{Se2, angle_diff};
 
+pub use integrity::{Integrity, IntegrityState};
 pub use likelihood::{FixedPoints, LikelihoodField};
 pub use particles::{Estimate, Particle};
 
@@ -57,6 +59,12 @@ pub struct Amcl {
     global_candidates: usize,
     /// Beam skipping's particles × beams distances, kept between updates (no allocation).
     scratch: Vec<u8>,
+    /// Whether the estimate is right, judged from the scan and the map (`integrity`).
+    monitor: integrity::Monitor,
+    /// Updates that re-seeded particles from the scan because the filter was lost.
+    reseeds: u64,
+    /// The sensor's position in the tracked frame (`set_sensor_origin`).
+    sensor_origin: Option<[f64; 2]>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -85,6 +93,7 @@ impl Amcl {
     /// A filter on `field` with `params`, its generator seeded with `seed`.
     #[must_use]
     pub fn new(params: AmclParams, field: Arc<LikelihoodField>, seed: u64) -> Self {
+        let params_integrity = params.integrity;
         Amcl {
             params,
             field,
@@ -101,6 +110,9 @@ impl Amcl {
             global_pending: false,
             global_candidates: GLOBAL_CANDIDATES,
             scratch: Vec::new(),
+            monitor: integrity::Monitor::new(params_integrity),
+            reseeds: 0,
+            sensor_origin: None,
         }
     }
 
@@ -113,6 +125,25 @@ impl Amcl {
     #[must_use]
     pub fn injections(&self) -> u64 {
         self.injections
+    }
+
+    /// The integrity of the last filter update's estimate (`None` before the first update that
+    /// had a scan).
+    #[must_use]
+    pub fn integrity(&self) -> Option<Integrity> {
+        self.monitor.last()
+    }
+
+    /// The integrity state now: before any judged update, `Uncertain` (nothing verified yet).
+    #[must_use]
+    pub fn integrity_state(&self) -> IntegrityState {
+        if self.monitor.last().is_some() { self.monitor.state() } else { IntegrityState::Uncertain }
+    }
+
+    /// Updates that re-seeded particles from the scan because the filter was lost.
+    #[must_use]
+    pub fn reseeds(&self) -> u64 {
+        self.reseeds
     }
 
     /// The estimate of the last filter update (and its covariance).
@@ -176,6 +207,7 @@ impl Amcl {
             })
             .collect();
         self.reset_averages();
+        self.monitor.restart(IntegrityState::Uncertain);
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -191,6 +223,7 @@ impl Amcl {
         self.particles =
             (0..n).map(|_| Particle { pose: random_free_pose(&field, &mut self.rng), weight: w }).collect();
         self.reset_averages();
+        self.monitor.restart(IntegrityState::Uncertain);
         self.global_pending = true;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
@@ -218,12 +251,18 @@ impl Amcl {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
             let d = self.params.update_min_d.get();
             let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
-            if !moved && !force {
+            // A filter whose estimate is not verified judges every scan, moving or not: a
+            // formation waiting for it to be verified stands still.
+            let unverified = self.integrity_state() != IntegrityState::Tracking && !points.is_empty();
+            if !moved && !force && !unverified {
                 return UpdateOutcome::Skipped;
             }
             self.predict(&last, &odom);
         }
         self.last_odom = Some(odom);
+        if self.monitor.state() == IntegrityState::Lost && !points.is_empty() {
+            self.reseed(points);
+        }
         self.weigh(points);
         self.updates += 1;
         let resampled = self.updates.is_multiple_of(u64::from(self.params.resample_interval.get()));
@@ -231,7 +270,56 @@ impl Amcl {
             self.resample();
         }
         self.estimate = particles::cluster_estimate(&self.particles);
+        self.judge(points);
         UpdateOutcome::Updated { resampled }
+    }
+
+    /// Judge the new estimate against the map (`integrity`): at most `max_points` of the scan.
+    fn judge(&mut self, points: &[[f64; 2]]) {
+        let Some(e) = self.estimate.as_ref() else { return };
+        let p = *self.monitor.params();
+        let judged = subsample(points, p.max_points);
+        if let Some(share) = integrity::explained_share(&self.field, &e.pose, &judged, self.sensor_origin, &p) {
+            self.monitor.observe(share);
+        }
+    }
+
+    /// Where the sensor whose points the filter is given stands in the tracked frame, for the
+    /// integrity measure's test of beams through walls; `None` (the default) when the points come
+    /// from several sensors (a virtual scan), and the test is not made.
+    pub fn set_sensor_origin(&mut self, origin: Option<[f64; 2]>) {
+        self.sensor_origin = origin;
+    }
+
+    /// The filter is lost: a share of its particles, drawn at random, is replaced by poses that fit
+    /// this scan (each the best of `reseed_candidates` poses uniform over the free space), the
+    /// global localiser's sensor resetting. The rest stay where they were, so a false alarm costs
+    /// nothing the scans cannot undo: the weighting that follows keeps whichever fits.
+    fn reseed(&mut self, points: &[[f64; 2]]) {
+        let p = *self.monitor.params();
+        let n = self.particles.len();
+        let k = ((n as f64) * p.reseed_share).round() as usize;
+        if k == 0 {
+            return;
+        }
+        let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
+        let field = Arc::clone(&self.field);
+        let w = 1.0 / n as f64;
+        for _ in 0..k {
+            let at = self.rng.below(n);
+            let pose = best_of_random_poses(&field, &beams, &mut self.rng, p.reseed_candidates);
+            if let Some(q) = self.particles.get_mut(at) {
+                *q = Particle { pose, weight: w };
+            }
+        }
+        // The others keep their relative weights, on the same total as the re-seeded ones.
+        let total: f64 = self.particles.iter().map(|q| q.weight).sum();
+        if total > 0.0 && total.is_finite() {
+            for q in &mut self.particles {
+                q.weight /= total;
+            }
+        }
+        self.reseeds += 1;
     }
 
     /// Motion step: every particle moves by a noisy sample of the odometry increment.

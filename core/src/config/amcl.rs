@@ -93,6 +93,10 @@ pub struct AmclParams {
     /// Start from this pose instead of global localisation.
     #[serde(default)]
     pub initial_pose: Option<InitialPose>,
+    /// Not in nav2: how the filter judges its own estimate against the map, and re-localises
+    /// when it is lost (`amcl::integrity`). Absent: the defaults.
+    #[serde(default)]
+    pub integrity: crate::amcl::integrity::IntegrityParams,
 }
 
 fn zero_fraction() -> Fraction {
@@ -160,6 +164,9 @@ impl ConfigFileType for AmclParams {
                 self.max_particles.get()
             ),
         )?;
+        if let Err(e) = self.integrity.check() {
+            rule(false, "integrity", e)?;
+        }
         rule(
             self.max_beams.get() >= 2,
             "max_beams",

@@ -1,0 +1,337 @@
+//! Localisation integrity: whether the estimate is right, judged from the scan and the map, not
+//! from the particles' spread. A filter carried into the wrong place (a kidnapping, a missed turn,
+//! a start from a wrong pose) can be as tight as a tracking one; what changes is that the map no
+//! longer explains the scan at the estimate.
+//!
+//! The measure is the share of the scan's endpoints that land within [`IntegrityParams::hit_m`]
+//! of a mapped surface at the estimate (off the map counts as unexplained). It is compared with
+//! what this sensor explains where it is tracked: clutter that the map does not hold (people,
+//! moved furniture) lowers the share on a real robot in a way a threshold fitted to a perfect
+//! simulation would call lost. The level is learned while the state is `Tracking` (a slow mean
+//! of the share), never below `floor` nor above 1; the state follows the share relative to it, with
+//! hysteresis:
+//!
+//! - `Tracking` → `Uncertain` after `confirm` updates in a row below `uncertain_ratio` × level;
+//! - any state → `Lost` after `confirm` updates in a row below `lost_ratio` × level;
+//! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
+//!   `tracking_ratio` × level.
+//!
+//! The filter acts on `Lost` ([`super::Amcl`]): it re-seeds part of its particles from the scan.
+
+use serde::{Deserialize, Serialize};
+
+use super::likelihood::{FixedPoints, LikelihoodField};
+use crate::se2::Se2;
+
+/// What the filter believes of its own estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IntegrityState {
+    /// The map explains the scan at the estimate as well as it does where the sensor is tracked.
+    #[default]
+    Tracking,
+    /// It explains clearly less: the estimate may be wrong (or the scene is not the map's).
+    Uncertain,
+    /// It explains so little that the estimate is taken to be wrong: the filter re-localises.
+    Lost,
+}
+
+impl IntegrityState {
+    #[must_use]
+    pub fn as_str(self) -> &'static str {
+        match self {
+            IntegrityState::Tracking => "tracking",
+            IntegrityState::Uncertain => "uncertain",
+            IntegrityState::Lost => "lost",
+        }
+    }
+
+    /// The state from [`Self::as_str`]'s words.
+    #[must_use]
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "tracking" => Some(IntegrityState::Tracking),
+            "uncertain" => Some(IntegrityState::Uncertain),
+            "lost" => Some(IntegrityState::Lost),
+            _ => None,
+        }
+    }
+}
+
+impl std::fmt::Display for IntegrityState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The integrity of one estimate: the state, and the numbers it was judged by.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Integrity {
+    pub state: IntegrityState,
+    /// Share of the scan's endpoints explained by the map at the estimate (0..=1).
+    pub explained: f64,
+    /// The share this sensor explains where it is tracked (the learned level).
+    pub level: f64,
+}
+
+impl Integrity {
+    /// The explained share relative to the tracked level.
+    #[must_use]
+    pub fn ratio(&self) -> f64 {
+        if self.level > 0.0 { self.explained / self.level } else { 0.0 }
+    }
+}
+
+/// Settings of the integrity monitor (`[integrity]` in `amcl.toml`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntegrityParams {
+    /// An endpoint closer than this to a mapped surface is explained, m.
+    pub hit_m: f64,
+    /// A beam that passes a mapped surface more than this before its endpoint went through a
+    /// wall: not explained, m.
+    pub through_m: f64,
+    /// Endpoints looked at per update, evenly spread over the scan (at most).
+    pub max_points: usize,
+    /// The tracked level starts here and never falls below it (a filter that starts lost must
+    /// not learn a low level), share.
+    pub floor: f64,
+    /// Where the level starts, share.
+    pub initial_level: f64,
+    /// Weight of each tracked update in the level's running mean.
+    pub level_alpha: f64,
+    pub uncertain_ratio: f64,
+    pub lost_ratio: f64,
+    pub tracking_ratio: f64,
+    /// Updates in a row that a worse state needs.
+    pub confirm: u32,
+    /// Updates in a row that `Tracking` needs again.
+    pub recover: u32,
+    /// While `Lost`, the share of the particles re-seeded at each update from the scan.
+    pub reseed_share: f64,
+    /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
+    pub reseed_candidates: usize,
+}
+
+impl Default for IntegrityParams {
+    fn default() -> Self {
+        IntegrityParams {
+            hit_m: 0.15,
+            through_m: 0.3,
+            max_points: 180,
+            floor: 0.5,
+            initial_level: 0.85,
+            level_alpha: 0.02,
+            uncertain_ratio: 0.75,
+            lost_ratio: 0.6,
+            tracking_ratio: 0.85,
+            confirm: 2,
+            recover: 3,
+            reseed_share: 0.5,
+            reseed_candidates: 50,
+        }
+    }
+}
+
+impl IntegrityParams {
+    /// Why these settings cannot work, if they cannot.
+    pub fn check(&self) -> Result<(), String> {
+        let share = |v: f64| v.is_finite() && (0.0..=1.0).contains(&v);
+        if !(self.hit_m.is_finite() && self.hit_m > 0.0) {
+            return Err(format!("hit_m must be > 0 (got {})", self.hit_m));
+        }
+        if !(self.through_m.is_finite() && self.through_m > 0.0) {
+            return Err(format!("through_m must be > 0 (got {})", self.through_m));
+        }
+        if self.max_points < 10 {
+            return Err(format!("max_points must be at least 10 (got {})", self.max_points));
+        }
+        for (name, v) in [
+            ("floor", self.floor),
+            ("initial_level", self.initial_level),
+            ("level_alpha", self.level_alpha),
+            ("reseed_share", self.reseed_share),
+        ] {
+            if !share(v) {
+                return Err(format!("{name} must be within 0..=1 (got {v})"));
+            }
+        }
+        if !(self.lost_ratio > 0.0
+            && self.lost_ratio < self.uncertain_ratio
+            && self.uncertain_ratio < self.tracking_ratio
+            && self.tracking_ratio <= 1.0)
+        {
+            return Err(format!(
+                "need 0 < lost_ratio < uncertain_ratio < tracking_ratio <= 1 (got {}, {}, {})",
+                self.lost_ratio, self.uncertain_ratio, self.tracking_ratio
+            ));
+        }
+        if self.confirm == 0 || self.recover == 0 {
+            return Err("confirm and recover must be at least 1".to_owned());
+        }
+        if self.reseed_candidates == 0 {
+            return Err("reseed_candidates must be at least 1".to_owned());
+        }
+        Ok(())
+    }
+}
+
+/// The share of `points` (base frame, seen from `pose`) that the map explains: the endpoint lands
+/// within `hit_m` of a mapped surface and, when the sensor's position `origin` (base frame) is
+/// known, the beam did not pass through a mapped surface more than `through_m` before its
+/// endpoint. The second test is what tells a corridor's right place from one a few metres along
+/// it: there the endpoints still land on the walls, but the beams along the corridor reach
+/// through its end wall (or stop short of it). `None` without points.
+#[must_use]
+pub fn explained_share(
+    field: &LikelihoodField,
+    pose: &Se2,
+    points: &[[f64; 2]],
+    origin: Option<[f64; 2]>,
+    p: &IntegrityParams,
+) -> Option<f64> {
+    let n = points.len();
+    if n == 0 {
+        return None;
+    }
+    let near = field.quantum_of(p.hit_m);
+    let mut q = vec![0u8; n];
+    field.quantised_distances(pose, &FixedPoints::new(points), &mut q);
+    let hits = q
+        .iter()
+        .zip(points)
+        .filter(|&(&d, end)| {
+            u16::from(d) < near
+                && origin.is_none_or(|o| !field.ray_crosses_surface(pose, o, *end, p.through_m))
+        })
+        .count();
+    Some(hits as f64 / n as f64)
+}
+
+/// The monitor: the learned level and the hysteresis.
+#[derive(Debug, Clone)]
+pub struct Monitor {
+    params: IntegrityParams,
+    state: IntegrityState,
+    level: f64,
+    below_uncertain: u32,
+    below_lost: u32,
+    above_tracking: u32,
+    last: Option<Integrity>,
+}
+
+impl Monitor {
+    #[must_use]
+    pub fn new(params: IntegrityParams) -> Self {
+        Monitor {
+            params,
+            state: IntegrityState::Tracking,
+            level: params.initial_level.max(params.floor),
+            below_uncertain: 0,
+            below_lost: 0,
+            above_tracking: 0,
+            last: None,
+        }
+    }
+
+    #[must_use]
+    pub fn params(&self) -> &IntegrityParams {
+        &self.params
+    }
+
+    #[must_use]
+    pub fn state(&self) -> IntegrityState {
+        self.state
+    }
+
+    /// The last judgement, if any update has been judged.
+    #[must_use]
+    pub fn last(&self) -> Option<Integrity> {
+        self.last
+    }
+
+    /// Start over as if the filter had just been given a pose: the state is not known to be
+    /// wrong, and the counters restart; the learned level is kept (it belongs to the sensor).
+    pub fn restart(&mut self, state: IntegrityState) {
+        self.state = state;
+        self.below_uncertain = 0;
+        self.below_lost = 0;
+        self.above_tracking = 0;
+    }
+
+    /// Judge one update whose estimate explains `explained` of the scan.
+    pub fn observe(&mut self, explained: f64) -> Integrity {
+        let p = &self.params;
+        let ratio = explained / self.level;
+        self.below_lost = if ratio < p.lost_ratio { self.below_lost + 1 } else { 0 };
+        self.below_uncertain = if ratio < p.uncertain_ratio { self.below_uncertain + 1 } else { 0 };
+        self.above_tracking = if ratio >= p.tracking_ratio { self.above_tracking + 1 } else { 0 };
+        self.state = match self.state {
+            _ if self.below_lost >= p.confirm => IntegrityState::Lost,
+            IntegrityState::Tracking if self.below_uncertain >= p.confirm => IntegrityState::Uncertain,
+            IntegrityState::Uncertain | IntegrityState::Lost if self.above_tracking >= p.recover => {
+                IntegrityState::Tracking
+            }
+            s => s,
+        };
+        if self.state == IntegrityState::Tracking && ratio >= p.uncertain_ratio {
+            self.level = (self.level + p.level_alpha * (explained - self.level)).clamp(p.floor, 1.0);
+        }
+        let out = Integrity { state: self.state, explained, level: self.level };
+        self.last = Some(out);
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_defaults_are_consistent() {
+        IntegrityParams::default().check().unwrap();
+    }
+
+    #[test]
+    fn a_drop_needs_confirming_and_recovery_needs_a_run_of_good_updates() {
+        let mut m = Monitor::new(IntegrityParams::default());
+        let level = m.observe(0.85).level;
+        // One bad update is not enough (a person in front of the sensor).
+        assert_eq!(m.observe(0.1).state, IntegrityState::Tracking);
+        assert_eq!(m.observe(0.85).state, IntegrityState::Tracking);
+        // Two in a row below the lost ratio: lost.
+        m.observe(0.1);
+        assert_eq!(m.observe(0.1).state, IntegrityState::Lost);
+        // The level is not learned while lost.
+        assert!((m.last().unwrap().level - level).abs() < 1e-3);
+        // Two good updates are not enough, three are.
+        assert_eq!(m.observe(0.85).state, IntegrityState::Lost);
+        assert_eq!(m.observe(0.85).state, IntegrityState::Lost);
+        assert_eq!(m.observe(0.85).state, IntegrityState::Tracking);
+        // Between the uncertain and the lost ratio: uncertain, not lost.
+        let mid = level * (IntegrityParams::default().lost_ratio + 0.05);
+        m.observe(mid);
+        assert_eq!(m.observe(mid).state, IntegrityState::Uncertain);
+        assert_eq!(m.observe(mid).state, IntegrityState::Uncertain);
+    }
+
+    #[test]
+    fn the_level_follows_the_sensor_but_not_below_its_floor() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..2000 {
+            m.observe(0.7);
+        }
+        let l = m.last().unwrap();
+        assert_eq!(l.state, IntegrityState::Tracking);
+        assert!((l.level - 0.7).abs() < 0.01, "{l:?}");
+        // A filter that starts lost cannot teach it a low level.
+        let mut m = Monitor::new(p);
+        for _ in 0..2000 {
+            m.observe(0.2);
+        }
+        let l = m.last().unwrap();
+        assert_eq!(l.state, IntegrityState::Lost);
+        assert!(l.level >= p.floor, "{l:?}");
+    }
+}
