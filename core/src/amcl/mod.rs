@@ -229,12 +229,19 @@ impl Amcl {
     }
 
     fn place_globally(&mut self, points: &[[f64; 2]]) {
+        self.place_globally_with(points, self.global_candidates);
+        self.global_pending = false;
+    }
+
+    /// Every particle the best of `candidates` uniform poses for `points`, at equal weights.
+    fn place_globally_with(&mut self, points: &[[f64; 2]], candidates: usize) {
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let field = Arc::clone(&self.field);
+        let w = 1.0 / self.particles.len().max(1) as f64;
         for p in &mut self.particles {
-            p.pose = best_of_random_poses(&field, &beams, &mut self.rng, self.global_candidates);
+            p.pose = best_of_random_poses(&field, &beams, &mut self.rng, candidates);
+            p.weight = w;
         }
-        self.global_pending = false;
     }
 
     /// One scan with the odometry pose at its stamp. `points` are the measurement in the base frame
@@ -260,9 +267,6 @@ impl Amcl {
             self.predict(&last, &odom);
         }
         self.last_odom = Some(odom);
-        if self.monitor.state() == IntegrityState::Lost && !points.is_empty() {
-            self.reseed(points);
-        }
         self.weigh(points);
         self.updates += 1;
         let resampled = self.updates.is_multiple_of(u64::from(self.params.resample_interval.get()));
@@ -270,7 +274,24 @@ impl Amcl {
             self.resample();
         }
         self.estimate = particles::cluster_estimate(&self.particles);
+        let before = self.monitor.last().map(|i| i.state);
         self.judge(points);
+        // Re-seeded after this update's estimate, so that the next scan, not the one that chose
+        // them, judges the new poses: each is the best of many for this scan, and a best-of-many
+        // fits the scan it was chosen on better than the truth does (clutter and all), which let
+        // re-seeding pull a tracking filter away on the real logs.
+        if !points.is_empty() && self.monitor.last().is_some() {
+            let p = self.monitor.params();
+            match self.monitor.state() {
+                // Turned lost just now: every particle is placed anew (the global localiser's
+                // first scan, which finds the robot on the real logs from one scan); while it
+                // stays lost, `reseed_share` of them at each update.
+                IntegrityState::Lost if before != Some(IntegrityState::Lost) => self.reseed(points, 1.0),
+                IntegrityState::Lost => self.reseed(points, p.reseed_share),
+                IntegrityState::Uncertain => self.reseed(points, p.uncertain_reseed_share),
+                IntegrityState::Tracking => {}
+            }
+        }
         UpdateOutcome::Updated { resampled }
     }
 
@@ -291,15 +312,20 @@ impl Amcl {
         self.sensor_origin = origin;
     }
 
-    /// The filter is lost: a share of its particles, drawn at random, is replaced by poses that fit
-    /// this scan (each the best of `reseed_candidates` poses uniform over the free space), the
-    /// global localiser's sensor resetting. The rest stay where they were, so a false alarm costs
-    /// nothing the scans cannot undo: the weighting that follows keeps whichever fits.
-    fn reseed(&mut self, points: &[[f64; 2]]) {
+    /// The filter is lost or uncertain: `share` of its particles, drawn at random, is replaced by
+    /// poses that fit this scan (each the best of `reseed_candidates` poses uniform over the free
+    /// space), the global localiser's sensor resetting. The rest stay where they were, so a false
+    /// alarm costs nothing the scans cannot undo: the weighting that follows keeps whichever fits.
+    fn reseed(&mut self, points: &[[f64; 2]], share: f64) {
         let p = *self.monitor.params();
         let n = self.particles.len();
-        let k = ((n as f64) * p.reseed_share).round() as usize;
+        let k = ((n as f64) * share).round() as usize;
         if k == 0 {
+            return;
+        }
+        if k >= n {
+            self.place_globally_with(points, p.reseed_candidates);
+            self.reseeds += 1;
             return;
         }
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
