@@ -183,6 +183,11 @@ enum Command {
         /// No live status lines.
         #[arg(long)]
         quiet: bool,
+        /// Exit with an error when an estimate of V that the formation could drive on (verified)
+        /// was farther than this from the truth, cm. The run also fails when the plan does not
+        /// finish (unless --duration cut it short).
+        #[arg(long, default_value_t = 10.0)]
+        max_error_cm: f64,
         /// Run on a paused clock with every device over in-memory pipes: faster than real time
         /// and reproducible from the seed (times in the report are simulated).
         #[arg(long)]
@@ -555,6 +560,7 @@ fn main() -> ExitCode {
             virtual_time,
             rec,
             map,
+            max_error_cm,
             ..
         } => match duration.map(std::time::Duration::try_from_secs_f64) {
             Some(Err(_)) => Err(anyhow::anyhow!("--duration must be a positive number of seconds")),
@@ -570,6 +576,7 @@ fn main() -> ExitCode {
                 virtual_time,
                 rec,
                 surveyed_map: map == eval_cmd::MapSource::Surveyed,
+                max_error_cm,
             }),
         },
         Command::Robot { config, mock, net, rec } => {

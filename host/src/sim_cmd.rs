@@ -25,6 +25,7 @@ pub(crate) struct SimArgs {
     pub virtual_time: bool,
     pub rec: crate::record_cmd::RecordArgs,
     pub surveyed_map: bool,
+    pub max_error_cm: f64,
 }
 
 pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
@@ -45,8 +46,13 @@ pub(crate) fn parse_can(s: &str) -> Result<SimCan, String> {
     }
 }
 
-/// Run the whole system against the mocks and print the report.
+/// Run the whole system against the mocks and print the report; an error when the run failed
+/// (`SimReport::failures`).
 pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.max_error_cm.is_finite() && args.max_error_cm > 0.0,
+        "--max-error-cm must be a positive number of centimetres"
+    );
     let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
     let chosen = config.scenario(&args.scenario)?;
     let options = SimOptions {
@@ -110,6 +116,9 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
             std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
                 .with_context(|| format!("writing {}", path.display()))?;
         }
+        // A run cut short by --duration has not finished its plan on purpose.
+        let failures = report.failures(args.max_error_cm / 100.0, args.duration.is_none());
+        anyhow::ensure!(failures.is_empty(), "the run failed: {}", failures.join("; "));
         Ok(())
     })
 }

@@ -15,6 +15,7 @@
 use std::fmt;
 use std::sync::Arc;
 
+pub use amr_core::amcl::IntegrityState;
 use amr_core::config::Configuration;
 use amr_core::scan::Scan;
 use amr_core::se2::Se2;
@@ -275,6 +276,39 @@ pub struct Estimate {
     pub v: Option<Se2>,
     /// Per robot (formation order), where this estimate places it.
     pub robots: Vec<Option<Anchored>>,
+    /// How far it can be trusted.
+    pub integrity: EstimateIntegrity,
+}
+
+/// How far an estimate can be trusted: its filter's own judgement (`amr_core::amcl::integrity`)
+/// and, for fused estimates, the server's cross-check against the robots' own estimates.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct EstimateIntegrity {
+    /// `Uncertain` until the filter has judged an update.
+    pub state: IntegrityState,
+    /// Share of the scan the map explains at the estimate, and where the sensor is tracked.
+    pub explained: f64,
+    pub level: f64,
+    /// A robot whose own tracking estimate is farther from where this estimate places it than
+    /// `server.toml`'s `[integrity]` bound (the first such robot, formation order).
+    pub disagrees: Option<u32>,
+}
+
+impl EstimateIntegrity {
+    /// From a filter's judgement (`None`: not judged yet, uncertain).
+    #[must_use]
+    pub fn of(i: Option<amr_core::amcl::Integrity>) -> Self {
+        match i {
+            Some(i) => EstimateIntegrity { state: i.state, explained: i.explained, level: i.level, disagrees: None },
+            None => EstimateIntegrity { state: IntegrityState::Uncertain, ..EstimateIntegrity::default() },
+        }
+    }
+
+    /// Tracking, and no robot disagrees: the estimate may be driven on.
+    #[must_use]
+    pub fn verified(&self) -> bool {
+        self.state == IntegrityState::Tracking && self.disagrees.is_none()
+    }
 }
 
 /// The fusion's state as seen from outside.

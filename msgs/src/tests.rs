@@ -55,12 +55,19 @@ fn samples() -> (Vec<Uplink>, Vec<Downlink>, Vec<Estimate>, FusedFrame, Vec<Fusi
             stamp_s: 5.0,
             v: Some(p),
             robots: vec![Some(anchored), None],
+            integrity: EstimateIntegrity {
+                state: IntegrityState::Uncertain,
+                explained: 0.71,
+                level: 0.93,
+                disagrees: Some(1),
+            },
         },
         Estimate {
             source: EstimateSource::Robot(1),
             stamp_s: 5.0,
             v: None,
             robots: vec![None, Some(anchored)],
+            integrity: EstimateIntegrity::default(),
         },
     ];
     let fused = FusedFrame {

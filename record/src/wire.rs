@@ -220,6 +220,7 @@ mod tests {
                     None,
                     Some(Anchored { map: Se2 { x: t, y, theta: x }, odom: Se2::IDENTITY, stamp_s: y }),
                 ],
+                integrity: amr_msgs::EstimateIntegrity::default(),
             };
             let back = decode_estimate(&encode_estimate(&e).unwrap()).unwrap();
             let bits = |e: &Estimate| {

@@ -130,7 +130,9 @@ struct Observed {
     samples: Vec<report::ErrorSample>,
     /// Fused estimates of V waiting for the truth to pass their stamp (the world is sampled every
     /// physics step, so the latest estimate is usually a little ahead of it).
-    pending: std::collections::VecDeque<(f64, Se2)>,
+    pending: std::collections::VecDeque<(f64, Se2, bool)>,
+    /// The integrity of the latest fused estimate.
+    integrity: Option<amr_msgs::EstimateIntegrity>,
     health: BTreeMap<String, BTreeMap<String, (Health, Health)>>,
     formation: Option<FormationStatus>,
     /// Every formation phase seen, in order (a repeated phase once).
@@ -390,6 +392,10 @@ impl Sim {
         let plan = o.formation.as_ref().map_or(0.0, |f| f.plan_s);
         let err =
             o.samples.last().map_or("-".to_owned(), |s| format!("{:.1} cm", s.e_x_m.hypot(s.e_y_m) * 100.0));
+        let integrity = o.integrity.map_or("none".to_owned(), |i| match i.disagrees {
+            Some(j) => format!("{} (robot {j} disagrees)", i.state),
+            None => i.state.to_string(),
+        });
         let health: Vec<String> = o
             .health
             .iter()
@@ -403,7 +409,7 @@ impl Sim {
             })
             .collect();
         format!(
-            "t={:5.1}s plan={plan:5.1}s {phase} | V error {err} | {}",
+            "t={:5.1}s plan={plan:5.1}s {phase} | V {integrity}, error {err} | {}",
             self.started.elapsed().as_secs_f64(),
             health.join(" | ")
         )
@@ -937,7 +943,7 @@ impl Observer {
     /// Score every pending estimate the truth has caught up with.
     fn score(&self, o: &mut Observed) {
         let Some((latest, _)) = self.truth.latest() else { return };
-        while let Some((t, v)) = o.pending.front().copied() {
+        while let Some((t, v, verified)) = o.pending.front().copied() {
             if t > latest {
                 return;
             }
@@ -948,6 +954,7 @@ impl Observer {
                     e_x_m: v.x - truth.x,
                     e_y_m: v.y - truth.y,
                     e_theta_rad: angle_diff(v.theta, truth.theta),
+                    verified,
                 });
             }
         }
@@ -974,8 +981,9 @@ impl Actor for Observer {
             ObserverMsg::Estimate(e) => {
                 if let (EstimateSource::Fused(_), Some(v)) = (e.source, e.v) {
                     o.last_fused = Some((v, e.robots.clone()));
+                    o.integrity = Some(e.integrity);
                     if self.weights_equal {
-                        o.pending.push_back((e.stamp_s, v));
+                        o.pending.push_back((e.stamp_s, v, e.integrity.verified()));
                     }
                 }
                 self.score(&mut o);

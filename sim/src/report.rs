@@ -54,6 +54,8 @@ pub struct ErrorSample {
     pub e_x_m: f64,
     pub e_y_m: f64,
     pub e_theta_rad: f64,
+    /// The estimate was verified (V tracking, no robot disagreeing): the formation may drive on it.
+    pub verified: bool,
 }
 
 /// The whole report.
@@ -98,6 +100,37 @@ pub fn rank(h: Health) -> u8 {
 }
 
 impl SimReport {
+    /// Why the run failed, if it did: the plan did not finish (when `plan_must_finish`: not a run
+    /// cut short on purpose), or a verified estimate of V (one the formation may drive on) was
+    /// farther than `max_error_m` from the truth, or V was never verified.
+    #[must_use]
+    pub fn failures(&self, max_error_m: f64, plan_must_finish: bool) -> Vec<String> {
+        let mut out = Vec::new();
+        if plan_must_finish && self.final_phase != "Finished" {
+            out.push(format!(
+                "the plan did not finish: formation {} at {:.1} s of {:.1} s",
+                self.final_phase, self.plan_s, self.plan_len_s
+            ));
+        }
+        let worst = self
+            .samples
+            .iter()
+            .filter(|s| s.verified)
+            .map(|s| (s.e_x_m.hypot(s.e_y_m), s.t_s))
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        if let Some((e, t)) = worst.filter(|(e, _)| *e > max_error_m) {
+            out.push(format!(
+                "V's verified estimate was {:.1} cm from the truth at t = {t:.1} s (bound {:.1} cm)",
+                e * 100.0,
+                max_error_m * 100.0
+            ));
+        }
+        if !self.samples.is_empty() && self.samples.iter().all(|s| !s.verified) {
+            out.push("V was never verified: no estimate the formation could drive on".to_owned());
+        }
+        out
+    }
+
     /// Whether every device of every robot reached Ok at some point.
     #[must_use]
     pub fn every_device_reached_ok(&self) -> bool {

@@ -17,12 +17,15 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 
 use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
-use amr_core::config::{AmclMotion, AmclParams, Configuration, VamrParams};
+use amr_core::amcl::IntegrityState;
+use amr_core::config::{AmclMotion, AmclParams, Configuration, IntegrityChecks, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::{PacketTimes, virtual_frame};
 use amr_core::vamr::pipeline::{Oracle, Pipeline, RobotPacket, Source, Stage, UpdateError};
-use amr_msgs::{Anchored, Estimate, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, StageTimes, Uplink};
+use amr_msgs::{
+    Anchored, Estimate, EstimateIntegrity, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, StageTimes, Uplink,
+};
 
 /// Scans kept per robot for pairing.
 const BUFFER: usize = 3;
@@ -75,6 +78,8 @@ pub struct CoreSetup {
     /// Estimates replaced by the truth given with [`ServerCore::set_truth`]: evaluations only
     /// (the error budget); the server runs with none.
     pub oracle: Oracle,
+    /// How V's estimate is started and cross-checked (`server.toml` `[integrity]`).
+    pub checks: IntegrityChecks,
 }
 
 /// The end of a piece of work in [`ServerCore::offer`], for timing by the caller (the core has no
@@ -198,6 +203,8 @@ struct Channel {
     pipeline: Pipeline,
     /// AMCL on the virtual scan (T2–T4).
     filter: Option<Amcl>,
+    /// The filter has been started from the robots' own estimates.
+    started: bool,
     seq: u64,
 }
 
@@ -233,15 +240,19 @@ pub struct ServerCore {
     oracle: Oracle,
     /// Per robot: the true pose of its next scan (evaluations only).
     truth: Vec<Option<Se2>>,
+    checks: IntegrityChecks,
+    /// When the last set of scans was fused (receive time), s.
+    last_fusion_s: Option<f64>,
 }
 
 impl ServerCore {
     #[must_use]
     pub fn new(setup: CoreSetup) -> Self {
         let n = setup.members.len();
-        let filter = |seed: u64, at: Se2| {
+        let filter = |seed: u64, at: Se2, lidar: Se2| {
             let mut f = Amcl::new(setup.amcl.clone(), Arc::clone(&setup.field), seed);
             f.init_pose(at, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
+            f.set_sensor_origin(Some([lidar.x, lidar.y]));
             f
         };
         let robot_filters = setup
@@ -252,15 +263,11 @@ impl ServerCore {
                 filter(
                     setup.seed.wrapping_add(1 + i as u64),
                     setup.initial_v * Se2::new(0.0, m.slot_y_m, 0.0),
+                    m.lidar_to_base,
                 )
             })
             .collect();
         let y0 = setup.members.first().map_or(0.0, |m| m.slot_y_m);
-        // V is the weighted centroid of the robots (Eq. 16): off the slots' origin when the slots
-        // are not symmetric about it (four robots: 0, +s, −s, +2s).
-        let v_in_slots = virtual_frame(
-            &setup.members.iter().map(|m| (Se2::new(0.0, m.slot_y_m, 0.0), m.weight)).collect::<Vec<_>>(),
-        );
         let channels = setup
             .configurations
             .iter()
@@ -276,13 +283,11 @@ impl ServerCore {
                     pipeline.set_expected_heading(i, 0.0);
                 }
                 pipeline.set_oracle(setup.oracle);
-                let filter = (*c != Configuration::T1).then(|| {
-                    let mut f =
-                        Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed);
-                    f.init_pose(setup.initial_v * v_in_slots, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
-                    f
-                });
-                Channel { configuration: *c, pipeline, filter, seq: 0 }
+                // Not initialised here: it starts where the robots are when fusion begins
+                // ([`ServerCore::start_v`]), not where the scenario says they should be.
+                let filter = (*c != Configuration::T1)
+                    .then(|| Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed));
+                Channel { configuration: *c, pipeline, filter, started: false, seq: 0 }
             })
             .collect();
         ServerCore {
@@ -298,6 +303,8 @@ impl ServerCore {
             oracle: setup.oracle,
             truth: vec![None; n],
             members: setup.members,
+            checks: setup.checks,
+            last_fusion_s: None,
         }
     }
 
@@ -451,6 +458,7 @@ impl ServerCore {
             stamp_s: s.stamp_s,
             v: None,
             robots,
+            integrity: EstimateIntegrity::of(filter.integrity()),
         });
     }
 
@@ -472,6 +480,25 @@ impl ServerCore {
         for (i, h) in set.iter().enumerate() {
             self.fused_stamp[i] = h.stamp_s;
         }
+        // After a gap in fusion V's filter starts again from the robots' own estimates: what it
+        // carried across the gap on V's odometry alone is not trusted.
+        let gap = self.last_fusion_s.is_some_and(|t| now_s - t > self.checks.restart_after_ms / 1000.0);
+        self.last_fusion_s = Some(now_s);
+        if gap {
+            for ch in &mut self.channels {
+                ch.started = false;
+            }
+        }
+        // Each robot's own estimate at its scan of the set, when its filter is tracking.
+        let own: Vec<Option<Se2>> = set
+            .iter()
+            .enumerate()
+            .map(|(i, h)| {
+                let tracking =
+                    self.robot_filters.get(i).is_some_and(|f| f.integrity_state() == IntegrityState::Tracking);
+                self.corrections.get(i).copied().flatten().filter(|_| tracking).map(|c| c * h.odom)
+            })
+            .collect();
         let oldest = set.iter().map(|h| h.stamp_s).fold(f64::INFINITY, f64::min);
         let packets: Vec<RobotPacket<'_>> = set
             .iter()
@@ -524,7 +551,19 @@ impl ServerCore {
                 robots: u.bases_in_v.iter().zip(set).map(|(b, h)| (*b, h.odom)).collect(),
                 times: StageTimes { acquisition_sync_s: now_s - oldest, ..StageTimes::default() },
             };
+            let bases_in_v: Vec<Se2> = frame.robots.iter().map(|(b, _)| *b).collect();
+            if let Some(filter) = ch.filter.as_mut().filter(|_| !ch.started) {
+                // V where the robots' own tracking estimates put it (the first such robot, in
+                // formation order); none tracking yet: V waits, with no estimate.
+                let start = own.iter().zip(&bases_in_v).find_map(|(o, b)| o.map(|o| o * b.inverse()));
+                if let Some(v0) = start {
+                    tracing::info!(configuration = ?c, x = v0.x, y = v0.y, theta = v0.theta, "V's filter starts where the robots' own estimates put it");
+                    filter.init_pose(v0, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
+                    ch.started = true;
+                }
+            }
             let v = match (&frame.points, ch.filter.as_mut()) {
+                (Some(_), Some(_)) if !ch.started => None,
                 (Some(points), Some(filter)) => {
                     if self.amcl_motion == AmclMotion::Reference {
                         // The reference robot stands where V's odometry was composed from.
@@ -547,11 +586,18 @@ impl ServerCore {
                         Some(Anchored { map: v * *base_in_v, odom: *odom, stamp_s: first })
                     })
                     .collect();
+                let judged = match ch.filter.as_ref() {
+                    Some(f) => f.integrity(),
+                    None => self.robot_filters.first().and_then(Amcl::integrity),
+                };
+                let mut integrity = EstimateIntegrity::of(judged);
+                integrity.disagrees = disagreeing(v, &bases_in_v, &own, &self.checks);
                 step.estimates.push(Estimate {
                     source: EstimateSource::Fused(ch.configuration),
                     stamp_s: first,
                     v: Some(v),
                     robots,
+                    integrity,
                 });
             }
             step.fusions.push(Fusion {
@@ -597,6 +643,19 @@ fn observer(members: &[Member], i: usize) -> usize {
             (a.slot_y_m - me.slot_y_m).abs().total_cmp(&(b.slot_y_m - me.slot_y_m).abs())
         })
         .map_or(0, |(k, _)| k)
+}
+
+/// The first robot whose own estimate (`own`, where tracking) is farther from where V at `v`
+/// places it than the checks allow.
+fn disagreeing(v: Se2, bases_in_v: &[Se2], own: &[Option<Se2>], checks: &IntegrityChecks) -> Option<u32> {
+    let max_rad = checks.max_disagreement_deg.to_radians();
+    bases_in_v.iter().zip(own).position(|(b, o)| {
+        o.is_some_and(|o| {
+            let d = o.inverse() * (v * *b);
+            d.translation_norm() > checks.max_disagreement_m || d.theta.abs() > max_rad
+        })
+    })
+    .map(|i| i as u32)
 }
 
 /// V in the first robot's frame from the robots' true poses, when every one is known.

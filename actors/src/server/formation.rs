@@ -21,7 +21,7 @@ use ractor::{Actor, ActorProcessingErr, ActorRef};
 
 use super::ports::ServerPorts;
 use crate::link::DownlinkSender;
-use amr_msgs::{Anchored, Estimate, EstimateSource, FusionStatus};
+use amr_msgs::{Anchored, Estimate, EstimateIntegrity, EstimateSource, FusionStatus};
 use amr_msgs::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
 
 /// An estimate older than this is not used for control, s.
@@ -114,6 +114,8 @@ struct RobotView {
     /// anchored on a scan from before belongs to the old frame.
     frame_start_s: f64,
     fused: Option<Anchored>,
+    /// The integrity of the estimate `fused` came from.
+    fused_integrity: EstimateIntegrity,
     own: Option<Anchored>,
     seq: u64,
     last_cmd: (f64, f64),
@@ -132,6 +134,28 @@ pub(crate) struct FormationState {
 }
 
 impl RobotView {
+    /// Whether the robot's pose may be driven on: a fresh fused estimate whose V is tracking and
+    /// agrees with the robots' own estimates; the reason if not.
+    fn verified(&self, now_s: f64, names: &[String]) -> Result<(), String> {
+        if self.fused.is_none_or(|a| now_s - a.stamp_s > ESTIMATE_FRESH_S) {
+            return Err("no fresh estimate of V".to_owned());
+        }
+        let i = &self.fused_integrity;
+        if i.state != amr_msgs::IntegrityState::Tracking {
+            return Err(format!(
+                "V is {} (the map explains {:.0} % of its scan, {:.0} % where tracked)",
+                i.state,
+                i.explained * 100.0,
+                i.level * 100.0
+            ));
+        }
+        if let Some(j) = i.disagrees {
+            let who = names.get(j as usize).map_or("a robot", String::as_str);
+            return Err(format!("{who}'s own estimate disagrees with V's"));
+        }
+        Ok(())
+    }
+
     fn devices_ok(&self) -> bool {
         [Device::Lidar, Device::CanBus, Device::Drives]
             .iter()
@@ -186,13 +210,18 @@ impl FormationActor {
         let localised = state.robots.iter().all(|r| r.pose_now(now).is_some());
         let healthy = state.robots.iter().all(RobotView::devices_ok);
         let ready = localised && healthy && state.lost.is_none();
+        // The first robot whose pose is not verified, and why.
+        let unverified = state
+            .robots
+            .iter()
+            .find_map(|r| r.verified(now, &self.ports.robots).err());
         let stopped_by_robot = state.robots.iter().enumerate().find_map(|(i, r)| match r.safety {
             Some(s @ (SafetyState::EStop | SafetyState::Fault | SafetyState::Disarmed(_))) => Some((i, s)),
             _ => None,
         });
         match state.phase.clone() {
             Phase::Waiting => {
-                if ready && state.arm_allowed {
+                if ready && unverified.is_none() && state.arm_allowed {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
                     } else if self.away_from_start(state, now) {
@@ -234,6 +263,15 @@ impl FormationActor {
                             state.phase = Phase::Holding { reason };
                         }
                     }
+                } else if let Some(why) = unverified {
+                    // Never on an unverified pose: hold (zero twist, robots armed, the plan
+                    // paused) whatever `on_robot_lost` says, and resume by itself once verified.
+                    let reason = format!("localisation not verified: {why}");
+                    if state.phase != (Phase::Holding { reason: reason.clone() }) {
+                        tracing::warn!(%reason, "formation holding");
+                    }
+                    self.command_all_zero(state, now);
+                    state.phase = Phase::Holding { reason };
                 } else {
                     if matches!(state.phase, Phase::Holding { .. }) {
                         self.resync_plan(state, now);
@@ -455,7 +493,10 @@ impl Actor for FormationActor {
                             continue;
                         }
                         match e.source {
-                            EstimateSource::Fused(_) => r.fused = Some(*a),
+                            EstimateSource::Fused(_) => {
+                                r.fused = Some(*a);
+                                r.fused_integrity = e.integrity;
+                            }
                             EstimateSource::Robot(_) => r.own = Some(*a),
                         }
                     }

@@ -203,6 +203,7 @@ pub fn core_setup(setup: &ServerSetup, configurations: &[Configuration]) -> Core
         initial_v: setup.amcl.initial_pose.map_or(setup.scenario.start_pose(), |p| p.pose()),
         seed: setup.seed,
         oracle: amr_core::vamr::pipeline::Oracle::default(),
+        checks: setup.server.integrity,
     }
 }
 

@@ -49,6 +49,26 @@ pub enum OnRobotLost {
     Hold,
 }
 
+/// How the server verifies V's estimate before the formation may drive on it (`[integrity]`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntegrityChecks {
+    /// Where V places a robot and where the robot's own (tracking) AMCL places it may differ by
+    /// at most this, m ...
+    pub max_disagreement_m: f64,
+    /// ... and this, degrees.
+    pub max_disagreement_deg: f64,
+    /// V's filter starts again from the robots' own estimates after no fused update for this
+    /// long, ms.
+    pub restart_after_ms: f64,
+}
+
+impl Default for IntegrityChecks {
+    fn default() -> Self {
+        IntegrityChecks { max_disagreement_m: 0.3, max_disagreement_deg: 10.0, restart_after_ms: 2000.0 }
+    }
+}
+
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ServerConfig {
@@ -57,6 +77,9 @@ pub struct ServerConfig {
     pub robots: Vec<FormationMember>,
     pub sync: SyncGates,
     pub on_robot_lost: OnRobotLost,
+    /// Absent: the defaults.
+    #[serde(default)]
+    pub integrity: IntegrityChecks,
 }
 
 impl ConfigFileType for ServerConfig {
@@ -74,6 +97,22 @@ impl ConfigFileType for ServerConfig {
                 });
             }
         }
+        let c = &self.integrity;
+        rule(
+            c.max_disagreement_m.is_finite() && c.max_disagreement_m > 0.0,
+            "integrity.max_disagreement_m",
+            format!("must be > 0 (got {})", c.max_disagreement_m),
+        )?;
+        rule(
+            c.max_disagreement_deg.is_finite() && c.max_disagreement_deg > 0.0,
+            "integrity.max_disagreement_deg",
+            format!("must be > 0 (got {})", c.max_disagreement_deg),
+        )?;
+        rule(
+            c.restart_after_ms.is_finite() && c.restart_after_ms > 0.0,
+            "integrity.restart_after_ms",
+            format!("must be > 0 (got {})", c.restart_after_ms),
+        )?;
         let s = &self.sync;
         rule(
             s.max_stamp_spread_ms < s.max_age_ms,

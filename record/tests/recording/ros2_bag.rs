@@ -141,6 +141,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
         stamp_s: 1.4,
         v: Some(v),
         robots: vec![Some(Anchored { map: a_map, odom: a_odom, stamp_s: 1.4 }), None],
+        integrity: amr_msgs::EstimateIntegrity::default(),
     };
     rec.put(1.41, &Event::Estimate(estimate)).unwrap();
     let points = vec![[1.0, 0.0], [0.0, 2.0], [1.2, 0.001], [-3.0, 0.0]];

@@ -289,6 +289,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
         initial_v: start_v,
         seed,
         oracle: setup.oracle,
+        checks: amr_core::config::IntegrityChecks::default(),
     });
     // Odometry poses in the map frame, starting from the known start poses: each robot's own
     // odometry (wheels for distance, the gyro for heading), as `amr robot` computes it.

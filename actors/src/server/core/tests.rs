@@ -46,6 +46,7 @@ fn core_with(slots: &[f64]) -> ServerCore {
         initial_v: Se2::new(-2.0, 0.0, 0.0),
         seed: 1,
         oracle: amr_core::vamr::pipeline::Oracle::default(),
+        checks: amr_core::config::IntegrityChecks::default(),
     })
 }
 
