@@ -97,6 +97,9 @@ pub struct IntegrityParams {
     pub through_m: f64,
     /// Endpoints looked at per update, evenly spread over the scan (at most).
     pub max_points: usize,
+    /// A scan with fewer valid endpoints is not judged (the state stays as it was): a robot
+    /// facing open space sees one or two returns, and their share says nothing.
+    pub min_points: usize,
     /// The tracked level starts here and never falls below it (a filter that starts lost must
     /// not learn a low level), share.
     pub floor: f64,
@@ -119,6 +122,8 @@ pub struct IntegrityParams {
     pub uncertain_reseed_share: f64,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
+    /// A re-seeded pose must explain this much more of the scan than the estimate does, share.
+    pub switch_margin: f64,
 }
 
 impl Default for IntegrityParams {
@@ -127,6 +132,7 @@ impl Default for IntegrityParams {
             hit_m: 0.15,
             through_m: 0.3,
             max_points: 180,
+            min_points: 30,
             floor: 0.6,
             initial_level: 0.9,
             level_alpha: 0.005,
@@ -139,6 +145,7 @@ impl Default for IntegrityParams {
             reseed_share: 0.5,
             uncertain_reseed_share: 0.0,
             reseed_candidates: 200,
+            switch_margin: 0.3,
         }
     }
 }
@@ -153,8 +160,11 @@ impl IntegrityParams {
         if !(self.through_m.is_finite() && self.through_m > 0.0) {
             return Err(format!("through_m must be > 0 (got {})", self.through_m));
         }
-        if self.max_points < 10 {
-            return Err(format!("max_points must be at least 10 (got {})", self.max_points));
+        if self.min_points < 10 || self.max_points < self.min_points {
+            return Err(format!(
+                "need 10 <= min_points <= max_points (got {} and {})",
+                self.min_points, self.max_points
+            ));
         }
         for (name, v) in [
             ("floor", self.floor),
@@ -163,6 +173,7 @@ impl IntegrityParams {
             ("smoothing", self.smoothing),
             ("reseed_share", self.reseed_share),
             ("uncertain_reseed_share", self.uncertain_reseed_share),
+            ("switch_margin", self.switch_margin),
         ] {
             if !share(v) {
                 return Err(format!("{name} must be within 0..=1 (got {v})"));

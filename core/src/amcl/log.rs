@@ -328,6 +328,9 @@ pub fn integrity_separation(
             LikelihoodField::new(grid, params, params.max_range_m().unwrap_or(l.scan.range_max_m))
         });
         let points = super::subsample(&scan_points(&l.scan, &l.laser_in_robot, params), p.max_points);
+        if points.len() < p.min_points {
+            continue;
+        }
         let origin = Some([l.laser_in_robot.x, l.laser_in_robot.y]);
         let share = |pose: &Se2| super::integrity::explained_share(field, pose, &points, origin, &p);
         let Some(at_ref) = share(&g.pose) else { continue };

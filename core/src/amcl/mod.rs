@@ -233,14 +233,12 @@ impl Amcl {
         self.global_pending = false;
     }
 
-    /// Every particle the best of `candidates` uniform poses for `points`, at equal weights.
+    /// Every particle the best of `candidates` uniform poses for `points`.
     fn place_globally_with(&mut self, points: &[[f64; 2]], candidates: usize) {
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let field = Arc::clone(&self.field);
-        let w = 1.0 / self.particles.len().max(1) as f64;
         for p in &mut self.particles {
             p.pose = best_of_random_poses(&field, &beams, &mut self.rng, candidates);
-            p.weight = w;
         }
     }
 
@@ -275,12 +273,12 @@ impl Amcl {
         }
         self.estimate = particles::cluster_estimate(&self.particles);
         let before = self.monitor.last().map(|i| i.state);
-        self.judge(points);
+        let judged = self.judge(points);
         // Re-seeded after this update's estimate, so that the next scan, not the one that chose
         // them, judges the new poses: each is the best of many for this scan, and a best-of-many
         // fits the scan it was chosen on better than the truth does (clutter and all), which let
         // re-seeding pull a tracking filter away on the real logs.
-        if !points.is_empty() && self.monitor.last().is_some() {
+        if judged {
             let p = self.monitor.params();
             match self.monitor.state() {
                 // Turned lost just now: every particle is placed anew (the global localiser's
@@ -295,13 +293,18 @@ impl Amcl {
         UpdateOutcome::Updated { resampled }
     }
 
-    /// Judge the new estimate against the map (`integrity`): at most `max_points` of the scan.
-    fn judge(&mut self, points: &[[f64; 2]]) {
-        let Some(e) = self.estimate.as_ref() else { return };
+    /// Judge the new estimate against the map (`integrity`): at most `max_points` of the scan,
+    /// and not a scan of fewer than `min_points`. Whether it was judged.
+    fn judge(&mut self, points: &[[f64; 2]]) -> bool {
         let p = *self.monitor.params();
+        let Some(e) = self.estimate.as_ref().filter(|_| points.len() >= p.min_points) else { return false };
         let judged = subsample(points, p.max_points);
-        if let Some(share) = integrity::explained_share(&self.field, &e.pose, &judged, self.sensor_origin, &p) {
-            self.monitor.observe(share);
+        match integrity::explained_share(&self.field, &e.pose, &judged, self.sensor_origin, &p) {
+            Some(share) => {
+                self.monitor.observe(share);
+                true
+            }
+            None => false,
         }
     }
 
@@ -312,31 +315,57 @@ impl Amcl {
         self.sensor_origin = origin;
     }
 
-    /// The filter is lost or uncertain: `share` of its particles, drawn at random, is replaced by
-    /// poses that fit this scan (each the best of `reseed_candidates` poses uniform over the free
-    /// space), the global localiser's sensor resetting. The rest stay where they were, so a false
-    /// alarm costs nothing the scans cannot undo: the weighting that follows keeps whichever fits.
+    /// The filter is lost or uncertain: up to `share` of its particles, drawn at random, are
+    /// replaced by poses that fit this scan (each the best of `reseed_candidates` poses uniform
+    /// over the free space, the global localiser's sensor resetting) — but only by those that
+    /// explain the scan clearly better than the estimate does (`switch_margin` more of it, by the
+    /// integrity measure, beams through walls included). Where the map explains little of the
+    /// scan anywhere (a region the map does not cover, a crowd), nothing is replaced and the
+    /// filter keeps tracking on odometry: replacing it there put a tracked filter 12 m off in our
+    /// surveyed world. The rest stay where they were; the weighting of the next scan keeps
+    /// whichever fits.
     fn reseed(&mut self, points: &[[f64; 2]], share: f64) {
         let p = *self.monitor.params();
         let n = self.particles.len();
-        let k = ((n as f64) * share).round() as usize;
+        let k = ((n as f64) * share).round().min(n as f64) as usize;
         if k == 0 {
             return;
         }
-        if k >= n {
-            self.place_globally_with(points, p.reseed_candidates);
-            self.reseeds += 1;
+        // A candidate is judged coarsely (`COARSE` times the distances) against the estimate's own
+        // share: it is one uniform draw, in the truth's basin but rarely at its optimum, where the
+        // fine share of a pose 0.2 m off is already low.
+        let mut coarse = p;
+        coarse.hit_m *= COARSE;
+        coarse.through_m *= COARSE;
+        let judged = subsample(points, p.max_points);
+        let field = Arc::clone(&self.field);
+        let need = self.monitor.last().map_or(0.0, |i| i.explained) + p.switch_margin;
+        if need > 1.0 {
             return;
         }
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
-        let field = Arc::clone(&self.field);
         let w = 1.0 / n as f64;
-        for _ in 0..k {
-            let at = self.rng.below(n);
+        // Which particles go: all of them, or `k` drawn at random.
+        let slots: Vec<usize> = if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
+        let mut placed = 0usize;
+        for at in slots {
             let pose = best_of_random_poses(&field, &beams, &mut self.rng, p.reseed_candidates);
+            // The cheap test first (endpoints only, coarse), then the candidate climbed to its
+            // local optimum and judged as the estimate was (fine, beams through walls included).
+            if integrity::explained_share(&field, &pose, &judged, None, &coarse).unwrap_or(0.0) < need {
+                continue;
+            }
+            let pose = refine(&field, &beams, pose);
+            if integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p).unwrap_or(0.0) < need {
+                continue;
+            }
             if let Some(q) = self.particles.get_mut(at) {
                 *q = Particle { pose, weight: w };
+                placed += 1;
             }
+        }
+        if placed == 0 {
+            return;
         }
         // The others keep their relative weights, on the same total as the re-seeded ones.
         let total: f64 = self.particles.iter().map(|q| q.weight).sum();
@@ -557,6 +586,9 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
     (slipped, kept)
 }
 
+/// How much looser than the integrity measure's own distances the re-seeding's comparison is.
+const COARSE: f64 = 3.0;
+
 /// The spread below which the particles count as converged (nav2 `pf->dist_threshold`).
 pub const CONVERGED_M: f64 = 0.5;
 
@@ -585,6 +617,31 @@ fn best_of_random_poses(
         if l > best_ll {
             (best, best_ll) = (c, l);
         }
+    }
+    best
+}
+
+/// `pose` climbed to the nearest maximum of the likelihood of `beams` by a pattern search (steps
+/// of 10 cm and 4°, halved down to 1.25 cm and 0.5°).
+fn refine(field: &LikelihoodField, beams: &FixedPoints, pose: Se2) -> Se2 {
+    let (mut best, mut best_ll) = (pose, field.log_likelihood_of(&pose, beams));
+    let (mut d, mut a) = (0.1, 4f64.to_radians());
+    // At most 4 halvings × 20 moves: bounded.
+    for _ in 0..4 {
+        for _ in 0..20 {
+            let moves = [(d, 0.0, 0.0), (-d, 0.0, 0.0), (0.0, d, 0.0), (0.0, -d, 0.0), (0.0, 0.0, a), (0.0, 0.0, -a)];
+            let next = moves
+                .iter()
+                .map(|(dx, dy, dt)| Se2::new(best.x + dx, best.y + dy, best.theta + dt))
+                .map(|q| (q, field.log_likelihood_of(&q, beams)))
+                .max_by(|x, y| x.1.total_cmp(&y.1));
+            match next {
+                Some((q, l)) if l > best_ll => (best, best_ll) = (q, l),
+                _ => break,
+            }
+        }
+        d /= 2.0;
+        a /= 2.0;
     }
     best
 }

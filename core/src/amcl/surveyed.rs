@@ -166,6 +166,7 @@ fn localise(map: &OccupancyGrid, params: &AmclParams, seed: u64) -> super::log::
     let (truth, scans, odom) = log(&world, seed);
     let field = Arc::new(LikelihoodField::new(map, params, 30.0));
     let mut amcl = Amcl::new(params.clone(), field, seed);
+    amcl.set_sensor_origin(Some([0.0, 0.0]));
     let (sxy, syaw) = super::log::CLI_SPREAD;
     amcl.init_pose(truth[0], sxy, syaw);
     let mut est = Vec::new();
@@ -173,6 +174,14 @@ fn localise(map: &OccupancyGrid, params: &AmclParams, seed: u64) -> super::log::
         amcl.update(*o, &scan_points(s, &Se2::IDENTITY, params), false);
         if let Some(p) = amcl.pose_at(o) {
             est.push((k as f64, p));
+            if std::env::var("AMR_TRACE").is_ok() {
+                let i = amcl.integrity();
+                let pts = scan_points(s, &Se2::IDENTITY, params);
+                let e = amcl.estimate().unwrap().pose;
+                let no_rays = super::integrity::explained_share(&amcl.field, &e, &pts, None, &params.integrity);
+                let at_truth = super::integrity::explained_share(&amcl.field, &truth[k], &pts, Some([0.0, 0.0]), &params.integrity);
+                eprintln!("{k} {:.2} {:?} n={} norays={no_rays:?} truth={at_truth:?}", (p.x - truth[k].x).hypot(p.y - truth[k].y), i, pts.len());
+            }
         }
     }
     let reference: Vec<RefPose> =
