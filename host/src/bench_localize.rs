@@ -51,7 +51,8 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
         .map(|(n, k)| {
             let end = kidnaps.get(n + 1).map_or(usize::MAX, |x| x.scan);
             let window = || judged.iter().filter(|(i, _, _)| *i >= k.scan && *i < end);
-            let lost_after = window().find(|(_, _, s)| *s == IntegrityState::Lost).map(|(i, _, _)| i - k.scan);
+            let lost_after =
+                window().find(|(_, _, s)| *s == IntegrityState::Lost).map(|(i, _, _)| i - k.scan);
             let tracked_after = window()
                 .find(|(i, e, s)| {
                     *s == IntegrityState::Tracking
@@ -59,7 +60,8 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
                         && lost_after.is_some_and(|l| *i >= k.scan + l)
                 })
                 .map(|(i, _, _)| i - k.scan);
-            let carried_off = window().any(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M));
+            let carried_off =
+                window().any(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M));
             KidnapOutcome {
                 carried_off,
                 scan: k.scan,
@@ -102,7 +104,8 @@ pub(crate) const DETECT_WITHIN: usize = 3;
 /// The integrity counts of a run: per scan, its error (None: no reference) and the state reported.
 pub(crate) fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
     let mut c = IntegrityCounts { reseeds, ..IntegrityCounts::default() };
-    let scored: Vec<(f64, IntegrityState)> = per_scan.iter().filter_map(|(e, s)| e.map(|e| (e, *s))).collect();
+    let scored: Vec<(f64, IntegrityState)> =
+        per_scan.iter().filter_map(|(e, s)| e.map(|e| (e, *s))).collect();
     let off = |k: usize| scored[k].0 > amr_core::amcl::log::DIVERGED_M;
     let mut k = 0;
     while k < scored.len() {
@@ -172,9 +175,11 @@ fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRo
     } else {
         (at_ref.iter().sum::<f64>() / at_ref.len() as f64).clamp(p.floor, 1.0)
     };
-    let labels = std::iter::once("reference".to_owned()).chain(amr_core::amcl::log::DISPLACEMENTS.iter().map(
-        |(d, a)| if *a == 0.0 { format!("{d} m") } else { format!("{:.0}°", a.to_degrees()) },
-    ));
+    let labels = std::iter::once("reference".to_owned()).chain(
+        amr_core::amcl::log::DISPLACEMENTS
+            .iter()
+            .map(|(d, a)| if *a == 0.0 { format!("{d} m") } else { format!("{:.0}°", a.to_degrees()) }),
+    );
     labels
         .zip(shares)
         .map(|(displacement, v)| {
@@ -332,8 +337,10 @@ pub(crate) fn run(
         let tracked = Start::resolve(Some(first), params);
         let tracking =
             seeds.iter().map(|&s| run_once(&grid, &records, params, tracked, s, &reference, &[])).collect();
-        let global =
-            seeds.iter().map(|&s| run_once(&grid, &records, params, Start::Global, s, &reference, &[])).collect();
+        let global = seeds
+            .iter()
+            .map(|&s| run_once(&grid, &records, params, Start::Global, s, &reference, &[]))
+            .collect();
         // The same log with its odometry teleported every `kidnap_every` scans (jumps drawn from
         // the seed), tracked from the first reference pose.
         let kidnapped: Vec<Run> = match kidnap_every {
@@ -379,7 +386,15 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
         let c = &r.integrity;
         format!(
             "{}/{} | {}/{} | {} | {} | {} / {} | {}",
-            c.detected, c.losses, c.recovered, c.losses, c.excursions, c.false_lost, c.uncertain_on, c.on, c.reseeds
+            c.detected,
+            c.losses,
+            c.recovered,
+            c.losses,
+            c.excursions,
+            c.false_lost,
+            c.uncertain_on,
+            c.on,
+            c.reseeds
         )
     });
     let i = if run.is_none() { "– | – | – | – | – | –".to_owned() } else { i };
@@ -416,22 +431,10 @@ pub(crate) fn markdown(r: &Report) -> String {
             row(&mut out, &l.name, "nav2 (its CSV)", n, None);
         }
         for (s, run) in r.seeds.iter().zip(&l.tracking) {
-            row(
-                &mut out,
-                &l.name,
-                &format!("tracking, seed {s}"),
-                &run.score,
-                Some(run),
-            );
+            row(&mut out, &l.name, &format!("tracking, seed {s}"), &run.score, Some(run));
         }
         for (s, run) in r.seeds.iter().zip(&l.global) {
-            row(
-                &mut out,
-                &l.name,
-                &format!("global, seed {s}"),
-                &run.score,
-                Some(run),
-            );
+            row(&mut out, &l.name, &format!("global, seed {s}"), &run.score, Some(run));
         }
         for (s, run) in r.seeds.iter().zip(&l.kidnapped) {
             row(&mut out, &l.name, &format!("kidnapped, seed {s}"), &run.score, Some(run));
@@ -441,12 +444,16 @@ pub(crate) fn markdown(r: &Report) -> String {
         .logs
         .iter()
         .flat_map(|l| {
-            r.seeds.iter().zip(&l.kidnapped).flat_map(move |(s, run)| run.kidnaps.iter().map(move |k| (l.name.as_str(), *s, k)))
+            r.seeds
+                .iter()
+                .zip(&l.kidnapped)
+                .flat_map(move |(s, run)| run.kidnaps.iter().map(move |k| (l.name.as_str(), *s, k)))
         })
         .collect();
     if !kidnaps.is_empty() {
         let n = kidnaps.len();
-        let off: Vec<&KidnapOutcome> = kidnaps.iter().filter(|(_, _, k)| k.carried_off).map(|(_, _, k)| *k).collect();
+        let off: Vec<&KidnapOutcome> =
+            kidnaps.iter().filter(|(_, _, k)| k.carried_off).map(|(_, _, k)| *k).collect();
         let lost3 = off.iter().filter(|k| k.lost_after.is_some_and(|a| a < DETECT_WITHIN)).count();
         let back10 = off.iter().filter(|k| k.tracked_after.is_some_and(|a| a < 10)).count();
         let back = off.iter().filter(|k| k.tracked_after.is_some()).count();
@@ -458,7 +465,8 @@ pub(crate) fn markdown(r: &Report) -> String {
              {back}. Scans counted from the kidnapping's (0).\n",
             off.len()
         );
-        let _ = writeln!(out, "| log | seed | scan | jump (m, °) | carried off | lost after | tracking after |");
+        let _ =
+            writeln!(out, "| log | seed | scan | jump (m, °) | carried off | lost after | tracking after |");
         let _ = writeln!(out, "|---|---|---|---|---|---|---|");
         let show = |a: Option<usize>| a.map_or("never".to_owned(), |a| a.to_string());
         for (name, s, k) in kidnaps {

@@ -196,7 +196,13 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
         Some(every) => {
             let (records, kidnaps) = amr_core::amcl::log::kidnapped(&records, every, opts.seed);
             for k in &kidnaps {
-                tracing::info!(scan = k.scan, x = k.jump.x, y = k.jump.y, theta = k.jump.theta, "odometry teleported");
+                tracing::info!(
+                    scan = k.scan,
+                    x = k.jump.x,
+                    y = k.jump.y,
+                    theta = k.jump.theta,
+                    "odometry teleported"
+                );
             }
             records
         }

@@ -299,7 +299,9 @@ impl EstimateIntegrity {
     #[must_use]
     pub fn of(i: Option<amr_core::amcl::Integrity>) -> Self {
         match i {
-            Some(i) => EstimateIntegrity { state: i.state, explained: i.explained, level: i.level, disagrees: None },
+            Some(i) => {
+                EstimateIntegrity { state: i.state, explained: i.explained, level: i.level, disagrees: None }
+            }
             None => EstimateIntegrity { state: IntegrityState::Uncertain, ..EstimateIntegrity::default() },
         }
     }

@@ -16,8 +16,8 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
 use amr_core::amcl::IntegrityState;
+use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
 use amr_core::config::{AmclMotion, AmclParams, Configuration, IntegrityChecks, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
@@ -494,8 +494,10 @@ impl ServerCore {
             .iter()
             .enumerate()
             .map(|(i, h)| {
-                let tracking =
-                    self.robot_filters.get(i).is_some_and(|f| f.integrity_state() == IntegrityState::Tracking);
+                let tracking = self
+                    .robot_filters
+                    .get(i)
+                    .is_some_and(|f| f.integrity_state() == IntegrityState::Tracking);
                 self.corrections.get(i).copied().flatten().filter(|_| tracking).map(|c| c * h.odom)
             })
             .collect();
@@ -649,13 +651,16 @@ fn observer(members: &[Member], i: usize) -> usize {
 /// places it than the checks allow.
 fn disagreeing(v: Se2, bases_in_v: &[Se2], own: &[Option<Se2>], checks: &IntegrityChecks) -> Option<u32> {
     let max_rad = checks.max_disagreement_deg.to_radians();
-    bases_in_v.iter().zip(own).position(|(b, o)| {
-        o.is_some_and(|o| {
-            let d = o.inverse() * (v * *b);
-            d.translation_norm() > checks.max_disagreement_m || d.theta.abs() > max_rad
+    bases_in_v
+        .iter()
+        .zip(own)
+        .position(|(b, o)| {
+            o.is_some_and(|o| {
+                let d = o.inverse() * (v * *b);
+                d.translation_norm() > checks.max_disagreement_m || d.theta.abs() > max_rad
+            })
         })
-    })
-    .map(|i| i as u32)
+        .map(|i| i as u32)
 }
 
 /// V in the first robot's frame from the robots' true poses, when every one is known.

@@ -211,10 +211,7 @@ impl FormationActor {
         let healthy = state.robots.iter().all(RobotView::devices_ok);
         let ready = localised && healthy && state.lost.is_none();
         // The first robot whose pose is not verified, and why.
-        let unverified = state
-            .robots
-            .iter()
-            .find_map(|r| r.verified(now, &self.ports.robots).err());
+        let unverified = state.robots.iter().find_map(|r| r.verified(now, &self.ports.robots).err());
         let stopped_by_robot = state.robots.iter().enumerate().find_map(|(i, r)| match r.safety {
             Some(s @ (SafetyState::EStop | SafetyState::Fault | SafetyState::Disarmed(_))) => Some((i, s)),
             _ => None,

@@ -12,10 +12,10 @@
 //!
 //! - any state → `Lost` after `confirm` updates in a row below `lost_ratio` × level (a robot
 //!   carried off: the map explains little of the scan at once);
-//! - `Tracking` → `Uncertain` when a running mean of the share (`smoothing`) falls below
+//! - `Tracking` → `Uncertain` when the median share of the last `window` updates falls below
 //!   `uncertain_ratio` × level (a filter that settled on a plausible wrong place, say a corridor
 //!   a few metres off, explains most of the scan, but persistently less than where it is right;
-//!   one scan full of people does not move the mean far);
+//!   a scan or two full of people do not move the median);
 //! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
 //!   `tracking_ratio` × level.
 //!
@@ -107,8 +107,8 @@ pub struct IntegrityParams {
     pub initial_level: f64,
     /// Weight of each tracked update in the level's running mean.
     pub level_alpha: f64,
-    /// Weight of each update in the running mean that `uncertain_ratio` is judged on.
-    pub smoothing: f64,
+    /// Updates whose median share `uncertain_ratio` is judged on.
+    pub window: usize,
     pub uncertain_ratio: f64,
     pub lost_ratio: f64,
     pub tracking_ratio: f64,
@@ -136,7 +136,7 @@ impl Default for IntegrityParams {
             floor: 0.6,
             initial_level: 0.9,
             level_alpha: 0.005,
-            smoothing: 0.3,
+            window: 5,
             uncertain_ratio: 0.88,
             lost_ratio: 0.6,
             tracking_ratio: 0.92,
@@ -170,7 +170,6 @@ impl IntegrityParams {
             ("floor", self.floor),
             ("initial_level", self.initial_level),
             ("level_alpha", self.level_alpha),
-            ("smoothing", self.smoothing),
             ("reseed_share", self.reseed_share),
             ("uncertain_reseed_share", self.uncertain_reseed_share),
             ("switch_margin", self.switch_margin),
@@ -188,6 +187,9 @@ impl IntegrityParams {
                 "need 0 < lost_ratio < uncertain_ratio < tracking_ratio <= 1 (got {}, {}, {})",
                 self.lost_ratio, self.uncertain_ratio, self.tracking_ratio
             ));
+        }
+        if !(1..=50).contains(&self.window) {
+            return Err(format!("window must be within 1..=50 (got {})", self.window));
         }
         if self.confirm == 0 || self.recover == 0 {
             return Err("confirm and recover must be at least 1".to_owned());
@@ -237,8 +239,8 @@ pub struct Monitor {
     params: IntegrityParams,
     state: IntegrityState,
     level: f64,
-    /// The running mean of the share (`smoothing`); `None` until the first update.
-    smoothed: Option<f64>,
+    /// The last `window` shares.
+    recent: std::collections::VecDeque<f64>,
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
@@ -252,7 +254,7 @@ impl Monitor {
             params,
             state: IntegrityState::Tracking,
             level: params.initial_level.max(params.floor),
-            smoothed: None,
+            recent: std::collections::VecDeque::new(),
             below_uncertain: 0,
             below_lost: 0,
             above_tracking: 0,
@@ -280,7 +282,7 @@ impl Monitor {
     /// wrong, and the counters restart; the learned level is kept (it belongs to the sensor).
     pub fn restart(&mut self, state: IntegrityState) {
         self.state = state;
-        self.smoothed = None;
+        self.recent.clear();
         self.below_uncertain = 0;
         self.below_lost = 0;
         self.above_tracking = 0;
@@ -288,11 +290,17 @@ impl Monitor {
 
     /// Judge one update whose estimate explains `explained` of the scan.
     pub fn observe(&mut self, explained: f64) -> Integrity {
-        let p = &self.params;
+        let p = self.params;
         let ratio = explained / self.level;
-        let smoothed = self.smoothed.map_or(explained, |m| m + p.smoothing * (explained - m));
+        self.recent.push_back(explained);
+        while self.recent.len() > p.window {
+            self.recent.pop_front();
+        }
+        let mut sorted: Vec<f64> = self.recent.iter().copied().collect();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(explained);
         self.below_lost = if ratio < p.lost_ratio { self.below_lost + 1 } else { 0 };
-        self.below_uncertain = u32::from(smoothed / self.level < p.uncertain_ratio);
+        self.below_uncertain = u32::from(median / self.level < p.uncertain_ratio);
         self.above_tracking = if ratio >= p.tracking_ratio { self.above_tracking + 1 } else { 0 };
         let before = self.state;
         self.state = match self.state {
@@ -303,13 +311,11 @@ impl Monitor {
             }
             s => s,
         };
-        // Back to tracking: the running mean starts again from the good updates, not from the
-        // bad ones before.
-        self.smoothed = Some(if before != IntegrityState::Tracking && self.state == IntegrityState::Tracking {
-            explained
-        } else {
-            smoothed
-        });
+        // Back to tracking: the median starts again from the good updates, not the bad ones.
+        if before != IntegrityState::Tracking && self.state == IntegrityState::Tracking {
+            self.recent.clear();
+            self.recent.push_back(explained);
+        }
         if self.state == IntegrityState::Tracking && ratio >= p.uncertain_ratio {
             self.level = (self.level + p.level_alpha * (explained - self.level)).clamp(p.floor, 1.0);
         }
@@ -348,9 +354,12 @@ mod tests {
         assert_eq!(m.observe(0.9).state, IntegrityState::Tracking);
         // A persistent fit between the lost and the uncertain ratio: uncertain within a few
         // updates, never lost.
+        for _ in 0..10 {
+            assert_eq!(m.observe(0.9).state, IntegrityState::Tracking);
+        }
         let mid = level * 0.75;
         let turned = (1..=10).find(|_| m.observe(mid).state == IntegrityState::Uncertain);
-        assert!(turned.is_some_and(|k| k <= 5), "{turned:?}");
+        assert_eq!(turned, Some(3), "the median of 5 turns at the third");
         for _ in 0..20 {
             assert_eq!(m.observe(mid).state, IntegrityState::Uncertain);
         }

@@ -130,14 +130,12 @@ impl<'g> LogLocalizer<'g> {
         let points = scan_points(&laser.scan, &laser.laser_in_robot, params);
         let outcome = filter.update(odom, &points, false);
         let pose = match (filter.estimate(), filter.pose_at(&odom)) {
-            (Some(e), Some(pose)) => {
-                Some(LogPose {
-                    timestamp_s: laser.timestamp_s,
-                    pose,
-                    covariance: e.covariance,
-                    integrity: filter.integrity(),
-                })
-            }
+            (Some(e), Some(pose)) => Some(LogPose {
+                timestamp_s: laser.timestamp_s,
+                pose,
+                covariance: e.covariance,
+                integrity: filter.integrity(),
+            }),
             _ => None,
         };
         Some(Fed { outcome, pose })

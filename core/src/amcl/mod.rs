@@ -284,7 +284,9 @@ impl Amcl {
                 // Turned lost just now: every particle is placed anew (the global localiser's
                 // first scan, which finds the robot on the real logs from one scan); while it
                 // stays lost, `reseed_share` of them at each update.
-                IntegrityState::Lost if before != Some(IntegrityState::Lost) => self.reseed(points, 1.0),
+                IntegrityState::Lost if before != Some(IntegrityState::Lost) && p.reseed_share > 0.0 => {
+                    self.reseed(points, 1.0);
+                }
                 IntegrityState::Lost => self.reseed(points, p.reseed_share),
                 IntegrityState::Uncertain => self.reseed(points, p.uncertain_reseed_share),
                 IntegrityState::Tracking => {}
@@ -346,7 +348,8 @@ impl Amcl {
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let w = 1.0 / n as f64;
         // Which particles go: all of them, or `k` drawn at random.
-        let slots: Vec<usize> = if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
+        let slots: Vec<usize> =
+            if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
         let mut placed = 0usize;
         for at in slots {
             let pose = best_of_random_poses(&field, &beams, &mut self.rng, p.reseed_candidates);
@@ -356,7 +359,9 @@ impl Amcl {
                 continue;
             }
             let pose = refine(&field, &beams, pose);
-            if integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p).unwrap_or(0.0) < need {
+            if integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p).unwrap_or(0.0)
+                < need
+            {
                 continue;
             }
             if let Some(q) = self.particles.get_mut(at) {
@@ -629,7 +634,8 @@ fn refine(field: &LikelihoodField, beams: &FixedPoints, pose: Se2) -> Se2 {
     // At most 4 halvings × 20 moves: bounded.
     for _ in 0..4 {
         for _ in 0..20 {
-            let moves = [(d, 0.0, 0.0), (-d, 0.0, 0.0), (0.0, d, 0.0), (0.0, -d, 0.0), (0.0, 0.0, a), (0.0, 0.0, -a)];
+            let moves =
+                [(d, 0.0, 0.0), (-d, 0.0, 0.0), (0.0, d, 0.0), (0.0, -d, 0.0), (0.0, 0.0, a), (0.0, 0.0, -a)];
             let next = moves
                 .iter()
                 .map(|(dx, dy, dt)| Se2::new(best.x + dx, best.y + dy, best.theta + dt))

@@ -174,14 +174,6 @@ fn localise(map: &OccupancyGrid, params: &AmclParams, seed: u64) -> super::log::
         amcl.update(*o, &scan_points(s, &Se2::IDENTITY, params), false);
         if let Some(p) = amcl.pose_at(o) {
             est.push((k as f64, p));
-            if std::env::var("AMR_TRACE").is_ok() {
-                let i = amcl.integrity();
-                let pts = scan_points(s, &Se2::IDENTITY, params);
-                let e = amcl.estimate().unwrap().pose;
-                let no_rays = super::integrity::explained_share(&amcl.field, &e, &pts, None, &params.integrity);
-                let at_truth = super::integrity::explained_share(&amcl.field, &truth[k], &pts, Some([0.0, 0.0]), &params.integrity);
-                eprintln!("{k} {:.2} {:?} n={} norays={no_rays:?} truth={at_truth:?}", (p.x - truth[k].x).hypot(p.y - truth[k].y), i, pts.len());
-            }
         }
     }
     let reference: Vec<RefPose> =
