@@ -143,6 +143,8 @@ impl DownlinkSender {
 #[derive(Debug, Clone, Default)]
 pub struct LinkControl {
     cut: Arc<BTreeMap<String, AtomicBool>>,
+    /// Per robot: how late its scans reach the server, µs (0: not delayed).
+    scan_delay_us: Arc<BTreeMap<String, AtomicU64>>,
     held: Arc<BTreeMap<String, watch::Sender<bool>>>,
     lost: Arc<AtomicU64>,
     late: Arc<AtomicU64>,
@@ -174,6 +176,20 @@ impl LinkControl {
         if let Some(flag) = self.held.get(robot) {
             flag.send_replace(held);
         }
+    }
+
+    /// Deliver `robot`'s scans `delay` late (`Duration::ZERO`: on time), everything else as it
+    /// comes: a loaded host or network between one LiDAR and the server, which puts that robot's
+    /// scans past the fusion's age gate while its odometry and health still arrive.
+    pub fn set_scan_delay(&self, robot: &str, delay: std::time::Duration) {
+        if let Some(d) = self.scan_delay_us.get(robot) {
+            d.store(u64::try_from(delay.as_micros()).unwrap_or(u64::MAX), Ordering::Relaxed);
+        }
+    }
+
+    fn scan_delay(&self, robot: &str) -> std::time::Duration {
+        let us = self.scan_delay_us.get(robot).map_or(0, |d| d.load(Ordering::Relaxed));
+        std::time::Duration::from_micros(us)
     }
 
     fn is_cut(&self, robot: &str) -> bool {
@@ -268,6 +284,7 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
     let server_end = switch.new_end();
     let control = LinkControl {
         cut: Arc::new(robots.iter().map(|r| (r.clone(), AtomicBool::new(false))).collect()),
+        scan_delay_us: Arc::new(robots.iter().map(|r| (r.clone(), AtomicU64::new(0))).collect()),
         held: Arc::new(robots.iter().map(|r| (r.clone(), watch::Sender::new(false))).collect()),
         lost: Arc::default(),
         late: Arc::default(),
@@ -289,6 +306,18 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
                 ctl.count_late(held, &mut draining, up_rx.is_empty());
                 if server_rx.has_changed().unwrap_or(false) {
                     to_server = server_rx.borrow_and_update().clone();
+                }
+                let delay = ctl.scan_delay(&robot);
+                if matches!(msg, Uplink::Scan(_)) && !delay.is_zero() && !ctl.is_cut(&robot) {
+                    // Each scan on its own timer: late, not slower (the others are not held up).
+                    let (to, ctl) = (to_server.clone(), ctl.clone());
+                    tokio::spawn(async move {
+                        tokio::time::sleep(delay).await;
+                        if to.try_send(msg).is_err() {
+                            ctl.lost.fetch_add(1, Ordering::Relaxed);
+                        }
+                    });
+                    continue;
                 }
                 if ctl.is_cut(&robot) || to_server.try_send(msg).is_err() {
                     ctl.lost.fetch_add(1, Ordering::Relaxed);
