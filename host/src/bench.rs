@@ -425,10 +425,21 @@ pub(crate) struct AmclReport {
     pub resample_and_estimate: Timing,
     /// 10 000 particles with `max_beams` = 100 on the same scene.
     pub update_10000_100: Timing,
+    /// The integrity monitor's cost: whole updates with it and without, medians of five medians.
+    pub integrity_cost: Vec<IntegrityCost>,
     /// A 200 m × 600 m map at 0.05 m: loading it and building its field.
     pub large_map: Option<LargeMap>,
     /// On a recorded log's map and first scan, beside nav2's own core.
     pub real_log: Option<RealLog>,
+}
+
+/// One size's update time with and without the integrity monitor (`AmclReport::integrity_cost`).
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct IntegrityCost {
+    pub label: String,
+    pub off_ms: f64,
+    pub on_ms: f64,
+    pub ratio: f64,
 }
 
 /// The cost of a large map (`LargeMap::measure`).
@@ -459,6 +470,8 @@ pub(crate) struct RealLog {
     /// nav2 ÷ ours (medians of the same run).
     pub speedup_2000_60: Option<f64>,
     pub speedup_10000_100: Option<f64>,
+    /// The integrity monitor's cost on this log's map and scan.
+    pub integrity_cost: Vec<IntegrityCost>,
 }
 
 impl LargeMap {
@@ -554,13 +567,18 @@ fn fixed_updates(
     n: usize,
     beams: usize,
     runs: usize,
+    integrity: bool,
 ) -> anyhow::Result<Timing> {
     use amr_core::config::value::Count;
     let mut p = params.clone();
+    p.integrity.enabled = integrity;
     p.min_particles = Count::new(n as i64).map_err(anyhow::Error::msg)?;
     p.max_particles = p.min_particles;
     p.max_beams = Count::new(beams as i64).map_err(anyhow::Error::msg)?;
     let mut amcl = amr_core::amcl::Amcl::new(p, std::sync::Arc::clone(field), 1);
+    // A robot's own filter (one sensor, at the origin): the integrity measure with its test of
+    // beams through walls, the dearer of its two forms.
+    amcl.set_sensor_origin(Some([0.0, 0.0]));
     amcl.init_pose(pose, 0.05, 0.02);
     let mut odom = amr_core::se2::Se2::IDENTITY;
     amcl.update(odom, points, true);
@@ -568,6 +586,32 @@ fn fixed_updates(
         odom = odom * amr_core::se2::Se2::new(0.06, 0.0, 0.0);
         amcl.update(odom, points, false)
     }))
+}
+
+/// What the integrity monitor adds to whole updates at 2 000 × 60 and 10 000 × 100: runs without
+/// it and with it alternate five times (both see the same machine), each the median of its run.
+fn integrity_cost(
+    params: &amr_core::config::AmclParams,
+    field: &std::sync::Arc<amr_core::amcl::LikelihoodField>,
+    pose: amr_core::se2::Se2,
+    points: &[[f64; 2]],
+    scale: usize,
+) -> anyhow::Result<Vec<IntegrityCost>> {
+    let mut out = Vec::new();
+    for (label, n, beams, runs) in
+        [("2 000 × 60", 2000, 60, 40 * scale), ("10 000 × 100", 10_000, 100, 8 * scale)]
+    {
+        let (mut off, mut on) = (Vec::new(), Vec::new());
+        for _ in 0..5 {
+            off.push(fixed_updates(params, field, pose, points, n, beams, runs, false)?.median_ms);
+            on.push(fixed_updates(params, field, pose, points, n, beams, runs, true)?.median_ms);
+        }
+        off.sort_by(f64::total_cmp);
+        on.sort_by(f64::total_cmp);
+        let (off, on) = (off[2], on[2]);
+        out.push(IntegrityCost { label: label.to_owned(), off_ms: off, on_ms: on, ratio: on / off });
+    }
+    Ok(out)
 }
 
 /// Our updates on a recorded log's map and first scan, and nav2's harness on the same.
@@ -601,8 +645,9 @@ fn real_log(
     let field = std::sync::Arc::new(amr_core::amcl::LikelihoodField::new(&grid, params, range_max));
     let points = amr_core::amcl::scan_points(&scan.scan, &scan.laser_in_robot, params);
     let scale = if quick { 1 } else { 5 };
-    let ours_2000_60 = fixed_updates(params, &field, pose, &points, 2000, 60, 40 * scale)?;
-    let ours_10000_100 = fixed_updates(params, &field, pose, &points, 10_000, 100, 10 * scale)?;
+    let ours_2000_60 = fixed_updates(params, &field, pose, &points, 2000, 60, 40 * scale, true)?;
+    let ours_10000_100 = fixed_updates(params, &field, pose, &points, 10_000, 100, 10 * scale, true)?;
+    let integrity_cost = integrity_cost(params, &field, pose, &points, scale)?;
     let (mut nav2_2000_60_ms, mut nav2_10000_100_ms) = (None, None);
     if let Some(bin) = &extras.nav2 {
         let out = std::process::Command::new(bin)
@@ -638,6 +683,7 @@ fn real_log(
         log: name,
         speedup_2000_60: nav2_2000_60_ms.map(|n| n / ours_2000_60.median_ms),
         speedup_10000_100: nav2_10000_100_ms.map(|n| n / ours_10000_100.median_ms),
+        integrity_cost,
         ours_2000_60,
         ours_10000_100,
         nav2_2000_60_ms,
@@ -695,12 +741,22 @@ pub(crate) fn run_amcl(
     let points: Vec<[f64; 2]> =
         fuse(&inputs, vamr.fusion.mask_inflation_m.get(), None).points.iter().map(|(p, _)| *p).collect();
     let scale = if quick { 1 } else { 5 };
-    let update_with = |max_beams: usize, particles: usize, runs: usize| {
-        fixed_updates(&params, &field, amr_core::se2::Se2::IDENTITY, &points, particles, max_beams, runs)
+    let update_with = |max_beams: usize, particles: usize, runs: usize, integrity: bool| {
+        fixed_updates(
+            &params,
+            &field,
+            amr_core::se2::Se2::IDENTITY,
+            &points,
+            particles,
+            max_beams,
+            runs,
+            integrity,
+        )
     };
-    let update_60_beams = update_with(60, n, 40 * scale)?;
-    let update_full_scan = update_with(points.len().max(2), n, 40 * scale)?;
-    let update_10000_100 = update_with(100, 10_000, 8 * scale)?;
+    let update_60_beams = update_with(60, n, 40 * scale, true)?;
+    let update_full_scan = update_with(points.len().max(2), n, 40 * scale, true)?;
+    let update_10000_100 = update_with(100, 10_000, 8 * scale, true)?;
+    let integrity_cost = integrity_cost(&params, &field, amr_core::se2::Se2::IDENTITY, &points, scale)?;
     let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 2);
     amcl.init_pose(amr_core::se2::Se2::IDENTITY, 0.1, 0.05);
     amcl.update(amr_core::se2::Se2::IDENTITY, &points, true);
@@ -724,6 +780,7 @@ pub(crate) fn run_amcl(
         full_scan_points: points.len(),
         resample_and_estimate,
         update_10000_100,
+        integrity_cost,
         large_map,
         real_log,
     })
@@ -750,6 +807,20 @@ pub(crate) fn amcl_markdown(r: &AmclReport) -> String {
     );
     out += &row("resampling + cluster estimate", &r.resample_and_estimate, "≤ 0.5 ms");
     out += &row("update, 10 000 particles, max_beams 100", &r.update_10000_100, "≤ 3 ms");
+    let cost = |out: &mut String, what: &str, rows: &[IntegrityCost]| {
+        let _ = write!(
+            out,
+            "\nThe integrity monitor on {what} (a robot's own filter: endpoints and beams through walls), whole updates without it and with it in one run, median of five medians:\n\n| particles × beams | without ms | with ms | ratio | goal |\n|---|---|---|---|---|\n"
+        );
+        for c in rows {
+            let _ =
+                writeln!(out, "| {} | {:.3} | {:.3} | {:.3} | ≤ 1.10 |", c.label, c.off_ms, c.on_ms, c.ratio);
+        }
+    };
+    cost(&mut out, "the synthetic scene", &r.integrity_cost);
+    if let Some(l) = &r.real_log {
+        cost(&mut out, &format!("{}'s map and first scan", l.log), &l.integrity_cost);
+    }
     if let Some(l) = &r.real_log {
         let _ = write!(
             out,

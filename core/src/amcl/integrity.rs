@@ -90,6 +90,9 @@ impl Integrity {
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct IntegrityParams {
+    /// Off, no estimate is ever judged (`Uncertain` throughout: a server never drives on it) and
+    /// nothing is re-seeded; for measuring what the monitor costs (`amr bench amcl`).
+    pub enabled: bool,
     /// An endpoint closer than this to a mapped surface is explained, m.
     pub hit_m: f64,
     /// A beam that passes a mapped surface more than this before its endpoint went through a
@@ -129,6 +132,7 @@ pub struct IntegrityParams {
 impl Default for IntegrityParams {
     fn default() -> Self {
         IntegrityParams {
+            enabled: true,
             hit_m: 0.15,
             through_m: 0.3,
             max_points: 180,

@@ -258,7 +258,9 @@ impl Amcl {
             let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
             // A filter whose estimate is not verified judges every scan, moving or not: a
             // formation waiting for it to be verified stands still.
-            let unverified = self.integrity_state() != IntegrityState::Tracking && !points.is_empty();
+            let unverified = self.monitor.params().enabled
+                && self.integrity_state() != IntegrityState::Tracking
+                && !points.is_empty();
             if !moved && !force && !unverified {
                 return UpdateOutcome::Skipped;
             }
@@ -299,6 +301,9 @@ impl Amcl {
     /// and not a scan of fewer than `min_points`. Whether it was judged.
     fn judge(&mut self, points: &[[f64; 2]]) -> bool {
         let p = *self.monitor.params();
+        if !p.enabled {
+            return false;
+        }
         let Some(e) = self.estimate.as_ref().filter(|_| points.len() >= p.min_points) else { return false };
         let judged = subsample(points, p.max_points);
         match integrity::explained_share(&self.field, &e.pose, &judged, self.sensor_origin, &p) {
