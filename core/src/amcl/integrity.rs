@@ -125,6 +125,9 @@ pub struct IntegrityParams {
     pub uncertain_reseed_share: f64,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
+    /// At most this many particles are re-seeded in one update: bounds what an update costs
+    /// while lost (each costs `reseed_candidates` likelihood evaluations).
+    pub reseed_max_particles: usize,
     /// A re-seeded pose must explain this much more of the scan than the estimate does, share.
     pub switch_margin: f64,
 }
@@ -149,6 +152,7 @@ impl Default for IntegrityParams {
             reseed_share: 0.5,
             uncertain_reseed_share: 0.0,
             reseed_candidates: 200,
+            reseed_max_particles: 500,
             switch_margin: 0.3,
         }
     }
@@ -198,8 +202,8 @@ impl IntegrityParams {
         if self.confirm == 0 || self.recover == 0 {
             return Err("confirm and recover must be at least 1".to_owned());
         }
-        if self.reseed_candidates == 0 {
-            return Err("reseed_candidates must be at least 1".to_owned());
+        if self.reseed_candidates == 0 || self.reseed_max_particles == 0 {
+            return Err("reseed_candidates and reseed_max_particles must be at least 1".to_owned());
         }
         Ok(())
     }

@@ -283,9 +283,9 @@ impl Amcl {
         if judged {
             let p = self.monitor.params();
             match self.monitor.state() {
-                // Turned lost just now: every particle is placed anew (the global localiser's
-                // first scan, which finds the robot on the real logs from one scan); while it
-                // stays lost, `reseed_share` of them at each update.
+                // Turned lost just now: every particle is a candidate for replacement (as the
+                // global localiser's first scan, which finds the robot on the real logs from one
+                // scan); while it stays lost, `reseed_share` of them at each update.
                 IntegrityState::Lost if before != Some(IntegrityState::Lost) && p.reseed_share > 0.0 => {
                     self.reseed(points, 1.0);
                 }
@@ -334,7 +334,7 @@ impl Amcl {
     fn reseed(&mut self, points: &[[f64; 2]], share: f64) {
         let p = *self.monitor.params();
         let n = self.particles.len();
-        let k = ((n as f64) * share).round().min(n as f64) as usize;
+        let k = (((n as f64) * share).round() as usize).min(n).min(p.reseed_max_particles);
         if k == 0 {
             return;
         }
