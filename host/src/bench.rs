@@ -567,11 +567,9 @@ fn fixed_updates(
     n: usize,
     beams: usize,
     runs: usize,
-    integrity: bool,
 ) -> anyhow::Result<Timing> {
     use amr_core::config::value::Count;
     let mut p = params.clone();
-    p.integrity.enabled = integrity;
     p.min_particles = Count::new(n as i64).map_err(anyhow::Error::msg)?;
     p.max_particles = p.min_particles;
     p.max_beams = Count::new(beams as i64).map_err(anyhow::Error::msg)?;
@@ -598,13 +596,17 @@ fn integrity_cost(
     scale: usize,
 ) -> anyhow::Result<Vec<IntegrityCost>> {
     let mut out = Vec::new();
+    let mut without = params.clone();
+    without.integrity.enabled = false;
+    let mut with = params.clone();
+    with.integrity.enabled = true;
     for (label, n, beams, runs) in
         [("2 000 × 60", 2000, 60, 40 * scale), ("10 000 × 100", 10_000, 100, 8 * scale)]
     {
         let (mut off, mut on) = (Vec::new(), Vec::new());
         for _ in 0..5 {
-            off.push(fixed_updates(params, field, pose, points, n, beams, runs, false)?.median_ms);
-            on.push(fixed_updates(params, field, pose, points, n, beams, runs, true)?.median_ms);
+            off.push(fixed_updates(&without, field, pose, points, n, beams, runs)?.median_ms);
+            on.push(fixed_updates(&with, field, pose, points, n, beams, runs)?.median_ms);
         }
         off.sort_by(f64::total_cmp);
         on.sort_by(f64::total_cmp);
@@ -645,8 +647,8 @@ fn real_log(
     let field = std::sync::Arc::new(amr_core::amcl::LikelihoodField::new(&grid, params, range_max));
     let points = amr_core::amcl::scan_points(&scan.scan, &scan.laser_in_robot, params);
     let scale = if quick { 1 } else { 5 };
-    let ours_2000_60 = fixed_updates(params, &field, pose, &points, 2000, 60, 40 * scale, true)?;
-    let ours_10000_100 = fixed_updates(params, &field, pose, &points, 10_000, 100, 10 * scale, true)?;
+    let ours_2000_60 = fixed_updates(params, &field, pose, &points, 2000, 60, 40 * scale)?;
+    let ours_10000_100 = fixed_updates(params, &field, pose, &points, 10_000, 100, 10 * scale)?;
     let integrity_cost = integrity_cost(params, &field, pose, &points, scale)?;
     let (mut nav2_2000_60_ms, mut nav2_10000_100_ms) = (None, None);
     if let Some(bin) = &extras.nav2 {
@@ -741,21 +743,12 @@ pub(crate) fn run_amcl(
     let points: Vec<[f64; 2]> =
         fuse(&inputs, vamr.fusion.mask_inflation_m.get(), None).points.iter().map(|(p, _)| *p).collect();
     let scale = if quick { 1 } else { 5 };
-    let update_with = |max_beams: usize, particles: usize, runs: usize, integrity: bool| {
-        fixed_updates(
-            &params,
-            &field,
-            amr_core::se2::Se2::IDENTITY,
-            &points,
-            particles,
-            max_beams,
-            runs,
-            integrity,
-        )
+    let update_with = |max_beams: usize, particles: usize, runs: usize| {
+        fixed_updates(&params, &field, amr_core::se2::Se2::IDENTITY, &points, particles, max_beams, runs)
     };
-    let update_60_beams = update_with(60, n, 40 * scale, true)?;
-    let update_full_scan = update_with(points.len().max(2), n, 40 * scale, true)?;
-    let update_10000_100 = update_with(100, 10_000, 8 * scale, true)?;
+    let update_60_beams = update_with(60, n, 40 * scale)?;
+    let update_full_scan = update_with(points.len().max(2), n, 40 * scale)?;
+    let update_10000_100 = update_with(100, 10_000, 8 * scale)?;
     let integrity_cost = integrity_cost(&params, &field, amr_core::se2::Se2::IDENTITY, &points, scale)?;
     let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 2);
     amcl.init_pose(amr_core::se2::Se2::IDENTITY, 0.1, 0.05);

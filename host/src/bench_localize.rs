@@ -204,6 +204,50 @@ fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRo
 pub(crate) struct Report {
     pub seeds: Vec<u64>,
     pub logs: Vec<LogReport>,
+    /// Logs not run, and why.
+    pub skipped: Vec<(String, String)>,
+}
+
+/// Why a log cannot be tracked on its odometry, if it cannot: the odometry pose changes between
+/// fewer than half of its consecutive scans (a log without odometry messages carries one pose
+/// for many scans).
+fn without_usable_odometry(records: &[Record]) -> Option<String> {
+    let odom: Vec<Se2> = records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Laser(l) => l.odometry,
+            Record::Odometry { .. } => None,
+        })
+        .collect();
+    let pairs = odom.len().saturating_sub(1);
+    let moved = odom.windows(2).filter(|w| w[0] != w[1]).count();
+    (pairs == 0 || moved * 2 < pairs).then(|| {
+        format!("no usable odometry (the odometry pose changes between {moved} of {pairs} consecutive scans)")
+    })
+}
+
+/// When the reference's stamps are not distinct (some logs stamp every scan alike, or with 2³²),
+/// scans cannot be matched to it by time: if the log has as many scans as the reference has poses,
+/// both are re-stamped with the scan's index and matched by their order. Whether it did.
+fn by_index(records: &mut [Record], reference: &mut [RefPose]) -> bool {
+    let mut stamps: Vec<f64> = reference.iter().map(|r| r.timestamp_s).collect();
+    stamps.sort_by(f64::total_cmp);
+    let distinct = stamps.windows(2).all(|w| w[1] - w[0] > 2.0 * amr_core::amcl::log::MATCH_TOLERANCE_S);
+    let lasers = records.iter().filter(|r| matches!(r, Record::Laser(_))).count();
+    if distinct || lasers != reference.len() {
+        return false;
+    }
+    for (k, r) in reference.iter_mut().enumerate() {
+        r.timestamp_s = k as f64;
+    }
+    let mut k = 0usize;
+    for r in records.iter_mut() {
+        if let Record::Laser(l) = r {
+            l.timestamp_s = k as f64;
+            k += 1;
+        }
+    }
+    true
 }
 
 /// The log names in `dir`: every `<name>-raw.log` with its map and reference beside it.
@@ -322,6 +366,7 @@ pub(crate) fn run(
 ) -> anyhow::Result<Report> {
     let names = if only.is_empty() { logs_in(dir)? } else { only.to_vec() };
     let mut logs = Vec::new();
+    let mut skipped = Vec::new();
     for name in names {
         let grid = crate::localize::read_map(&dir.join(format!("{name}_map.yaml")))?;
         let gt_path = dir.join(format!("{name}-gt.csv"));
@@ -330,9 +375,18 @@ pub(crate) fn run(
         let first =
             reference.first().map(|r| r.pose).with_context(|| format!("{}: empty", gt_path.display()))?;
         let log_path = dir.join(format!("{name}-raw.log"));
-        let records: Vec<Record> =
+        let mut records: Vec<Record> =
             read(&log_path)?.lines().filter_map(|l| parse_line(l).ok().flatten()).collect();
         let scans = records.iter().filter(|r| matches!(r, Record::Laser(_))).count();
+        if let Some(why) = without_usable_odometry(&records) {
+            tracing::warn!(log = %name, "skipped: {why}");
+            skipped.push((name, why));
+            continue;
+        }
+        let mut reference = reference;
+        if by_index(&mut records, &mut reference) {
+            tracing::warn!(log = %name, "the log's stamps are not distinct: scans matched to the reference by their order");
+        }
         tracing::info!(log = %name, scans, "localising");
         let tracked = Start::resolve(Some(first), params);
         let tracking =
@@ -372,7 +426,7 @@ pub(crate) fn run(
             separation: separation_rows(&shares, params),
         });
     }
-    Ok(Report { seeds: seeds.to_vec(), logs })
+    Ok(Report { seeds: seeds.to_vec(), logs, skipped })
 }
 
 fn cm(s: &Score) -> (f64, f64, f64) {
@@ -506,6 +560,9 @@ pub(crate) fn markdown(r: &Report) -> String {
                 s.below_lost * 100.0
             );
         }
+    }
+    for (name, why) in &r.skipped {
+        let _ = writeln!(out, "\n{name}: not run, {why}.");
     }
     out
 }

@@ -346,7 +346,11 @@ impl Amcl {
         coarse.through_m *= COARSE;
         let judged = subsample(points, p.max_points);
         let field = Arc::clone(&self.field);
-        let need = self.monitor.last().map_or(0.0, |i| i.explained) + p.switch_margin;
+        // Clearly better than the estimate, and as good as a tracked estimate is (a place that
+        // explains half the scan is no alternative, wherever the estimate stands).
+        let need = self.monitor.last().map_or(0.0, |i| {
+            (i.explained + p.switch_margin).max(p.uncertain_ratio * i.level)
+        });
         if need > 1.0 {
             return;
         }
