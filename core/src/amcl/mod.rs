@@ -348,9 +348,10 @@ impl Amcl {
         let field = Arc::clone(&self.field);
         // Clearly better than the estimate, and as good as a tracked estimate is (a place that
         // explains half the scan is no alternative, wherever the estimate stands).
-        let need = self.monitor.last().map_or(0.0, |i| {
-            (i.explained + p.switch_margin).max(p.uncertain_ratio * i.level)
-        });
+        let need = self
+            .monitor
+            .last()
+            .map_or(0.0, |i| (i.explained + p.switch_margin).max(p.uncertain_ratio * i.level));
         if need > 1.0 {
             return;
         }
