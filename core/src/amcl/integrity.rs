@@ -108,7 +108,8 @@ pub struct IntegrityParams {
     pub floor: f64,
     /// Where the level starts, share.
     pub initial_level: f64,
-    /// Weight of each tracked update in the level's running mean.
+    /// Weight of each tracked update in the level's running mean (after the first
+    /// `1 / level_alpha` updates, which it averages alike).
     pub level_alpha: f64,
     /// Updates whose median share `uncertain_ratio` is judged on.
     pub window: usize,
@@ -141,7 +142,7 @@ impl Default for IntegrityParams {
             max_points: 180,
             min_points: 30,
             floor: 0.6,
-            initial_level: 0.9,
+            initial_level: 0.75,
             level_alpha: 0.005,
             window: 5,
             uncertain_ratio: 0.88,
@@ -249,6 +250,8 @@ pub struct Monitor {
     level: f64,
     /// The last `window` shares.
     recent: std::collections::VecDeque<f64>,
+    /// Updates the level has learned from.
+    learned: u64,
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
@@ -263,6 +266,7 @@ impl Monitor {
             state: IntegrityState::Tracking,
             level: params.initial_level.max(params.floor),
             recent: std::collections::VecDeque::new(),
+            learned: 0,
             below_uncertain: 0,
             below_lost: 0,
             above_tracking: 0,
@@ -324,8 +328,14 @@ impl Monitor {
             self.recent.clear();
             self.recent.push_back(explained);
         }
-        if self.state == IntegrityState::Tracking && ratio >= p.uncertain_ratio {
-            self.level = (self.level + p.level_alpha * (explained - self.level)).clamp(p.floor, 1.0);
+        // The level learns from every update that is not far below it while the filter is not
+        // lost: the mean of the first updates, then a slow running mean. Learning only while
+        // `Tracking` kept a site whose scans the map explains less than the start level (a cluttered
+        // one) `Uncertain` for good: it could never reach the level it was judged against.
+        if self.state != IntegrityState::Lost && ratio >= p.uncertain_ratio {
+            self.learned += 1;
+            let w = p.level_alpha.max(1.0 / self.learned as f64);
+            self.level = (self.level + w * (explained - self.level)).clamp(p.floor, 1.0);
         }
         let out = Integrity { state: self.state, explained, level: self.level };
         self.last = Some(out);
@@ -345,7 +355,10 @@ mod tests {
     #[test]
     fn a_drop_needs_confirming_and_recovery_needs_a_run_of_good_updates() {
         let mut m = Monitor::new(IntegrityParams::default());
-        let level = m.observe(0.9).level;
+        for _ in 0..10 {
+            m.observe(0.9);
+        }
+        let level = m.last().unwrap().level;
         // One bad update is not enough (a person in front of the sensor).
         assert_eq!(m.observe(0.1).state, IntegrityState::Tracking);
         for _ in 0..10 {
@@ -377,13 +390,17 @@ mod tests {
     fn the_level_follows_the_sensor_but_not_below_its_floor() {
         let p = IntegrityParams::default();
         let mut m = Monitor::new(p);
-        // A cluttered site whose scans the map explains at 0.82, not the 0.9 the level starts at.
+        // A cluttered site whose scans the map explains at 0.66, well below where the level
+        // starts: learned from the first updates on, tracking within a few of a pose being given.
+        m.restart(IntegrityState::Uncertain);
+        let turned = (1..=20).find(|_| m.observe(0.66).state == IntegrityState::Tracking);
+        assert_eq!(turned, Some(4), "the first update teaches the level, three at it follow");
         for _ in 0..2000 {
-            m.observe(0.82);
+            m.observe(0.66);
         }
         let l = m.last().unwrap();
         assert_eq!(l.state, IntegrityState::Tracking);
-        assert!((l.level - 0.82).abs() < 0.01, "{l:?}");
+        assert!((l.level - 0.66).abs() < 0.01, "{l:?}");
         // A filter that starts lost cannot teach it a low level.
         let mut m = Monitor::new(p);
         for _ in 0..2000 {
