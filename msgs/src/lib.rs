@@ -22,7 +22,7 @@ use amr_core::se2::Se2;
 use serde::{Deserialize, Serialize};
 
 /// The version of these types' encoding, on the network and in recordings.
-pub const SCHEMA_VERSION: u16 = 4;
+pub const SCHEMA_VERSION: u16 = 5;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).

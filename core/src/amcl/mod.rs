@@ -65,6 +65,8 @@ pub struct Amcl {
     reseeds: u64,
     /// The sensor's position in the tracked frame (`set_sensor_origin`).
     sensor_origin: Option<[f64; 2]>,
+    /// Updates run without motion since a pose was given, to verify it.
+    forced: u32,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -113,6 +115,7 @@ impl Amcl {
             monitor: integrity::Monitor::new(params_integrity),
             reseeds: 0,
             sensor_origin: None,
+            forced: 0,
         }
     }
 
@@ -208,6 +211,7 @@ impl Amcl {
             .collect();
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
+        self.forced = 0;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -224,6 +228,7 @@ impl Amcl {
             (0..n).map(|_| Particle { pose: random_free_pose(&field, &mut self.rng), weight: w }).collect();
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
+        self.forced = 0;
         self.global_pending = true;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
@@ -256,11 +261,18 @@ impl Amcl {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
             let d = self.params.update_min_d.get();
             let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
-            // A filter whose estimate is not verified judges every scan, moving or not: a
-            // formation waiting for it to be verified stands still.
+            // A filter given a pose judges every scan, moving or not, until it has verified it
+            // once (at most `MAX_FORCED` scans): a formation waiting for that stands still. Not
+            // after, nor beyond: a robot whose scans its neighbours hide is uncertain for long
+            // stretches, and updating it on every scan of a robot standing still wears its
+            // particles down to a few (the middle robot of three 0.5 m apart: 0.7 → 8.8 cm).
             let unverified = self.monitor.params().enabled
-                && self.integrity_state() != IntegrityState::Tracking
+                && !self.monitor.verified_once()
+                && self.forced < MAX_FORCED
                 && !points.is_empty();
+            if unverified && !moved && !force {
+                self.forced += 1;
+            }
             if !moved && !force && !unverified {
                 return UpdateOutcome::Skipped;
             }
@@ -346,12 +358,13 @@ impl Amcl {
         coarse.through_m *= COARSE;
         let judged = subsample(points, p.max_points);
         let field = Arc::clone(&self.field);
-        // Clearly better than the estimate, and as good as a tracked estimate is (a place that
-        // explains half the scan is no alternative, wherever the estimate stands).
+        // Clearly better than the estimate, and good enough to be tracking there (a place that
+        // explains half the scan is no alternative, wherever the estimate stands; nor one where
+        // a wall nearby explains the beams a neighbouring robot blocked).
         let need = self
             .monitor
             .last()
-            .map_or(0.0, |i| (i.explained + p.switch_margin).max(p.uncertain_ratio * i.level));
+            .map_or(0.0, |i| (i.explained + p.switch_margin).max(p.tracking_ratio * i.level));
         if need > 1.0 {
             return;
         }
@@ -600,6 +613,9 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
     let kept = if share < 1.0 { (1.0 - probability) / (1.0 - share) } else { 1.0 };
     (slipped, kept)
 }
+
+/// Updates without motion a filter runs after being given a pose, to verify it (see `update`).
+const MAX_FORCED: u32 = 10;
 
 /// How much looser than the integrity measure's own distances the re-seeding's comparison is.
 const COARSE: f64 = 3.0;

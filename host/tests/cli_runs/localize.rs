@@ -109,11 +109,21 @@ fn a_synthetic_carmen_log_is_localised_end_to_end() {
     assert_eq!(
         lines.next(),
         Some(
-            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta"
+            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level"
         )
     );
-    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    // The pose and covariance, and the integrity state each row was judged in.
+    let (rows, states): (Vec<Vec<f64>>, Vec<String>) = lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[..13].iter().map(|v| v.parse().unwrap()).collect(), f[13].to_owned())
+        })
+        .unzip();
     assert_eq!(rows.len(), truth.len(), "one pose per scan");
+    // Verified within a few scans of the given pose, and tracking from then on.
+    let first = states.iter().position(|s| s == "tracking").expect("the filter verifies its estimate");
+    assert!(first <= 5, "tracking from scan {first}: {states:?}");
+    assert!(states[first..].iter().all(|s| s == "tracking"), "{states:?}");
     let mut worst: f64 = 0.0;
     for (row, (t, pose)) in rows.iter().zip(&truth) {
         assert_eq!(row.len(), 13);
