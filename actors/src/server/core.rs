@@ -205,6 +205,8 @@ struct Channel {
     filter: Option<Amcl>,
     /// The filter has been started from the robots' own estimates.
     started: bool,
+    /// When this configuration last fused a set of scans (receive time), s.
+    last_fused_s: Option<f64>,
     seq: u64,
 }
 
@@ -241,8 +243,8 @@ pub struct ServerCore {
     /// Per robot: the true pose of its next scan (evaluations only).
     truth: Vec<Option<Se2>>,
     checks: IntegrityChecks,
-    /// When the last set of scans was fused (receive time), s.
-    last_fusion_s: Option<f64>,
+    /// The sync gate's spread (`CoreSetup::max_spread_s`), s.
+    max_spread_s: f64,
 }
 
 impl ServerCore {
@@ -287,7 +289,7 @@ impl ServerCore {
                 // ([`ServerCore::start_v`]), not where the scenario says they should be.
                 let filter = (*c != Configuration::T1)
                     .then(|| Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed));
-                Channel { configuration: *c, pipeline, filter, started: false, seq: 0 }
+                Channel { configuration: *c, pipeline, filter, started: false, last_fused_s: None, seq: 0 }
             })
             .collect();
         ServerCore {
@@ -304,7 +306,7 @@ impl ServerCore {
             truth: vec![None; n],
             members: setup.members,
             checks: setup.checks,
-            last_fusion_s: None,
+            max_spread_s: setup.max_spread_s,
         }
     }
 
@@ -446,8 +448,15 @@ impl ServerCore {
     fn robot_amcl(&mut self, i: usize, s: &ScanMsg, odom: Se2, step: &mut Step) {
         let (Some(filter), Some(m)) = (self.robot_filters.get_mut(i), self.members.get(i)) else { return };
         let points = scan_points(&s.scan, &m.lidar_to_base, &self.amcl);
+        let before = filter.integrity_state();
         if matches!(filter.update(odom, &points, false), UpdateOutcome::Updated { .. }) {
             step.updated.push(EstimateSource::Robot(i));
+        }
+        if let Some(now) = filter.integrity().filter(|n| n.state != before) {
+            tracing::info!(
+                robot = %m.id, from = %before, to = %now.state, explained = now.explained, level = now.level,
+                "the robot's own localisation changed state"
+            );
         }
         let Some(map) = filter.pose_at(&odom) else { return };
         self.corrections[i] = Some(map * odom.inverse());
@@ -462,7 +471,11 @@ impl ServerCore {
         });
     }
 
-    /// Choose one unfused scan per robot, closest in time to robot `from`'s newest.
+    /// Choose one unfused scan per robot, closest in time to robot `from`'s newest; none while a
+    /// robot has no unfused scan within the sync gate's spread of it (its scan of that instant
+    /// may still be on its way). Taking the nearest scan whatever its time consumed each robot's
+    /// scan one period off its partner's after one robot's scans came late once, and every later
+    /// pair failed the gate (a period, 67 ms, against 50): fusion never came back.
     fn pick(&self, from: usize) -> Option<Vec<Held>> {
         let t = self.scans.get(from)?.back()?.stamp_s;
         let mut set = Vec::with_capacity(self.members.len());
@@ -471,6 +484,9 @@ impl ServerCore {
                 .iter()
                 .filter(|h| h.stamp_s > self.fused_stamp[i])
                 .min_by(|a, b| (a.stamp_s - t).abs().total_cmp(&(b.stamp_s - t).abs()))?;
+            if (best.stamp_s - t).abs() > self.max_spread_s {
+                return None;
+            }
             set.push(best.clone());
         }
         Some(set)
@@ -479,15 +495,6 @@ impl ServerCore {
     fn fuse(&mut self, set: &[Held], now_s: f64, lap: &mut dyn FnMut(Lap), step: &mut Step) {
         for (i, h) in set.iter().enumerate() {
             self.fused_stamp[i] = h.stamp_s;
-        }
-        // After a gap in fusion V's filter starts again from the robots' own estimates: what it
-        // carried across the gap on V's odometry alone is not trusted.
-        let gap = self.last_fusion_s.is_some_and(|t| now_s - t > self.checks.restart_after_ms / 1000.0);
-        self.last_fusion_s = Some(now_s);
-        if gap {
-            for ch in &mut self.channels {
-                ch.started = false;
-            }
         }
         // Each robot's own estimate at its scan of the set, when its filter is tracking.
         let own: Vec<Option<Se2>> = set
@@ -520,9 +527,39 @@ impl ServerCore {
         let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |h| (h.stamp_s, h.odom));
         // The oracle's V in robot 0's frame, from the true relative poses.
         let true_v_in_reference = self.oracle.odometry.then(|| true_v_in_first(set, &self.members)).flatten();
+        // Where each robot stands in its observer's frame by the two robots' own tracking
+        // estimates: where a lost track is looked for again (the slots say where it should be,
+        // but a formation that stopped, coasted or was pushed may stand elsewhere, and holding
+        // for a verified V it would never move back).
+        let relative: Vec<Option<Se2>> = (0..self.members.len())
+            .map(|i| {
+                let o = observer(&self.members, i);
+                (i > 0)
+                    .then_some(())
+                    .and(own.get(o).copied().flatten())
+                    .zip(own.get(i).copied().flatten())
+                    .map(|(po, pi)| po.inverse() * pi)
+            })
+            .collect();
+        let restart_after_s = self.checks.restart_after_ms / 1000.0;
         for ch in &mut self.channels {
             let c = ch.configuration;
+            for (i, r) in relative.iter().enumerate() {
+                if let Some(r) = r {
+                    ch.pipeline.set_expected(i, [r.x, r.y], 0.5);
+                    ch.pipeline.set_expected_heading(i, r.theta);
+                }
+            }
+            // After a gap in fusion V's filter starts again from the robots' own estimates: what
+            // it carried across the gap on V's odometry alone is not trusted.
+            if ch.last_fused_s.is_some_and(|t| now_s - t > restart_after_s) {
+                ch.started = false;
+                ch.last_fused_s = None;
+            }
             let result = ch.pipeline.update_with_laps(&packets, &mut |stage| lap(Lap::Pipeline(c, stage)));
+            if result.is_ok() {
+                ch.last_fused_s = Some(now_s);
+            }
             let u = match result {
                 Ok(u) => u,
                 Err(e) => {
@@ -555,9 +592,10 @@ impl ServerCore {
             };
             let bases_in_v: Vec<Se2> = frame.robots.iter().map(|(b, _)| *b).collect();
             if let Some(filter) = ch.filter.as_mut().filter(|_| !ch.started) {
-                // V where the robots' own tracking estimates put it (the first such robot, in
-                // formation order); none tracking yet: V waits, with no estimate.
-                let start = own.iter().zip(&bases_in_v).find_map(|(o, b)| o.map(|o| o * b.inverse()));
+                // V where the robots' own tracking estimates put it (their mean); none tracking
+                // yet: V waits, with no estimate.
+                let start =
+                    mean_pose(own.iter().zip(&bases_in_v).filter_map(|(o, b)| o.map(|o| o * b.inverse())));
                 if let Some(v0) = start {
                     tracing::info!(configuration = ?c, x = v0.x, y = v0.y, theta = v0.theta, "V's filter starts where the robots' own estimates put it");
                     filter.init_pose(v0, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
@@ -571,8 +609,15 @@ impl ServerCore {
                         // The reference robot stands where V's odometry was composed from.
                         filter.set_motion_body(true_v_in_reference.unwrap_or(u.v_in_reference).inverse());
                     }
+                    let before = filter.integrity_state();
                     if matches!(filter.update(frame.v_odom, points, false), UpdateOutcome::Updated { .. }) {
                         step.updated.push(EstimateSource::Fused(ch.configuration));
+                    }
+                    if let Some(now) = filter.integrity().filter(|n| n.state != before) {
+                        tracing::info!(
+                            configuration = ?c, from = %before, to = %now.state, explained = now.explained,
+                            level = now.level, "V's localisation changed state"
+                        );
                     }
                     filter.pose_at(&frame.v_odom)
                 }
@@ -645,6 +690,19 @@ fn observer(members: &[Member], i: usize) -> usize {
             (a.slot_y_m - me.slot_y_m).abs().total_cmp(&(b.slot_y_m - me.slot_y_m).abs())
         })
         .map_or(0, |(k, _)| k)
+}
+
+/// The mean of poses (positions averaged, headings by their mean direction); `None` for none.
+fn mean_pose(poses: impl Iterator<Item = Se2>) -> Option<Se2> {
+    let (mut n, mut x, mut y, mut c, mut s) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for p in poses {
+        n += 1.0;
+        x += p.x;
+        y += p.y;
+        c += p.theta.cos();
+        s += p.theta.sin();
+    }
+    (n > 0.0).then(|| Se2::new(x / n, y / n, s.atan2(c)))
 }
 
 /// The first robot whose own estimate (`own`, where tracking) is farther from where V at `v`

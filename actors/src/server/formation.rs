@@ -117,6 +117,8 @@ struct RobotView {
     /// The integrity of the estimate `fused` came from.
     fused_integrity: EstimateIntegrity,
     own: Option<Anchored>,
+    /// The integrity of the estimate `own` came from.
+    own_integrity: EstimateIntegrity,
     seq: u64,
     last_cmd: (f64, f64),
 }
@@ -154,6 +156,13 @@ impl RobotView {
             return Err(format!("{who}'s own estimate disagrees with V's"));
         }
         Ok(())
+    }
+
+    /// The robot's pose now by its own estimate alone, when that is fresh and verified.
+    fn own_verified_now(&self, now_s: f64) -> Option<Se2> {
+        let odom = self.odom?;
+        let a = self.own.filter(|a| now_s - a.stamp_s <= ESTIMATE_FRESH_S)?;
+        self.own_integrity.verified().then(|| a.map * (a.odom.inverse() * odom.pose))
     }
 
     fn devices_ok(&self) -> bool {
@@ -267,7 +276,14 @@ impl FormationActor {
                     if state.phase != (Phase::Holding { reason: reason.clone() }) {
                         tracing::warn!(%reason, "formation holding");
                     }
-                    self.command_all_zero(state, now);
+                    // With no fused estimate at all but every robot's own estimate verified, the
+                    // robots close up on their slots around the paused plan point (on those
+                    // verified poses, the plan not advancing): a formation that stopped, coasted
+                    // or was pushed out of shape may stand where the fusion cannot find a robot
+                    // again, and holding there it never would.
+                    if !self.reform(state, now) {
+                        self.command_all_zero(state, now);
+                    }
                     state.phase = Phase::Holding { reason };
                 } else {
                     if matches!(state.phase, Phase::Holding { .. }) {
@@ -316,6 +332,36 @@ impl FormationActor {
             }
             Phase::Finished => {}
         }
+    }
+
+    /// Drive every robot towards its slot around the plan's current point on its own verified
+    /// estimate, when there is no fresh fused estimate and every robot has one; whether it did.
+    fn reform(&self, state: &mut FormationState, now: f64) -> bool {
+        let fused = state.robots.iter().any(|r| r.fused.is_some_and(|a| now - a.stamp_s <= ESTIMATE_FRESH_S));
+        let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.own_verified_now(now)).collect();
+        let k = (state.plan_s / self.params.period_s).round() as usize;
+        let (false, Some(poses), Some(r)) = (fused, poses, self.params.plan.get(k).copied()) else {
+            return false;
+        };
+        let dt = self.params.period_s;
+        for (i, pose) in poses.iter().enumerate() {
+            let in_v = r.pose.inverse() * *pose;
+            let cmd = member_command(0.0, 0.0, self.params.slots[i], &in_v, &self.params.gains);
+            let lim = &self.params.limits;
+            let cmd = limit_twist(
+                cmd,
+                state.robots[i].last_cmd,
+                dt,
+                lim.max_speed_mps.get(),
+                lim.max_yaw_rate_radps.get(),
+                lim.max_accel_mps2.get(),
+            );
+            state.robots[i].last_cmd = cmd;
+            self.send(i, state, |seq| {
+                Downlink::Command(Command { seq, stamp_s: now, v_mps: cmd.0, w_radps: cmd.1 })
+            });
+        }
+        true
     }
 
     /// V in the map now, from every robot's pose.
@@ -494,7 +540,10 @@ impl Actor for FormationActor {
                                 r.fused = Some(*a);
                                 r.fused_integrity = e.integrity;
                             }
-                            EstimateSource::Robot(_) => r.own = Some(*a),
+                            EstimateSource::Robot(_) => {
+                                r.own = Some(*a);
+                                r.own_integrity = e.integrity;
+                            }
                         }
                     }
                 }

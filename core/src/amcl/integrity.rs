@@ -252,8 +252,6 @@ pub struct Monitor {
     recent: std::collections::VecDeque<f64>,
     /// Updates the level has learned from.
     learned: u64,
-    /// `Tracking` was reached since the last restart.
-    verified_once: bool,
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
@@ -269,7 +267,6 @@ impl Monitor {
             level: params.initial_level.max(params.floor),
             recent: std::collections::VecDeque::new(),
             learned: 0,
-            verified_once: false,
             below_uncertain: 0,
             below_lost: 0,
             above_tracking: 0,
@@ -287,12 +284,6 @@ impl Monitor {
         self.state
     }
 
-    /// Whether the state has been `Tracking` since the last restart (a pose was given).
-    #[must_use]
-    pub fn verified_once(&self) -> bool {
-        self.verified_once
-    }
-
     /// The last judgement, if any update has been judged.
     #[must_use]
     pub fn last(&self) -> Option<Integrity> {
@@ -303,7 +294,6 @@ impl Monitor {
     /// wrong, and the counters restart; the learned level is kept (it belongs to the sensor).
     pub fn restart(&mut self, state: IntegrityState) {
         self.state = state;
-        self.verified_once = false;
         self.recent.clear();
         self.below_uncertain = 0;
         self.below_lost = 0;
@@ -347,7 +337,6 @@ impl Monitor {
             let w = p.level_alpha.max(1.0 / self.learned as f64);
             self.level = (self.level + w * (explained - self.level)).clamp(p.floor, 1.0);
         }
-        self.verified_once |= self.state == IntegrityState::Tracking;
         let out = Integrity { state: self.state, explained, level: self.level };
         self.last = Some(out);
         out

@@ -65,8 +65,6 @@ pub struct Amcl {
     reseeds: u64,
     /// The sensor's position in the tracked frame (`set_sensor_origin`).
     sensor_origin: Option<[f64; 2]>,
-    /// Updates run without motion since a pose was given, to verify it.
-    forced: u32,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -115,7 +113,6 @@ impl Amcl {
             monitor: integrity::Monitor::new(params_integrity),
             reseeds: 0,
             sensor_origin: None,
-            forced: 0,
         }
     }
 
@@ -211,7 +208,6 @@ impl Amcl {
             .collect();
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
-        self.forced = 0;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -228,7 +224,6 @@ impl Amcl {
             (0..n).map(|_| Particle { pose: random_free_pose(&field, &mut self.rng), weight: w }).collect();
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
-        self.forced = 0;
         self.global_pending = true;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
@@ -261,19 +256,15 @@ impl Amcl {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
             let d = self.params.update_min_d.get();
             let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
-            // A filter given a pose judges every scan, moving or not, until it has verified it
-            // once (at most `MAX_FORCED` scans): a formation waiting for that stands still. Not
-            // after, nor beyond: a robot whose scans its neighbours hide is uncertain for long
-            // stretches, and updating it on every scan of a robot standing still wears its
-            // particles down to a few (the middle robot of three 0.5 m apart: 0.7 → 8.8 cm).
-            let unverified = self.monitor.params().enabled
-                && !self.monitor.verified_once()
-                && self.forced < MAX_FORCED
-                && !points.is_empty();
-            if unverified && !moved && !force {
-                self.forced += 1;
-            }
-            if !moved && !force && !unverified {
+            if !moved && !force {
+                // Standing still and not tracking: the estimate is judged on each new scan, the
+                // particles left as they are (updating them on every scan of a robot standing
+                // still wears them down to a few: the middle robot of three 0.5 m apart, whose
+                // neighbours hide its scans, went 0.7 -> 8.8 cm). A formation holding for a
+                // verified V stands still; without this, V could verify itself only by moving.
+                if self.monitor.params().enabled && self.integrity_state() != IntegrityState::Tracking {
+                    self.judge(points);
+                }
                 return UpdateOutcome::Skipped;
             }
             self.predict(&last, &odom);
@@ -613,9 +604,6 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
     let kept = if share < 1.0 { (1.0 - probability) / (1.0 - share) } else { 1.0 };
     (slipped, kept)
 }
-
-/// Updates without motion a filter runs after being given a pose, to verify it (see `update`).
-const MAX_FORCED: u32 = 10;
 
 /// How much looser than the integrity measure's own distances the re-seeding's comparison is.
 const COARSE: f64 = 3.0;

@@ -339,3 +339,47 @@ fn turns_of_90_degrees_between_scans_keep_the_robot() {
         assert!(t.rmse <= 0.10 && t.max <= 0.5, "seed {seed}: {s:?}");
     }
 }
+
+/// The integrity measure on the surveyed world (people in it, not in the map): at the true poses
+/// against poses displaced by 0.3, 0.5 and 1 m and by 10°, the share of scans below the monitor's
+/// ratios × the level (the mean share at the truth). Measured, seed 1: see the message.
+#[test]
+fn the_integrity_measure_separates_true_poses_from_displaced_ones() {
+    use super::integrity::explained_share;
+    let world = walls();
+    let map = surveyed_map(&world);
+    let params = shipped_params();
+    let p = params.integrity;
+    let field = LikelihoodField::new(&map, &params, 30.0);
+    let (truth, scans, _) = log(&world, 1);
+    let mut rng = Rng::seed(5);
+    let mut shares = vec![Vec::new(); 5];
+    for (t, s) in truth.iter().zip(&scans) {
+        let points = super::subsample(&scan_points(s, &Se2::IDENTITY, &params), p.max_points);
+        if points.len() < p.min_points {
+            continue;
+        }
+        let share = |pose: &Se2| explained_share(&field, pose, &points, Some([0.0, 0.0]), &p).unwrap();
+        shares[0].push(share(t));
+        for (k, (d, a)) in [(0.3, 0.0), (0.5, 0.0), (1.0, 0.0), (0.0, 10f64.to_radians())].iter().enumerate()
+        {
+            let dir = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
+            let sign = if rng.below(2) == 0 { -1.0 } else { 1.0 };
+            shares[k + 1].push(share(&Se2::new(
+                t.x + d * dir.cos(),
+                t.y + d * dir.sin(),
+                t.theta + sign * a,
+            )));
+        }
+    }
+    let level = (shares[0].iter().sum::<f64>() / shares[0].len() as f64).clamp(p.floor, 1.0);
+    let below = |v: &[f64], r: f64| v.iter().filter(|s| **s < r * level).count() as f64 / v.len() as f64;
+    let rates: Vec<(f64, f64)> =
+        shares.iter().map(|v| (below(v, p.uncertain_ratio), below(v, p.lost_ratio))).collect();
+    eprintln!("level {level:.3}; below uncertain / lost: {rates:.3?} (truth, 0.3 m, 0.5 m, 1 m, 10°)");
+    assert!(shares[0].len() > 100);
+    // False alarms at the truth: rare per scan, and the monitor needs them in a row.
+    assert!(rates[0].0 < 0.15 && rates[0].1 < 0.03, "{rates:?}");
+    // Detections: most scans of a pose 0.5 m or 10° off, nearly all 1 m off.
+    assert!(rates[2].0 > 0.8 && rates[3].0 > 0.9 && rates[4].0 > 0.8, "{rates:?}");
+}

@@ -222,7 +222,10 @@ fn a_recording_reads_back_with_foxglove_schemas_counts_and_time_order() {
     assert_eq!(count("/health"), 1);
     assert!(count("/amr/fused") > SCANS / 2, "{}", count("/amr/fused"));
     assert_eq!(count("/virtual/scan"), count("/amr/fused"));
-    assert_eq!(count("/amcl/V"), count("/amr/fused"), "one V estimate per fused frame in T4");
+    // V's filter starts once a robot's own estimate is verified (a few scans), then one V
+    // estimate per fused frame in T4.
+    let (v, fused) = (count("/amcl/V"), count("/amr/fused"));
+    assert!(v <= fused && v + 5 >= fused && v > 0, "{v} V estimates, {fused} fused frames");
     assert!((3..=6).contains(&count("/amcl/particles")), "{}", count("/amcl/particles"));
     // The statistics agree with what is in the file.
     let stats = summary.stats.as_ref().unwrap();
