@@ -300,27 +300,7 @@ impl FormationActor {
                     };
                     for i in 0..state.robots.len() {
                         let Some(pose) = state.robots[i].pose_now(now) else { continue };
-                        let in_v = r.pose.inverse() * pose;
-                        let cmd = member_command(
-                            r.v_mps,
-                            r.w_radps,
-                            self.params.slots[i],
-                            &in_v,
-                            &self.params.gains,
-                        );
-                        let lim = &self.params.limits;
-                        let cmd = limit_twist(
-                            cmd,
-                            state.robots[i].last_cmd,
-                            dt,
-                            lim.max_speed_mps.get(),
-                            lim.max_yaw_rate_radps.get(),
-                            lim.max_accel_mps2.get(),
-                        );
-                        state.robots[i].last_cmd = cmd;
-                        self.send(i, state, |seq| {
-                            Downlink::Command(Command { seq, stamp_s: now, v_mps: cmd.0, w_radps: cmd.1 })
-                        });
+                        self.steer(state, i, &r, pose, (r.v_mps, r.w_radps), now);
                     }
                     state.plan_s += dt;
                 }
@@ -343,25 +323,38 @@ impl FormationActor {
         let (false, Some(poses), Some(r)) = (fused, poses, self.params.plan.get(k).copied()) else {
             return false;
         };
-        let dt = self.params.period_s;
         for (i, pose) in poses.iter().enumerate() {
-            let in_v = r.pose.inverse() * *pose;
-            let cmd = member_command(0.0, 0.0, self.params.slots[i], &in_v, &self.params.gains);
-            let lim = &self.params.limits;
-            let cmd = limit_twist(
-                cmd,
-                state.robots[i].last_cmd,
-                dt,
-                lim.max_speed_mps.get(),
-                lim.max_yaw_rate_radps.get(),
-                lim.max_accel_mps2.get(),
-            );
-            state.robots[i].last_cmd = cmd;
-            self.send(i, state, |seq| {
-                Downlink::Command(Command { seq, stamp_s: now, v_mps: cmd.0, w_radps: cmd.1 })
-            });
+            self.steer(state, i, &r, *pose, (0.0, 0.0), now);
         }
         true
+    }
+
+    /// Command robot `i`, at `pose`, V's twist `(v, w)` plus the correction towards its slot
+    /// around the plan point `r`, within the limits.
+    fn steer(
+        &self,
+        state: &mut FormationState,
+        i: usize,
+        r: &Reference,
+        pose: Se2,
+        (v, w): (f64, f64),
+        now: f64,
+    ) {
+        let in_v = r.pose.inverse() * pose;
+        let cmd = member_command(v, w, self.params.slots[i], &in_v, &self.params.gains);
+        let lim = &self.params.limits;
+        let cmd = limit_twist(
+            cmd,
+            state.robots[i].last_cmd,
+            self.params.period_s,
+            lim.max_speed_mps.get(),
+            lim.max_yaw_rate_radps.get(),
+            lim.max_accel_mps2.get(),
+        );
+        state.robots[i].last_cmd = cmd;
+        self.send(i, state, |seq| {
+            Downlink::Command(Command { seq, stamp_s: now, v_mps: cmd.0, w_radps: cmd.1 })
+        });
     }
 
     /// V in the map now, from every robot's pose.
