@@ -255,6 +255,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
                     }
                     bridge.publish_status(ServerStatus {
                         phase, plan_s: st.plan_s, plan_len_s: st.plan_len_s, alive: alive.into_iter().collect(),
+                        integrity: st.v_integrity,
                     }).await;
                 }
             }

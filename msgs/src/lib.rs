@@ -339,6 +339,8 @@ pub struct ServerStatus {
     pub plan_len_s: f64,
     /// Robots whose liveliness token the server sees.
     pub alive: Vec<String>,
+    /// The integrity of the latest fresh estimate of V (`None`: none fresh).
+    pub integrity: Option<EstimateIntegrity>,
 }
 
 impl fmt::Display for Device {

@@ -64,6 +64,8 @@ pub struct FormationStatus {
     /// Time into the plan, s.
     pub plan_s: f64,
     pub plan_len_s: f64,
+    /// The integrity of the latest fresh estimate of V (`None`: none fresh).
+    pub v_integrity: Option<EstimateIntegrity>,
 }
 
 /// Settings of the formation actor.
@@ -431,12 +433,20 @@ impl FormationActor {
         }
     }
 
-    fn publish(&self, state: &mut FormationState) {
-        let s = FormationStatus {
+    /// The status now.
+    fn status(&self, state: &FormationState) -> FormationStatus {
+        let now = self.ports.clock.now_s();
+        let v = state.robots.first().filter(|r| r.fused.is_some_and(|a| now - a.stamp_s <= ESTIMATE_FRESH_S));
+        FormationStatus {
             phase: state.phase.clone(),
             plan_s: state.plan_s,
             plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
-        };
+            v_integrity: v.map(|r| r.fused_integrity),
+        }
+    }
+
+    fn publish(&self, state: &mut FormationState) {
+        let s = self.status(state);
         // Changes at once; progress while running about once a second; and the status as it is
         // at least once a second, so an observer that subscribed late (a recorder, a restarted
         // server's watcher) learns the phase without waiting for the next change.
@@ -556,11 +566,7 @@ impl Actor for FormationActor {
             }
             FormationMsg::Stop => self.stop(state, "the operator stopped it".to_owned()),
             FormationMsg::Status(reply) => {
-                let _ = reply.send(FormationStatus {
-                    phase: state.phase.clone(),
-                    plan_s: state.plan_s,
-                    plan_len_s: self.params.plan.len() as f64 * self.params.period_s,
-                });
+                let _ = reply.send(self.status(state));
             }
         }
         self.publish(state);
