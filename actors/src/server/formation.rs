@@ -229,7 +229,14 @@ impl FormationActor {
         });
         match state.phase.clone() {
             Phase::Waiting => {
-                if ready && unverified.is_none() && state.arm_allowed {
+                // A formation that has run before may arm on its robots' own verified estimates
+                // alone: it then holds, closing up on its slots (the plan paused) until V is
+                // verified. After faults the robots may stand where the fusion cannot find one of
+                // them again, and disarmed they would never move back: the chaos soak ended so.
+                // A fresh formation, placed in its slots, waits for V.
+                let own_verified = state.robots.iter().all(|r| r.own_verified_now(now).is_some());
+                let may_reform = state.plan_s > 0.0 && own_verified;
+                if ready && (unverified.is_none() || may_reform) && state.arm_allowed {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
                     } else if self.away_from_start(state, now) {
