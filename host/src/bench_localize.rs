@@ -436,7 +436,7 @@ fn cm(s: &Score) -> (f64, f64, f64) {
 fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
     let (rmse, p95, max) = cm(s);
     let t = run.map_or("–".to_owned(), |r| format!("{:.2} / {:.2}", r.update_median_ms, r.update_p95_ms));
-    let i = run.map_or("–".to_owned(), |r| {
+    let i = run.map_or("– | – | – | – | – | –".to_owned(), |r| {
         let c = &r.integrity;
         format!(
             "{}/{} | {}/{} | {} | {} | {} / {} | {}",
@@ -451,7 +451,6 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
             c.reseeds
         )
     });
-    let i = if run.is_none() { "– | – | – | – | – | –".to_owned() } else { i };
     let conv = s.converged_from.map_or("never".to_owned(), |c| c.to_string());
     let _ = writeln!(
         out,

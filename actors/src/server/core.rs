@@ -534,11 +534,10 @@ impl ServerCore {
         let relative: Vec<Option<Se2>> = (0..self.members.len())
             .map(|i| {
                 let o = observer(&self.members, i);
-                (i > 0)
-                    .then_some(())
-                    .and(own.get(o).copied().flatten())
-                    .zip(own.get(i).copied().flatten())
-                    .map(|(po, pi)| po.inverse() * pi)
+                if i == 0 {
+                    return None;
+                }
+                Some(own.get(o).copied().flatten()?.inverse() * own.get(i).copied().flatten()?)
             })
             .collect();
         let restart_after_s = self.checks.restart_after_ms / 1000.0;

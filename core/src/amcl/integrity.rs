@@ -49,17 +49,6 @@ impl IntegrityState {
             IntegrityState::Lost => "lost",
         }
     }
-
-    /// The state from [`Self::as_str`]'s words.
-    #[must_use]
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "tracking" => Some(IntegrityState::Tracking),
-            "uncertain" => Some(IntegrityState::Uncertain),
-            "lost" => Some(IntegrityState::Lost),
-            _ => None,
-        }
-    }
 }
 
 impl std::fmt::Display for IntegrityState {
@@ -76,14 +65,6 @@ pub struct Integrity {
     pub explained: f64,
     /// The share this sensor explains where it is tracked (the learned level).
     pub level: f64,
-}
-
-impl Integrity {
-    /// The explained share relative to the tracked level.
-    #[must_use]
-    pub fn ratio(&self) -> f64 {
-        if self.level > 0.0 { self.explained / self.level } else { 0.0 }
-    }
 }
 
 /// Settings of the integrity monitor (`[integrity]` in `amcl.toml`).
