@@ -148,7 +148,9 @@ async fn restart_intensity_exceeded_escalates_and_stops_the_moving_robot() {
     let mut rig = rig().await;
     let id = rig.tree.id.clone();
     // Arm and drive at 0.15 m/s.
-    assert!(rig.server.down.send(&id, Downlink::Arm { seq: 1, stamp_s: rig.clock.now_s() }));
+    assert!(
+        rig.server.down.send(&id, Downlink::Arm { seq: 1, stops: rig.stops(), stamp_s: rig.clock.now_s() })
+    );
     let down = rig.server.down.clone();
     let clock = rig.clock;
     let r = id.clone();

@@ -402,6 +402,7 @@ mod tests {
             seq: 1,
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
+            stops: 1,
         });
         assert_eq!(server.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
 
@@ -412,6 +413,7 @@ mod tests {
             seq: 2,
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
+            stops: 1,
         });
         // Both messages reach the router and are lost there; b is unaffected.
         tokio::time::timeout(std::time::Duration::from_secs(2), async {
@@ -468,6 +470,7 @@ mod tests {
             seq: 1,
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
+            stops: 1,
         });
         assert_eq!(new.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
     }

@@ -89,9 +89,19 @@ async fn stop_signal() -> anyhow::Result<()> {
 
 /// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
 /// network, until Ctrl-C or SIGTERM (the drives quick-stop).
+/// Where a robot keeps its state by default: systemd's `StateDirectory=`, else the XDG state
+/// directory.
+fn default_state_dir() -> Option<PathBuf> {
+    let var = |name| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
+    var("STATE_DIRECTORY")
+        .or_else(|| var("XDG_STATE_HOME").map(|d| d.join("amr")))
+        .or_else(|| var("HOME").map(|h| h.join(".local/state/amr")))
+}
+
 pub(crate) fn robot(
     file: &Path,
     mock: Option<&Path>,
+    state_file: Option<PathBuf>,
     net: &NetArgs,
     rec: &crate::record_cmd::RecordArgs,
 ) -> anyhow::Result<()> {
@@ -114,12 +124,18 @@ pub(crate) fn robot(
                 .overrides()
         }
     };
+    let state_file = match state_file {
+        Some(f) => f,
+        None => default_state_dir()
+            .context("no place for the robot's safety state: pass --state-file")?
+            .join(format!("{id}.safety")),
+    };
+    tracing::info!(robot = %id, file = %state_file.display(), "safety state file");
     runtime()?.block_on(async move {
         let clock = FleetClock::wall();
         let (end, bridge) = amr_net::start_robot_bridge(&settings, &id, clock).await?;
-        let tree = start_robot(&robot, overrides, end, clock, RobotOptions::default())
-            .await
-            .context("starting the robot")?;
+        let options = RobotOptions { latch_file: Some(state_file), ..RobotOptions::default() };
+        let tree = start_robot(&robot, overrides, end, clock, options).await.context("starting the robot")?;
         tracing::info!(
             robot = %id,
             mock = mock.is_some(),

@@ -256,6 +256,12 @@ enum Command {
         /// addresses of its manifest (default: amr-world.json in the temp directory).
         #[arg(long, num_args = 0..=1, value_name = "MANIFEST")]
         mock: Option<Option<PathBuf>>,
+        /// Where the robot keeps its latched e-stop, fault and stop counter across restarts
+        /// (default: <id>.safety in $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else
+        /// ~/.local/state/amr). A latch in it holds until reset: SIGUSR2 on the robot, or the
+        /// network reset for a network e-stop.
+        #[arg(long, value_name = "FILE")]
+        state_file: Option<PathBuf>,
         #[command(flatten)]
         net: fleet_cmd::NetArgs,
         #[command(flatten)]
@@ -579,9 +585,9 @@ fn main() -> ExitCode {
                 max_error_cm,
             }),
         },
-        Command::Robot { config, mock, net, rec } => {
+        Command::Robot { config, mock, state_file, net, rec } => {
             let manifest = mock.map(|m| m.unwrap_or_else(fleet_cmd::default_manifest));
-            fleet_cmd::robot(&config, manifest.as_deref(), &net, &rec)
+            fleet_cmd::robot(&config, manifest.as_deref(), state_file, &net, &rec)
         }
         Command::Replay { file, out, configuration, config, scenario, seed } => {
             record_cmd::replay(&file, out.as_deref(), config, scenario, configuration, seed)

@@ -136,6 +136,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
             certs_s.into(),
             "--endpoint".into(),
             endpoint.clone(),
+            "--state-file".into(),
+            tmp.path().join(format!("{id}.safety")).display().to_string(),
         ]
     };
     let run = |v: Vec<String>, name: &str, stdin: bool| spawn(&v, &log(name), stdin);
@@ -368,6 +370,33 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         Duration::from_secs(5),
         latched(at, SafetyState::EStop),
     );
+    // A restart is not a reset: `kill -9` robot-a while it is e-stopped, start it again and let the
+    // server re-arm the formation: it comes back in EStop (from its state file) and refuses the arm.
+    procs.kill("robot-a");
+    let restarted_at = Instant::now();
+    procs.0.push(("robot-a".into(), run(robot_args("robot-a"), "robot-a-3", false)));
+    wait_for(
+        &seen,
+        "restarted robot-a reporting EStop",
+        Duration::from_secs(30),
+        latched(restarted_at, SafetyState::EStop),
+    );
+    wait_for(&seen, "restarted robot-a alive", Duration::from_secs(30), |s| {
+        s.status.as_ref().is_some_and(|st| st.alive.len() == 2)
+    });
+    let stdin = procs.child("server").stdin.as_mut().unwrap();
+    stdin.write_all(b"rearm\n").unwrap();
+    stdin.flush().unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    {
+        let s = seen.lock().unwrap();
+        let since: Vec<SafetyState> =
+            s.safety_a.iter().filter(|(t, _)| *t >= restarted_at).map(|(_, st)| *st).collect();
+        assert!(!since.contains(&SafetyState::Armed), "armed after a restart with no reset: {since:?}");
+        assert_eq!(since.last(), Some(&SafetyState::EStop), "{since:?}");
+    }
+    let text = std::fs::read_to_string(log("robot-a-3")).unwrap_or_default();
+    assert!(text.contains("starting latched"), "{text}");
     let said = operator(true);
     assert!(said.contains("robot-a: e-stop reset confirmed"), "{said}");
     eprintln!(
@@ -382,8 +411,13 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
          resuming; last status {:?}",
         seen.lock().unwrap().status
     );
-    let armed_again =
-        seen.lock().unwrap().safety_a.iter().filter(|(t, s)| *t > killed && *s == SafetyState::Armed).count();
+    let armed_again = seen
+        .lock()
+        .unwrap()
+        .safety_a
+        .iter()
+        .filter(|(t, s)| *t > killed && *t < restarted_at && *s == SafetyState::Armed)
+        .count();
     assert!(armed_again >= 1, "robot-a was re-armed");
 }
 
@@ -404,7 +438,11 @@ fn credentials_stay_out_of_the_logs_at_trace_level() {
             .iter()
             .map(|s| (*s).to_owned())
             .chain(["--endpoint".to_owned(), endpoint.clone()])
-            .chain(if what == "server" { vec!["--scenario".to_owned(), "short".to_owned()] } else { vec![] })
+            .chain(if what == "server" {
+                vec!["--scenario".to_owned(), "short".to_owned()]
+            } else {
+                vec!["--state-file".to_owned(), tmp.path().join("robot-a.safety").display().to_string()]
+            })
             .collect()
     };
     let mut logs = Vec::new();

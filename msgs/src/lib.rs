@@ -22,7 +22,7 @@ use amr_core::se2::Se2;
 use serde::{Deserialize, Serialize};
 
 /// The version of these types' encoding, on the network and in recordings.
-pub const SCHEMA_VERSION: u16 = 5;
+pub const SCHEMA_VERSION: u16 = 6;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
@@ -117,12 +117,16 @@ pub enum Uplink {
         stamp_s: f64,
         report: HealthReport,
     },
-    /// The robot's safety state changed (armed, disarmed by the watchdog, e-stop, fault).
+    /// The robot's safety state changed (armed, disarmed by the watchdog, e-stop, fault), or
+    /// its stop counter did.
     Safety {
         robot: String,
         seq: u64,
         stamp_s: f64,
         state: SafetyState,
+        /// Counts the robot's stops (start-up, disarm of any cause, halt, e-stop, its reset,
+        /// fault, its reset); kept across restarts. An arm must carry the current value.
+        stops: u64,
     },
 }
 
@@ -164,11 +168,13 @@ pub struct Command {
 pub enum Downlink {
     Command(Command),
     /// Accept commands again after the watchdog, a start-up or an e-stop reset disarmed the robot.
-    /// Carries the sequence number of the first command it allows (anything older stays refused)
-    /// and when it was sent: the robot takes it only if it is newer than the last event that
-    /// stopped the robot and not older than the command timeout.
+    /// Carries the sequence number of the first command it allows (anything older stays refused),
+    /// the robot's stop counter the sender last heard ([`Uplink::Safety`]) and when it was sent:
+    /// the robot takes it only if no stop happened since (the counters match; no clocks are
+    /// compared) and its stamp is within the command timeout of the robot's clock, either way.
     Arm {
         seq: u64,
+        stops: u64,
         stamp_s: f64,
     },
     /// Stop and refuse commands until armed again.
@@ -190,7 +196,8 @@ pub enum SafetyState {
     Armed,
     /// Emergency stop latched: quick stop, refuses everything until an explicit reset.
     EStop,
-    /// A supervisor escalated: the robot is stopped and stays so until restarted.
+    /// A supervisor escalated: the robot is stopped and stays so, across restarts, until a
+    /// reset on the robot itself.
     Fault,
 }
 
@@ -212,6 +219,8 @@ pub enum DisarmReason {
     /// The safety layer's inbox overflowed (it stopped keeping up): halted, since an input was
     /// refused.
     QueueFull,
+    /// A latched fault was reset on the robot.
+    FaultReset,
 }
 
 /// Times of one fused update's stages, seconds (the paper's Table 4 rows). Wall-clock
@@ -389,6 +398,7 @@ impl fmt::Display for DisarmReason {
             DisarmReason::EStopReset => "estop_reset",
             DisarmReason::DeviceLost => "device_lost",
             DisarmReason::QueueFull => "queue_full",
+            DisarmReason::FaultReset => "fault_reset",
         })
     }
 }

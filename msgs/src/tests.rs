@@ -38,12 +38,26 @@ fn samples() -> (Vec<Uplink>, Vec<Downlink>, Vec<Estimate>, FusedFrame, Vec<Fusi
             seq: 5,
             stamp_s: 3.0,
             state: SafetyState::Disarmed(DisarmReason::EStopReset),
+            stops: 41,
         },
-        Uplink::Safety { robot: "robot-b".into(), seq: 6, stamp_s: 3.5, state: SafetyState::EStop },
+        Uplink::Safety {
+            robot: "robot-b".into(),
+            seq: 6,
+            stamp_s: 3.5,
+            state: SafetyState::Disarmed(DisarmReason::FaultReset),
+            stops: 42,
+        },
+        Uplink::Safety {
+            robot: "robot-b".into(),
+            seq: 7,
+            stamp_s: 3.6,
+            state: SafetyState::EStop,
+            stops: 43,
+        },
     ];
     let downlinks = vec![
         Downlink::Command(Command { seq: 7, stamp_s: 4.0, v_mps: 0.22, w_radps: -0.01 }),
-        Downlink::Arm { seq: 8, stamp_s: 4.5 },
+        Downlink::Arm { seq: 8, stops: 43, stamp_s: 4.5 },
         Downlink::Disarm,
         Downlink::EStop,
         Downlink::ResetEStop,
@@ -177,7 +191,7 @@ fn the_encoding_is_pinned_to_the_schema_version() {
         json_bytes.extend(serde_json::to_vec(s).unwrap());
     }
     let got = (SCHEMA_VERSION, fnv(&postcard_bytes), fnv(&json_bytes));
-    let pinned = (5, 0x46db_988b_ffde_6e49, 0x257d_68e5_bbf4_fe89);
+    let pinned = (6, 0xcfab_bad9_eedd_2033, 0x9a59_9c9a_ae10_802d);
     assert_eq!(got, pinned, "the encoding changed: bump SCHEMA_VERSION and pin the new hashes");
 }
 

@@ -404,13 +404,24 @@ mod tests {
         e.origin = "robot-b".into();
         assert!(matches!(to_downlink(e, "robot-a", "server"), Err(Reject::NotFromServer { .. })));
         // A robot's message on its own key from another robot is refused too.
-        let safety =
-            Uplink::Safety { robot: "robot-a".into(), seq: 1, stamp_s: 1.0, state: SafetyState::Armed };
+        let safety = Uplink::Safety {
+            robot: "robot-a".into(),
+            seq: 1,
+            stamp_s: 1.0,
+            state: SafetyState::Armed,
+            stops: 1,
+        };
         let mut u = env(Body::Uplink(safety.clone()));
         u.origin = "robot-b".into();
         assert!(matches!(to_uplink(u, "robot-a", "health"), Err(Reject::WrongRobot { .. })));
         // So is an envelope of robot-a's whose message names robot-b.
-        let b = Uplink::Safety { robot: "robot-b".into(), seq: 1, stamp_s: 1.0, state: SafetyState::Armed };
+        let b = Uplink::Safety {
+            robot: "robot-b".into(),
+            seq: 1,
+            stamp_s: 1.0,
+            state: SafetyState::Armed,
+            stops: 1,
+        };
         assert!(matches!(
             to_uplink(env(Body::Uplink(b)), "robot-a", "health"),
             Err(Reject::WrongRobot { .. })
@@ -468,7 +479,7 @@ mod tests {
     fn a_stale_arm_or_reset_is_refused_a_stale_stop_is_not() {
         let at = |d: Downlink, stamp_s: f64| Envelope { stamp_s, ..env(Body::Downlink(d)) };
         let now = 100.0;
-        let arm = Downlink::Arm { seq: 1, stamp_s: 97.0 };
+        let arm = Downlink::Arm { seq: 1, stops: 1, stamp_s: 97.0 };
         assert!(matches!(check_enabling_age(&at(arm, 97.0), now), Err(Reject::Stale { kind: "arm", .. })));
         assert!(check_enabling_age(&at(arm, 98.5), now).is_ok());
         assert!(matches!(
@@ -501,8 +512,13 @@ mod tests {
             to_uplink(env(Body::Uplink(odom(1.0, f64::INFINITY))), "robot-a", "odom"),
             Err(Reject::NotFinite("stamp"))
         );
-        let safety =
-            Uplink::Safety { robot: "robot-a".into(), seq: 1, stamp_s: f64::NAN, state: SafetyState::Armed };
+        let safety = Uplink::Safety {
+            robot: "robot-a".into(),
+            seq: 1,
+            stamp_s: f64::NAN,
+            state: SafetyState::Armed,
+            stops: 1,
+        };
         assert_eq!(
             to_uplink(env(Body::Uplink(safety)), "robot-a", "health"),
             Err(Reject::NotFinite("stamp"))
@@ -530,6 +546,7 @@ mod tests {
                 seq: 5,
                 stamp_s: 3.0,
                 state: SafetyState::Disarmed(DisarmReason::Watchdog),
+                stops: 1,
             },
         ];
         for u in ups {

@@ -105,7 +105,7 @@ async fn wait_alive(b: &ServerBridge, robot: &str, present: bool) -> Duration {
 }
 
 fn safety(robot: &str, seq: u64) -> Uplink {
-    Uplink::Safety { robot: robot.into(), seq, stamp_s: 1.0, state: SafetyState::Armed }
+    Uplink::Safety { robot: robot.into(), seq, stamp_s: 1.0, state: SafetyState::Armed, stops: 1 }
 }
 
 /// Receive the next uplink that is not the bridge's own link-health report.
@@ -275,6 +275,7 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
             seq: 9,
             stamp_s: FleetClock::wall().now_s(),
             state: SafetyState::EStop,
+            stops: 1,
         }),
         ..forged.clone()
     };
@@ -367,7 +368,8 @@ async fn a_replayed_command_is_refused_by_the_robots_bridge() {
     let mut stale_arm = amr_net::wire::Envelope::decode(&old).unwrap();
     stale_arm.seq = 2_000_000;
     stale_arm.stamp_s = FleetClock::wall().now_s() - 10.0;
-    stale_arm.body = amr_net::wire::Body::Downlink(Downlink::Arm { seq: 1, stamp_s: stale_arm.stamp_s });
+    stale_arm.body =
+        amr_net::wire::Body::Downlink(Downlink::Arm { seq: 1, stops: 1, stamp_s: stale_arm.stamp_s });
     let (replayed, stale) = (bridge_a.stats.rejected("replayed"), bridge_a.stats.rejected("stale"));
     for env in [earlier, stale_arm] {
         srv.bridge.session().unwrap().put("fleet/robot-a/cmd", env.encode().unwrap()).await.unwrap();
@@ -452,6 +454,7 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
             seq,
             stamp_s: FleetClock::wall().now_s(),
             state: SafetyState::EStop,
+            stops: 1,
         });
         if operator.is_finished() {
             break;

@@ -167,8 +167,8 @@ fn command(robot: &str, d: &Downlink) -> Value {
             "robot": robot, "kind": "command", "seq": c.seq, "stamp_s": c.stamp_s,
             "v_mps": c.v_mps, "w_radps": c.w_radps
         }),
-        Downlink::Arm { seq, stamp_s } => {
-            json!({ "robot": robot, "kind": "arm", "seq": seq, "stamp_s": stamp_s })
+        Downlink::Arm { seq, stops, stamp_s } => {
+            json!({ "robot": robot, "kind": "arm", "seq": seq, "stops": stops, "stamp_s": stamp_s })
         }
         Downlink::Disarm => json!({ "robot": robot, "kind": "disarm" }),
         Downlink::EStop => json!({ "robot": robot, "kind": "estop" }),

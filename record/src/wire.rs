@@ -272,6 +272,7 @@ mod tests {
                 seq: 2,
                 stamp_s: 0.6,
                 state: SafetyState::Disarmed(DisarmReason::Watchdog),
+                stops: 3,
             },
             Uplink::Odom {
                 robot: "a".into(),

@@ -764,6 +764,12 @@ impl Apart {
 }
 
 impl RobotRig {
+    /// The robot's stop counter as it reports it (an arm must carry it).
+    #[must_use]
+    pub fn stops(&self) -> u64 {
+        self.tree.ports.stops.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
     /// Robot `config.server.robots[0]` alone in the scenario's world (its formation partner absent).
     pub async fn start(
         config: &Config,

@@ -21,6 +21,7 @@
 pub mod canbus;
 pub mod drive;
 pub mod imu;
+pub mod latches;
 pub mod lidar;
 pub mod odometry;
 pub mod ports;
@@ -65,7 +66,7 @@ pub struct DeviceOverrides {
 }
 
 /// Supervision settings of the robot tree.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct RobotOptions {
     /// The top supervisor's policy (devices, odometry, safety, uplink).
     pub policy: RestartPolicy,
@@ -73,6 +74,9 @@ pub struct RobotOptions {
     pub drives_policy: RestartPolicy,
     /// Send every n-th odometry update up the link.
     pub odom_decimation: u64,
+    /// Where the robot keeps its latched stops and stop counter across restarts
+    /// ([`latches::LatchFile`]); `None` starts with nothing latched and keeps nothing.
+    pub latch_file: Option<std::path::PathBuf>,
 }
 
 impl Default for RobotOptions {
@@ -84,7 +88,7 @@ impl Default for RobotOptions {
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
         };
-        RobotOptions { policy, drives_policy: policy, odom_decimation: 5 }
+        RobotOptions { policy, drives_policy: policy, odom_decimation: 5, latch_file: None }
     }
 }
 
@@ -159,7 +163,26 @@ pub async fn start_robot(
     options: RobotOptions,
 ) -> Result<RobotTree, RobotError> {
     let id = cfg.id.as_str().to_owned();
-    let ports = RobotPorts::new(id.clone(), clock);
+    let file = options.latch_file.as_ref().map(latches::LatchFile::new);
+    let latched = match &file {
+        None => latches::Latched::default(),
+        Some(f) => match f.load() {
+            Ok(l) => {
+                if l.estop != 0 || l.fault {
+                    tracing::warn!(robot = %id, file = %f.path().display(), estop = l.estop, fault = l.fault,
+                        "starting latched: the stop from before the restart holds until it is reset");
+                }
+                l
+            }
+            Err(e) => {
+                // Unknown is latched: only a reset on the robot clears it (and writes a good file).
+                tracing::error!(robot = %id, error = %e,
+                    "counting the e-stop as latched; reset it on the robot (SIGUSR2 to `amr robot`), which rewrites the file");
+                latches::Latched { estop: ports::EStopSource::Local as u8, fault: false, stops: 0 }
+            }
+        },
+    };
+    let ports = RobotPorts::restored(id.clone(), clock, file, latched);
     let counters = Counters::default();
     let events = EventLog::default();
 
@@ -272,6 +295,12 @@ pub async fn start_robot(
 }
 
 fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
+    // Latched on disk before it is reported: a restart does not clear it.
+    ports.fault_latch.store(true, std::sync::atomic::Ordering::SeqCst);
+    let stops = ports.stops.fetch_add(1, std::sync::atomic::Ordering::SeqCst).wrapping_add(1);
+    if let Err(e) = ports.persist_latches() {
+        tracing::error!(robot = %ports.robot, error = %e, "the fault is not on disk");
+    }
     ports.safety_now.send_replace(Some(SafetyState::Fault));
     ports.safety.send(SafetyState::Fault);
     up.send(Uplink::Safety {
@@ -279,5 +308,6 @@ fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
         seq: u64::MAX,
         stamp_s: ports.clock.now_s(),
         state: SafetyState::Fault,
+        stops,
     });
 }

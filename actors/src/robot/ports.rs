@@ -5,7 +5,7 @@
 //! disarm, e-stop, reset, health changes) goes through [`SafetyInbox`] instead, which loses nothing.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_drivers::canopen::master::MasterEvent;
@@ -70,6 +70,12 @@ impl EStopLatch {
     /// Latch from `source`.
     pub fn set(&self, source: EStopSource) {
         self.sources.fetch_or(source as u8, Ordering::SeqCst);
+    }
+
+    /// The sources that hold it ([`EStopSource`] bits).
+    #[must_use]
+    pub fn sources(&self) -> u8 {
+        self.sources.load(Ordering::SeqCst)
     }
 
     /// Whether any source holds it.
@@ -226,6 +232,15 @@ pub struct RobotPorts {
     /// The e-stop latch: the next safety actor starts in `EStop` if it is set. Set by every e-stop
     /// source; cleared only by the safety actor, on a reset from the same place.
     pub estop_latch: EStopLatch,
+    /// A fault is latched (a supervisor escalated, in this run or before a restart): the next
+    /// safety actor starts in `Fault`; only a reset on the robot clears it.
+    pub fault_latch: AtomicBool,
+    /// The safety layer's stop counter (an arm must carry it), kept here across restarts of the
+    /// safety actor.
+    pub stops: AtomicU64,
+    /// Where the latches and the counter are kept across restarts of the robot (none in a
+    /// simulation that starts every robot afresh).
+    pub latch_file: Option<super::latches::LatchFile>,
 }
 
 impl RobotPorts {
@@ -242,6 +257,20 @@ impl RobotPorts {
 
     #[must_use]
     pub fn new(robot: impl Into<String>, clock: FleetClock) -> Arc<Self> {
+        Self::restored(robot, clock, None, super::latches::Latched::default())
+    }
+
+    /// Ports whose latches and stop counter start as `latched` (read from `file`, where they are
+    /// kept from now on).
+    #[must_use]
+    pub fn restored(
+        robot: impl Into<String>,
+        clock: FleetClock,
+        file: Option<super::latches::LatchFile>,
+        latched: super::latches::Latched,
+    ) -> Arc<Self> {
+        let estop_latch = EStopLatch::default();
+        estop_latch.sources.store(latched.estop, Ordering::SeqCst);
         Arc::new(RobotPorts {
             robot: robot.into(),
             clock,
@@ -258,8 +287,30 @@ impl RobotPorts {
             wheel_cmd: OutputPort::default(),
             bus: watch::Sender::new(None),
             bus_events: Inbox::new(BUS_EVENTS_CAPACITY),
-            estop_latch: EStopLatch::default(),
+            estop_latch,
+            fault_latch: AtomicBool::new(latched.fault),
+            stops: AtomicU64::new(latched.stops),
+            latch_file: file,
         })
+    }
+
+    /// What is latched now.
+    #[must_use]
+    pub fn latched(&self) -> super::latches::Latched {
+        super::latches::Latched {
+            estop: self.estop_latch.sources(),
+            fault: self.fault_latch.load(Ordering::SeqCst),
+            stops: self.stops.load(Ordering::SeqCst),
+        }
+    }
+
+    /// Write what is latched now to the latch file (if any). A failure is logged and counted by
+    /// the caller; what is latched in memory holds whatever the disk does.
+    pub fn persist_latches(&self) -> Result<(), super::latches::LatchFileError> {
+        match &self.latch_file {
+            Some(f) => f.store(self.latched()),
+            None => Ok(()),
+        }
     }
 }
 

@@ -7,27 +7,33 @@
 //! - Command watchdog: no fresh command for `command_timeout_ms` → disarm and stop. Only an
 //!   explicit arm (with a new sequence floor) lets commands through again, so nothing queued during
 //!   an outage is ever applied.
-//! - An arm counts only if it is newer (stamp) than the last event that stopped the robot (start-up
-//!   of this actor, a disarm of any cause, a halt, an e-stop or its reset) and not older than the
-//!   command timeout: an arm sent before a drive fault, or one queued while this actor was being
-//!   restarted, cannot start the robot again.
+//! - The layer counts its stops (its start, a disarm of any cause, a halt, an e-stop or its reset, a
+//!   fault or its reset) and reports the count; an arm counts only if it carries the current count
+//!   and its stamp is within the command timeout of this clock, before or after: an arm sent
+//!   before a drive fault, or one queued while this actor was being restarted, cannot start the
+//!   robot again, whatever the two hosts' clocks say.
 //! - Every input comes through [`RobotPorts::safety_inbox`](super::ports::SafetyInbox), in order,
 //!   none dropped; if it ever overflows, the robot halts (`Disarmed(QueueFull)`).
 //! - Every stop the layer makes (watchdog, disarm, lost drives) brakes at the stop deceleration,
 //!   not at the acceleration limit, which only shapes driving while armed.
 //! - E-stop latch: quick stop at once; only an explicit reset clears it (to disarmed). It comes
 //!   from the operator's control port (a signal to `amr robot`) or the link (`Downlink::EStop`,
-//!   e.g. `estop` on `amr server`'s stdin), and it survives a restart of this actor.
-//! - A supervisor escalation or a lost drive latches or disarms likewise.
+//!   e.g. `estop` on `amr server`'s stdin), and it survives a restart of this actor and, with a
+//!   latch file ([`super::latches`]), of the robot: e-stop, fault and the stop count are on disk
+//!   before the new state is reported.
+//! - A supervisor escalation latches `Fault`, cleared only by a reset on the robot; a lost drive
+//!   halts.
 //!
 //! The decisions live in [`SafetyCore`] (no IO, time passed in); the actor ticks it every cycle and
 //! publishes the wheel command.
 
 use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use ractor::{Actor, ActorProcessingErr, ActorRef};
 
+use super::latches::Latched;
 use super::ports::{AbortOnDrop, EStopSource, RobotPorts, SafetyControl, SafetyInput, WheelCommand};
 use super::status::{Counters, HealthCell};
 use amr_msgs::{Command, Device, DisarmReason, Downlink, Health, HealthReport, SafetyState};
@@ -61,11 +67,12 @@ pub(crate) enum Refusal {
 /// Why an arm was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum ArmRefusal {
-    /// E-stop or fault: only a reset (or a restart of the robot) clears them.
+    /// E-stop or fault: only a reset clears them.
     Latched,
-    /// Not newer than the last event that stopped the robot.
+    /// It carries another stop counter: the robot stopped since the sender last heard of it (or
+    /// it was sent before this robot started).
     BeforeStop,
-    /// Older than the command timeout, or not finite.
+    /// Stamped more than the command timeout before or after the robot's clock, or not finite.
     Expired,
 }
 
@@ -81,15 +88,16 @@ pub(crate) struct SafetyCore {
     /// The twist being output.
     output: (f64, f64),
     last_tick_s: Option<f64>,
-    /// When the robot was last stopped (this core's start, a disarm, a halt, an e-stop or its
-    /// reset): only an arm stamped later counts.
-    stopped_at_s: f64,
+    /// Counts the stops (this core's start, a disarm, a halt, an e-stop or its reset, a fault or
+    /// its reset): only an arm that carries the current count starts the robot. Nothing here
+    /// compares the sender's clock with this one to order an arm and a stop.
+    stops: u64,
 }
 
 impl SafetyCore {
     #[must_use]
-    /// A core started at `now_s` (disarmed: a start is a stop event).
-    pub(crate) fn new(params: SafetyParams, now_s: f64) -> Self {
+    /// A core started after `stops` earlier stops (disarmed: a start is a stop event).
+    pub(crate) fn new(params: SafetyParams, stops: u64) -> Self {
         SafetyCore {
             params,
             state: SafetyState::Disarmed(DisarmReason::Startup),
@@ -98,13 +106,23 @@ impl SafetyCore {
             seq_floor: 0,
             output: (0.0, 0.0),
             last_tick_s: None,
-            stopped_at_s: now_s,
+            stops: stops.wrapping_add(1),
         }
     }
 
     #[must_use]
     pub(crate) fn state(&self) -> SafetyState {
         self.state
+    }
+
+    /// The stop counter an arm must carry.
+    #[must_use]
+    pub(crate) fn stops(&self) -> u64 {
+        self.stops
+    }
+
+    fn stopped(&mut self) {
+        self.stops = self.stops.wrapping_add(1);
     }
 
     /// The twist currently output.
@@ -114,23 +132,22 @@ impl SafetyCore {
         self.output
     }
 
-    /// Arm (stamped `stamp_s` by the sender): accept commands with `seq >= floor`, starting the
-    /// watchdog now.
-    pub(crate) fn arm(&mut self, floor: u64, stamp_s: f64, now_s: f64) -> Result<(), ArmRefusal> {
+    /// Arm (carrying stop counter `stops`, stamped `stamp_s` by the sender): accept commands with
+    /// `seq >= floor`, starting the watchdog now.
+    pub(crate) fn arm(&mut self, floor: u64, stops: u64, stamp_s: f64, now_s: f64) -> Result<(), ArmRefusal> {
         if matches!(self.state, SafetyState::EStop | SafetyState::Fault) {
             return Err(ArmRefusal::Latched);
         }
-        if !(stamp_s.is_finite() && now_s - stamp_s <= self.params.command_timeout_s) {
+        if !(stamp_s.is_finite() && (now_s - stamp_s).abs() <= self.params.command_timeout_s) {
             return Err(ArmRefusal::Expired);
         }
-        if stamp_s <= self.stopped_at_s {
+        if stops != self.stops {
             return Err(ArmRefusal::BeforeStop);
         }
         match self.state {
             SafetyState::Disarmed(_) => {
                 self.state = SafetyState::Armed;
                 self.seq_floor = floor;
-                self.command = None;
                 self.last_tick_s.get_or_insert(now_s);
                 // The watchdog runs from the arm: a first command must come within the timeout.
                 self.command = Some((Command { seq: 0, stamp_s: now_s, v_mps: 0.0, w_radps: 0.0 }, now_s));
@@ -141,9 +158,9 @@ impl SafetyCore {
         Ok(())
     }
 
-    /// Disarm (ramp to zero) at `now_s`; kept if already e-stopped or faulted.
-    pub(crate) fn disarm(&mut self, reason: DisarmReason, now_s: f64) {
-        self.stopped_at_s = self.stopped_at_s.max(now_s);
+    /// Disarm (ramp to zero); kept if already e-stopped or faulted.
+    pub(crate) fn disarm(&mut self, reason: DisarmReason) {
+        self.stopped();
         if matches!(self.state, SafetyState::Armed | SafetyState::Disarmed(_)) {
             self.state = SafetyState::Disarmed(reason);
             self.command = None;
@@ -153,14 +170,14 @@ impl SafetyCore {
     /// Disarm with `reason` and drop the output to zero at once: the drives were lost, faulted or
     /// rebooted, so they have stopped already; ramping on from the old speed would make them move
     /// again, disarmed, when they return.
-    pub(crate) fn halt(&mut self, reason: DisarmReason, now_s: f64) {
-        self.disarm(reason, now_s);
+    pub(crate) fn halt(&mut self, reason: DisarmReason) {
+        self.disarm(reason);
         self.output = (0.0, 0.0);
     }
 
     /// Latch the e-stop (a fault stays a fault).
-    pub(crate) fn estop(&mut self, now_s: f64) {
-        self.stopped_at_s = self.stopped_at_s.max(now_s);
+    pub(crate) fn estop(&mut self) {
+        self.stopped();
         if self.state != SafetyState::Fault {
             self.state = SafetyState::EStop;
             self.command = None;
@@ -168,25 +185,35 @@ impl SafetyCore {
         }
     }
 
-    /// Clear the e-stop: the robot is disarmed until armed by an arm newer than this reset.
-    pub(crate) fn reset_estop(&mut self, now_s: f64) -> bool {
+    /// Clear the e-stop: the robot is disarmed until armed by an arm that knows of this reset.
+    pub(crate) fn reset_estop(&mut self) -> bool {
         if self.state == SafetyState::EStop {
             self.state = SafetyState::Disarmed(DisarmReason::EStopReset);
-            self.stopped_at_s = self.stopped_at_s.max(now_s);
+            self.stopped();
             true
         } else {
             false
         }
     }
 
-    /// Latch a fault: stopped until the robot is restarted. (Only the tests call it: a supervisor's
-    /// escalation latches `Fault` on the robot's ports directly, `robot/mod.rs`.)
-    #[cfg(test)]
-    pub(crate) fn fault(&mut self, now_s: f64) {
-        self.stopped_at_s = self.stopped_at_s.max(now_s);
+    /// Latch a fault (a supervisor escalated, now or before a restart).
+    pub(crate) fn fault(&mut self) {
+        self.stopped();
         self.state = SafetyState::Fault;
         self.command = None;
         self.output = (0.0, 0.0);
+    }
+
+    /// Clear a fault, by a reset on the robot: back in `EStop` if an e-stop still holds
+    /// (`estop_held`), else disarmed until armed.
+    pub(crate) fn reset_fault(&mut self, estop_held: bool) -> bool {
+        if self.state != SafetyState::Fault {
+            return false;
+        }
+        self.stopped();
+        self.state =
+            if estop_held { SafetyState::EStop } else { SafetyState::Disarmed(DisarmReason::FaultReset) };
+        true
     }
 
     /// Offer a command that arrived at `now_s`.
@@ -221,7 +248,7 @@ impl SafetyCore {
             && self.command.is_none_or(|(_, at)| now_s - at > p.command_timeout_s)
         {
             tracing::warn!(timeout_s = p.command_timeout_s, "command watchdog: no fresh command, stopping");
-            self.disarm(DisarmReason::Watchdog, now_s);
+            self.disarm(DisarmReason::Watchdog);
         }
         let target = match (self.state, self.command) {
             (SafetyState::Armed, Some((c, _))) => (
@@ -283,18 +310,38 @@ pub(crate) struct SafetyActor {
 #[derive(Debug)]
 pub(crate) struct SafetyActorState {
     core: SafetyCore,
-    published: Option<SafetyState>,
+    published: Option<(SafetyState, u64)>,
+    /// What the latch file holds (as last written or read).
+    persisted: Option<Latched>,
     health: HealthCell,
     /// Wakes this actor when the inbox gets something.
     _waker: AbortOnDrop<()>,
 }
 
 impl SafetyActor {
+    /// Report a change of state or stop counter, after the latches are on disk: a robot that has
+    /// acknowledged an e-stop or a fault keeps it across a restart.
     fn publish(&self, s: &mut SafetyActorState) {
         let now = s.core.state();
-        if s.published != Some(now) {
-            tracing::info!(robot = %self.ports.robot, state = ?now, "safety");
-            s.published = Some(now);
+        self.ports.stops.store(s.core.stops(), Ordering::SeqCst);
+        self.ports.fault_latch.store(now == SafetyState::Fault, Ordering::SeqCst);
+        let latched = self.ports.latched();
+        if s.persisted != Some(latched) {
+            match self.ports.persist_latches() {
+                Ok(()) => s.persisted = Some(latched),
+                Err(e) => {
+                    // The latches hold in memory; a reset that could not be written is still latched
+                    // on the next start (fail safe).
+                    tracing::error!(robot = %self.ports.robot, error = %e, "the latches are not on disk");
+                    self.counters.count("safety.latch_file_errors");
+                }
+            }
+        }
+        if s.published != Some((now, s.core.stops())) {
+            if s.published.map(|p| p.0) != Some(now) {
+                tracing::info!(robot = %self.ports.robot, state = ?now, stops = s.core.stops(), "safety");
+            }
+            s.published = Some((now, s.core.stops()));
             self.ports.safety_now.send_replace(Some(now));
             self.ports.safety.send(now);
             let health = match now {
@@ -321,7 +368,7 @@ impl SafetyActor {
             // The stated overflow policy: something was refused, so stop until armed again.
             tracing::error!(robot = %self.ports.robot, "safety inbox overflowed: halting");
             self.counters.count("safety.inbox_full");
-            s.core.halt(DisarmReason::QueueFull, self.ports.clock.now_s());
+            s.core.halt(DisarmReason::QueueFull);
         }
     }
 
@@ -338,8 +385,8 @@ impl SafetyActor {
                     });
                 }
             }
-            SafetyInput::Link(Downlink::Arm { seq, stamp_s }) => {
-                if let Err(why) = s.core.arm(seq, stamp_s, now) {
+            SafetyInput::Link(Downlink::Arm { seq, stops, stamp_s }) => {
+                if let Err(why) = s.core.arm(seq, stops, stamp_s, now) {
                     self.counters.count("safety.refused.arm");
                     self.counters.count(match why {
                         ArmRefusal::Latched => "safety.refused.arm.latched",
@@ -348,7 +395,7 @@ impl SafetyActor {
                     });
                 }
             }
-            SafetyInput::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested, now),
+            SafetyInput::Link(Downlink::Disarm) => s.core.disarm(DisarmReason::Requested),
             SafetyInput::Link(Downlink::EStop)
             | SafetyInput::Control(SafetyControl::EStop)
             | SafetyInput::EStopInput => {
@@ -358,27 +405,32 @@ impl SafetyActor {
                     // Latched as such by the drive actor before it was queued.
                     _ => {}
                 }
-                s.core.estop(now);
+                s.core.estop();
                 // Not waiting for the next cycle.
                 self.output(s);
             }
             SafetyInput::Link(Downlink::ResetEStop) | SafetyInput::Control(SafetyControl::ResetEStop) => {
                 let local = matches!(input, SafetyInput::Control(_));
-                if self.ports.estop_latch.reset(local) {
-                    s.core.reset_estop(now);
+                let clear = self.ports.estop_latch.reset(local);
+                if local && s.core.state() == SafetyState::Fault {
+                    // A fault is reset only on the robot.
+                    tracing::warn!(robot = %self.ports.robot, "fault reset on the robot");
+                    s.core.reset_fault(!clear);
+                } else if clear {
+                    s.core.reset_estop();
                 } else {
-                    tracing::warn!(robot = %self.ports.robot, local, "e-stop reset refused: held by another source");
+                    tracing::warn!(robot = %self.ports.robot, local, state = ?s.core.state(), "reset refused: held by another source, or a fault");
                     self.counters.count("safety.refused.reset");
                 }
             }
             SafetyInput::Health(h) => {
                 if halts(&h) {
-                    s.core.halt(DisarmReason::DeviceLost, now);
+                    s.core.halt(DisarmReason::DeviceLost);
                 }
             }
             SafetyInput::Missed => {
                 self.counters.count("safety.link_queue_full");
-                s.core.halt(DisarmReason::QueueFull, now);
+                s.core.halt(DisarmReason::QueueFull);
             }
         }
     }
@@ -403,14 +455,20 @@ impl Actor for SafetyActor {
         let period = Duration::from_secs_f64(self.params.period_s.max(0.001));
         myself.send_interval(period, || SafetyMsg::Tick);
         let mut s = SafetyActorState {
-            core: SafetyCore::new(self.params, self.ports.clock.now_s()),
+            // A start is a stop: an arm sent before it carries an older counter.
+            core: SafetyCore::new(self.params, self.ports.stops.load(Ordering::SeqCst)),
             published: None,
+            persisted: None,
             health: HealthCell::new(Device::Safety),
             _waker: waker,
         };
-        if self.ports.estop_latch.is_set() {
-            tracing::warn!(robot = %self.ports.robot, "safety restarted with the e-stop latched");
-            s.core.estop(self.ports.clock.now_s());
+        if self.ports.fault_latch.load(Ordering::SeqCst) {
+            tracing::warn!(robot = %self.ports.robot, "safety started with a fault latched: reset it on the robot");
+            s.core.fault();
+            self.output(&mut s);
+        } else if self.ports.estop_latch.is_set() {
+            tracing::warn!(robot = %self.ports.robot, "safety started with the e-stop latched");
+            s.core.estop();
             self.output(&mut s);
         }
         // What arrived while no safety actor ran (an arm from before this start is refused).
@@ -433,7 +491,7 @@ impl Actor for SafetyActor {
                 && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
             {
                 tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");
-                s.core.estop(self.ports.clock.now_s());
+                s.core.estop();
             }
             self.output(s);
         }
@@ -477,18 +535,18 @@ mod tests {
 
     #[test]
     fn starts_disarmed_and_refuses_commands_until_armed() {
-        let mut c = SafetyCore::new(P, -1.0);
+        let mut c = SafetyCore::new(P, 0);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Startup));
         assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Err(Refusal::NotArmed));
         assert_eq!(c.tick(0.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
-        assert_eq!(c.arm(1, 0.0, 0.0), Ok(()));
+        assert_eq!(c.arm(1, c.stops(), 0.0, 0.0), Ok(()));
         assert_eq!(c.offer(cmd(1, 0.0, 0.1, 0.0), 0.0), Ok(()));
     }
 
     #[test]
     fn limits_speed_and_ramps_each_wheel_at_the_acceleration_limit() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 400, Some((&mut seq, 5.0, 0.0)));
         // 0.05 m/s² → 0.001 m/s per 20 ms cycle.
@@ -500,8 +558,8 @@ mod tests {
         assert!((out[10].v_mps - 0.010).abs() < 1e-9, "{}", out[10].v_mps);
         assert!((out.last().map_or(0.0, |o| o.v_mps) - 0.22).abs() < 1e-12, "capped at max speed");
         // A turn on the spot: each wheel ramps at the limit, the yaw rate is capped.
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 400, Some((&mut seq, 0.0, 9.0)));
         let dw = 0.001 / (P.track_width_m / 2.0);
@@ -511,8 +569,8 @@ mod tests {
 
     #[test]
     fn watchdog_ramps_to_zero_and_needs_a_rearm() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
         let v0 = out.last().map_or(0.0, |o| o.v_mps);
@@ -536,7 +594,7 @@ mod tests {
         // A command that was queued during the outage (older seq, or stamped long ago) is refused
         // even after the re-arm.
         assert_eq!(c.offer(cmd(seq + 1, 6.0, 0.2, 0.0), 14.0), Err(Refusal::NotArmed));
-        assert_eq!(c.arm(seq + 10, 14.0, 14.0), Ok(()));
+        assert_eq!(c.arm(seq + 10, c.stops(), 14.0, 14.0), Ok(()));
         assert_eq!(c.offer(cmd(seq + 1, 13.9, 0.2, 0.0), 14.0), Err(Refusal::Stale));
         assert_eq!(c.offer(cmd(seq + 10, 13.0, 0.2, 0.0), 14.0), Err(Refusal::Expired));
         assert_eq!(c.offer(cmd(seq + 11, 14.0, 0.2, 0.0), 14.0), Ok(()));
@@ -548,8 +606,8 @@ mod tests {
 
     #[test]
     fn slowing_down_while_armed_keeps_the_comfort_limit_a_disarm_brakes_at_the_stop_rate() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         let out = run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.0)));
         let v0 = out.last().map_or(0.0, |o| o.v_mps);
@@ -557,7 +615,7 @@ mod tests {
         let down = run(&mut c, 6.0, 10, Some((&mut seq, 0.1, 0.0)));
         assert!((down[9].v_mps - (v0 - 0.010)).abs() < 1e-9, "{} {v0}", down[9].v_mps);
         // A disarm: 10 mm/s per cycle to zero.
-        c.disarm(DisarmReason::Requested, 6.2);
+        c.disarm(DisarmReason::Requested);
         let stop = run(&mut c, 6.2, 30, None);
         let v1 = down[9].v_mps;
         assert!((stop[0].v_mps - (v1 - 0.010)).abs() < 1e-9, "{} {v1}", stop[0].v_mps);
@@ -567,8 +625,8 @@ mod tests {
 
     #[test]
     fn an_armed_robot_that_never_hears_a_command_stops_at_the_timeout() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 1.0, 1.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 1.0, 1.0), Ok(()));
         c.tick(1.0);
         c.tick(1.19);
         assert_eq!(c.state(), SafetyState::Armed);
@@ -578,53 +636,70 @@ mod tests {
 
     #[test]
     fn a_lost_drive_halts_the_output_so_nothing_moves_when_it_returns() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         run(&mut c, 0.0, 300, Some((&mut seq, 0.2, 0.1)));
         assert!(c.output().0 > 0.19);
-        c.halt(DisarmReason::DeviceLost, 6.0);
+        c.halt(DisarmReason::DeviceLost);
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::DeviceLost));
         // From the next cycle on, exactly zero (not a ramp from 0.2 m/s).
         assert_eq!(c.tick(6.02), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: false });
         assert_eq!(c.offer(cmd(seq + 1, 6.02, 0.2, 0.0), 6.02), Err(Refusal::NotArmed));
         // A latched e-stop stays one.
-        c.estop(6.1);
-        c.halt(DisarmReason::DeviceLost, 6.1);
+        c.estop();
+        c.halt(DisarmReason::DeviceLost);
         assert_eq!(c.state(), SafetyState::EStop);
     }
 
     #[test]
-    fn only_an_arm_newer_than_the_last_stop_and_fresh_starts_the_robot() {
-        // Started at 10.0: an arm sent before the start (queued while this core's actor was being
-        // restarted) is refused.
-        let mut c = SafetyCore::new(P, 10.0);
-        assert_eq!(c.arm(1, 9.95, 10.01), Err(ArmRefusal::BeforeStop));
-        assert_eq!(c.arm(1, 10.0, 10.01), Err(ArmRefusal::BeforeStop), "not newer: the same stamp");
-        // One older than the command timeout, or not finite, is refused whatever its stamp.
-        assert_eq!(c.arm(1, 10.05, 10.3), Err(ArmRefusal::Expired));
-        assert_eq!(c.arm(1, f64::NAN, 10.3), Err(ArmRefusal::Expired));
+    fn only_an_arm_that_knows_the_last_stop_and_is_fresh_starts_the_robot() {
+        // Started after 6 stops (a restart): an arm that carries the count from before the start
+        // (queued while this core's actor was being restarted, or sent to the robot's previous
+        // run) is refused.
+        let mut c = SafetyCore::new(P, 6);
+        assert_eq!(c.stops(), 7, "a start is a stop");
+        assert_eq!(c.arm(1, 6, 10.0, 10.01), Err(ArmRefusal::BeforeStop));
+        // One stamped more than the command timeout before or after this clock, or not finite, is
+        // refused whatever it carries.
+        assert_eq!(c.arm(1, 7, 10.05, 10.3), Err(ArmRefusal::Expired));
+        assert_eq!(c.arm(1, 7, 10.55, 10.3), Err(ArmRefusal::Expired), "from the future");
+        assert_eq!(c.arm(1, 7, f64::NAN, 10.3), Err(ArmRefusal::Expired));
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::Startup));
-        assert_eq!(c.arm(1, 10.25, 10.3), Ok(()));
+        assert_eq!(c.arm(1, 7, 10.25, 10.3), Ok(()));
         let mut seq = 0;
         run(&mut c, 10.3, 100, Some((&mut seq, 0.1, 0.0)));
-        // A drive faults at 12.5; the arm the server sent at 12.49 arrives after it: refused, and
-        // the robot stays at zero while commands go on.
-        c.halt(DisarmReason::DeviceLost, 12.5);
-        assert_eq!(c.arm(seq + 1, 12.49, 12.51), Err(ArmRefusal::BeforeStop));
+        // The server's clock runs 2 s ahead and the link is slow. It sends an arm (stamped 14.49 on
+        // its clock, 12.49 on the robot's); a drive faults at 12.5 (robot clock); the arm arrives
+        // at 12.51. Comparing stamps, it looked newer than the fault (and only the future check
+        // refuses it); the counter refuses it whatever the clocks say.
+        c.halt(DisarmReason::DeviceLost);
+        assert_eq!(c.stops(), 8);
+        assert_eq!(c.arm(seq + 1, 7, 12.51, 12.51), Err(ArmRefusal::BeforeStop), "with synchronised clocks");
+        assert_eq!(c.arm(seq + 1, 7, 14.49, 12.51), Err(ArmRefusal::Expired), "with the server 2 s ahead");
         let out = run(&mut c, 12.52, 20, Some((&mut seq, 0.1, 0.0)));
         assert!(out.iter().all(|o| o.v_mps == 0.0 && o.w_radps == 0.0));
-        // A disarm of any cause is a stop event too: a reordered arm from before it is refused.
-        assert_eq!(c.arm(seq + 1, 12.95, 12.96), Ok(()));
-        c.disarm(DisarmReason::Requested, 13.0);
-        assert_eq!(c.arm(seq + 1, 12.99, 13.01), Err(ArmRefusal::BeforeStop));
-        assert_eq!(c.arm(seq + 1, 13.01, 13.02), Ok(()));
-        // An e-stop's reset is one: the arm must come after the reset.
-        c.estop(14.0);
-        assert_eq!(c.arm(seq + 1, 14.1, 14.1), Err(ArmRefusal::Latched));
-        assert!(c.reset_estop(14.2));
-        assert_eq!(c.arm(seq + 1, 14.15, 14.21), Err(ArmRefusal::BeforeStop));
-        assert_eq!(c.arm(seq + 1, 14.21, 14.22), Ok(()));
+        // A disarm of any cause is a stop too: a reordered arm from before it is refused.
+        assert_eq!(c.arm(seq + 1, 8, 12.95, 12.96), Ok(()));
+        c.disarm(DisarmReason::Requested);
+        assert_eq!(c.arm(seq + 1, 8, 13.01, 13.01), Err(ArmRefusal::BeforeStop));
+        assert_eq!(c.arm(seq + 1, 9, 13.01, 13.02), Ok(()));
+        // An e-stop's reset is one: the arm must know of the reset.
+        c.estop();
+        assert_eq!(c.arm(seq + 1, c.stops(), 14.1, 14.1), Err(ArmRefusal::Latched));
+        let at_estop = c.stops();
+        assert!(c.reset_estop());
+        assert_eq!(c.arm(seq + 1, at_estop, 14.21, 14.21), Err(ArmRefusal::BeforeStop));
+        assert_eq!(c.arm(seq + 1, at_estop + 1, 14.21, 14.22), Ok(()));
+        // A fault is reset only by `reset_fault` (on the robot), back to the e-stop if one holds.
+        c.fault();
+        assert!(!c.reset_estop());
+        assert!(c.reset_fault(true));
+        assert_eq!(c.state(), SafetyState::EStop);
+        c.fault();
+        assert!(c.reset_fault(false));
+        assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::FaultReset));
+        assert_eq!(c.arm(seq + 1, c.stops(), 15.0, 15.0), Ok(()));
     }
 
     #[test]
@@ -644,23 +719,27 @@ mod tests {
 
     #[test]
     fn estop_latches_until_reset_and_a_fault_never_clears() {
-        let mut c = SafetyCore::new(P, -1.0);
-        assert_eq!(c.arm(0, 0.0, 0.0), Ok(()));
+        let mut c = SafetyCore::new(P, 0);
+        assert_eq!(c.arm(0, c.stops(), 0.0, 0.0), Ok(()));
         let mut seq = 0;
         run(&mut c, 0.0, 100, Some((&mut seq, 0.2, 0.0)));
-        c.estop(2.0);
+        c.estop();
         assert_eq!(c.output(), (0.0, 0.0));
         assert_eq!(c.tick(2.0), WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: true });
-        assert_eq!(c.arm(1000, 2.0, 2.0), Err(ArmRefusal::Latched), "arming does not clear an e-stop");
+        assert_eq!(
+            c.arm(1000, c.stops(), 2.0, 2.0),
+            Err(ArmRefusal::Latched),
+            "arming does not clear an e-stop"
+        );
         assert_eq!(c.offer(cmd(1001, 2.0, 0.1, 0.0), 2.0), Err(Refusal::NotArmed));
-        assert!(c.reset_estop(2.0));
+        assert!(c.reset_estop());
         assert_eq!(c.state(), SafetyState::Disarmed(DisarmReason::EStopReset));
         assert!(!c.tick(2.02).quick_stop);
-        assert_eq!(c.arm(1000, 2.04, 2.04), Ok(()));
-        c.fault(2.05);
-        assert!(!c.reset_estop(3.0));
-        assert_eq!(c.arm(2000, 3.0, 3.0), Err(ArmRefusal::Latched));
-        c.estop(3.0);
+        assert_eq!(c.arm(1000, c.stops(), 2.04, 2.04), Ok(()));
+        c.fault();
+        assert!(!c.reset_estop());
+        assert_eq!(c.arm(2000, c.stops(), 3.0, 3.0), Err(ArmRefusal::Latched));
+        c.estop();
         assert_eq!(c.state(), SafetyState::Fault);
         assert!(c.tick(3.0).quick_stop);
     }
@@ -675,10 +754,12 @@ mod tests {
             v: f64,
             w: f64,
         },
-        /// An arm whose floor is `ahead` numbers after the last command sent, stamped `age_s` ago.
+        /// An arm whose floor is `ahead` numbers after the last command sent, stamped `age_s` ago
+        /// (negative: ahead of the robot's clock), carrying a stop counter `behind` stops old.
         Arm {
             ahead: u64,
             age_s: f64,
+            behind: u64,
         },
         Disarm,
         /// The drives lost or faulted.
@@ -686,6 +767,10 @@ mod tests {
         EStop,
         ResetEStop,
         Fault,
+        /// A reset of a fault on the robot (`held`: an e-stop still holds).
+        ResetFault {
+            held: bool,
+        },
         /// The safety actor restarted: a new core.
         Restart,
         Tick {
@@ -697,12 +782,14 @@ mod tests {
         prop_oneof![
             6 => (0u64..3, 0.0..0.4f64, -1.0..1.0f64, -1.0..1.0f64)
                 .prop_map(|(ahead, age_s, v, w)| Op::Command { ahead, age_s, v, w }),
-            2 => (0u64..3, 0.0..0.3f64).prop_map(|(ahead, age_s)| Op::Arm { ahead, age_s }),
+            3 => (0u64..3, -0.3..0.3f64, prop_oneof![3 => Just(0u64), 1 => 1u64..3])
+                .prop_map(|(ahead, age_s, behind)| Op::Arm { ahead, age_s, behind }),
             1 => Just(Op::Disarm),
             1 => Just(Op::Halt),
             1 => Just(Op::EStop),
             1 => Just(Op::ResetEStop),
             1 => Just(Op::Fault),
+            1 => any::<bool>().prop_map(|held| Op::ResetFault { held }),
             1 => Just(Op::Restart),
             12 => (0.0..0.1f64).prop_map(|dt_s| Op::Tick { dt_s }),
         ]
@@ -717,18 +804,18 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig { cases: 500, ..ProptestConfig::default() })]
 
-        /// Issue 19 §6: whatever the sequence of commands, arms, e-stops, faults, restarts and
-        /// time steps, the output stays within the limits, changes no faster than the ramp of the
-        /// state it is in, never grows while the robot is not armed, is zero in e-stop and fault,
-        /// and is zero once the watchdog and a stop have had their time after the last fresh
-        /// command.
+        /// Whatever the sequence of commands, arms, e-stops, faults, restarts and time steps, the
+        /// output stays within the limits, changes no faster than the ramp of the state it is in,
+        /// never grows while the robot is not armed, is zero in e-stop and fault, and is zero once
+        /// the watchdog and a stop have had their time after the last fresh command; the stop
+        /// counter counts every stop, and only an arm carrying it starts the robot.
         #[test]
         fn safety_core_invariants_hold_for_any_input_sequence(ops in proptest::collection::vec(op(), 1..200)) {
-            let mut core = SafetyCore::new(P, -1.0);
+            let mut core = SafetyCore::new(P, 0);
             let mut now = 0.0f64;
-            // The last stop event (start, disarm, halt, e-stop or its reset, fault, restart), and
-            // whether an arm newer than it was accepted since.
-            let mut stopped_at = -1.0f64;
+            // The stops counted (start, disarm, halt, e-stop or its reset, fault or its reset,
+            // restart), and whether an arm that knew the last one was accepted since.
+            let mut stops = 1u64;
             let mut armed_since_stop = false;
             let mut sent = 0u64;
             // When the robot last had something that lets it move: an accepted arm or command.
@@ -747,13 +834,13 @@ mod tests {
                             fresh_at = now;
                         }
                     }
-                    Op::Arm { ahead, age_s } => {
+                    Op::Arm { ahead, age_s, behind } => {
                         let was = core.state();
                         let stamp = now - age_s;
-                        let ok = core.arm(sent + ahead, stamp, now).is_ok();
+                        let ok = core.arm(sent + ahead, stops.wrapping_sub(behind), stamp, now).is_ok();
                         let may = matches!(was, SafetyState::Armed | SafetyState::Disarmed(_))
-                            && age_s <= P.command_timeout_s
-                            && stamp > stopped_at;
+                            && age_s.abs() <= P.command_timeout_s
+                            && behind == 0;
                         prop_assert_eq!(ok, may);
                         if ok && was != SafetyState::Armed {
                             fresh_at = now;
@@ -761,36 +848,48 @@ mod tests {
                         }
                     }
                     Op::Disarm => {
-                        core.disarm(DisarmReason::Requested, now);
-                        stopped_at = now;
+                        core.disarm(DisarmReason::Requested);
+                        stops += 1;
                         armed_since_stop = false;
                     }
                     Op::Halt => {
-                        core.halt(DisarmReason::DeviceLost, now);
-                        stopped_at = now;
+                        core.halt(DisarmReason::DeviceLost);
+                        stops += 1;
                         armed_since_stop = false;
                         jumped = true;
                     }
                     Op::EStop => {
-                        core.estop(now);
-                        stopped_at = now;
+                        core.estop();
+                        stops += 1;
                         armed_since_stop = false;
                         jumped = true;
                     }
                     Op::ResetEStop => {
-                        if core.reset_estop(now) {
-                            stopped_at = now;
+                        let was = core.state();
+                        prop_assert_eq!(core.reset_estop(), was == SafetyState::EStop);
+                        if was == SafetyState::EStop {
+                            stops += 1;
                         }
                     }
                     Op::Fault => {
-                        core.fault(now);
-                        stopped_at = now;
+                        core.fault();
+                        stops += 1;
                         armed_since_stop = false;
                         jumped = true;
                     }
+                    Op::ResetFault { held } => {
+                        let was = core.state();
+                        prop_assert_eq!(core.reset_fault(held), was == SafetyState::Fault);
+                        if was == SafetyState::Fault {
+                            stops += 1;
+                            let want = if held { SafetyState::EStop } else { SafetyState::Disarmed(DisarmReason::FaultReset) };
+                            prop_assert_eq!(core.state(), want);
+                        }
+                    }
                     Op::Restart => {
-                        core = SafetyCore::new(P, now);
-                        stopped_at = now;
+                        // A new core from the counter the ports keep.
+                        core = SafetyCore::new(P, core.stops());
+                        stops += 1;
                         armed_since_stop = false;
                         jumped = true;
                     }
@@ -800,7 +899,7 @@ mod tests {
                         let out = core.tick(now);
                         if state_before == SafetyState::Armed && core.state() != SafetyState::Armed {
                             // The watchdog disarmed: a stop event.
-                            stopped_at = now;
+                            stops += 1;
                         }
                         let (v, w) = (out.v_mps, out.w_radps);
                         prop_assert!(v.abs() <= P.max_speed_mps + 1e-9 && w.abs() <= P.max_yaw_rate_radps + 1e-9, "{v} {w}");
@@ -840,6 +939,7 @@ mod tests {
                         jumped = false;
                     }
                 }
+                prop_assert_eq!(core.stops(), stops, "the stop counter");
             }
         }
     }

@@ -63,6 +63,13 @@ pub(crate) fn odom_at(history: &VecDeque<OdomMsg>, t: f64) -> Option<Se2> {
     }
 }
 
+impl UplinkActor {
+    /// The safety layer's stop counter now.
+    fn stops(&self) -> u64 {
+        self.ports.stops.load(std::sync::atomic::Ordering::SeqCst)
+    }
+}
+
 impl Actor for UplinkActor {
     type Msg = UplinkMsg;
     type State = UplinkState;
@@ -115,7 +122,9 @@ impl Actor for UplinkActor {
                 Uplink::Odom { robot, msg: o }
             }
             UplinkMsg::Health(report) => Uplink::Health { robot, seq, stamp_s: now, report },
-            UplinkMsg::Safety(s) => Uplink::Safety { robot, seq, stamp_s: now, state: s },
+            UplinkMsg::Safety(s) => {
+                Uplink::Safety { robot, seq, stamp_s: now, state: s, stops: self.stops() }
+            }
             UplinkMsg::Resend => {
                 let board: Vec<HealthReport> = self.ports.health_board.borrow().values().cloned().collect();
                 for report in board {
@@ -129,7 +138,7 @@ impl Actor for UplinkActor {
                 }
                 let Some(s) = *self.ports.safety_now.borrow() else { return Ok(()) };
                 state.seq += 1;
-                Uplink::Safety { robot, seq: state.seq, stamp_s: now, state: s }
+                Uplink::Safety { robot, seq: state.seq, stamp_s: now, state: s, stops: self.stops() }
             }
         };
         self.link.send(up);

@@ -111,6 +111,8 @@ pub(crate) struct FormationActor {
 struct RobotView {
     health: BTreeMap<Device, Health>,
     safety: Option<SafetyState>,
+    /// The robot's stop counter, as last reported: an arm carries it.
+    stops: u64,
     odom: Option<OdomMsg>,
     /// When the robot's current odometry frame began (its first pose's stamp): an estimate
     /// anchored on a scan from before belongs to the old frame.
@@ -243,7 +245,8 @@ impl FormationActor {
                         self.resume_where_v_is(state, now);
                     }
                     for i in 0..state.robots.len() {
-                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1, stamp_s: now });
+                        let stops = state.robots[i].stops;
+                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1, stops, stamp_s: now });
                     }
                     state.phase = Phase::Arming { since_s: now };
                 }
@@ -534,7 +537,10 @@ impl Actor for FormationActor {
                     Uplink::Health { report, .. } => {
                         r.health.insert(report.device, report.health);
                     }
-                    Uplink::Safety { state: s, .. } => r.safety = Some(s),
+                    Uplink::Safety { state: s, stops, .. } => {
+                        r.safety = Some(s);
+                        r.stops = stops;
+                    }
                     Uplink::Scan(_) => {}
                 }
             }

@@ -599,7 +599,7 @@ pub(crate) async fn bad_data(config: &Config, seed: u64, c: &mut Check) {
     let id = rig.tree.id.clone();
     let down = &rig.server.down;
     let now = rig.clock.now_s();
-    down.send(&id, Downlink::Arm { seq: 10, stamp_s: rig.clock.now_s() });
+    down.send(&id, Downlink::Arm { seq: 10, stops: rig.stops(), stamp_s: rig.clock.now_s() });
     tokio::time::sleep(Duration::from_millis(100)).await;
     let cmd = |seq, stamp_s, v_mps| Downlink::Command(Command { seq, stamp_s, v_mps, w_radps: 0.0 });
     down.send(&id, cmd(10, now, f64::NAN));

@@ -410,7 +410,7 @@ pub(crate) fn drive_from(rig: &RobotRig, v_mps: f64, first_seq: u64) -> crate::A
     let id = rig.tree.id.clone();
     let down = rig.server.down.clone();
     let clock = rig.clock;
-    down.send(&id, Downlink::Arm { seq: first_seq, stamp_s: clock.now_s() });
+    down.send(&id, Downlink::Arm { seq: first_seq, stops: rig.stops(), stamp_s: clock.now_s() });
     crate::AbortOnDrop(tokio::spawn(async move {
         // Bounded: at most 10 minutes of commands.
         for seq in first_seq..first_seq + 12_000 {

@@ -1,0 +1,211 @@
+//! The robot's latched stops on disk, so that a restart of `amr robot` (a crash, `kill -9`, a
+//! power cycle of its computer) is not a reset (ISO 13850: an e-stop is cleared only by a
+//! deliberate reset).
+//!
+//! The file holds which e-stop sources hold the latch, whether a fault is latched, and the stop
+//! counter (an arm must carry it, so it must never go back). The safety actor writes it, atomically
+//! (a temporary file, fsynced, renamed over the old one, the directory fsynced), whenever one of
+//! these changes and before it reports the new state up the link. A missing file is a robot that
+//! never latched anything; a file that cannot be read or parsed counts as a latched local e-stop,
+//! cleared only by a reset on the robot (which writes a good file).
+
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::ports::EStopSource;
+
+/// What is latched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Latched {
+    /// The e-stop sources that hold the latch ([`EStopSource`] bits).
+    pub estop: u8,
+    pub fault: bool,
+    /// The stop counter.
+    pub stops: u64,
+}
+
+/// Why the file could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum LatchFileError {
+    #[error("{path}: cannot read the robot's safety state: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not a safety state file ({why})")]
+    Corrupt { path: PathBuf, why: String },
+    #[error("{path}: cannot write the robot's safety state: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+}
+
+/// The robot's safety state file.
+#[derive(Debug, Clone)]
+pub struct LatchFile {
+    path: PathBuf,
+}
+
+const HEADER: &str = "# amr robot: latched stops. Written by the robot; cleared only by a reset.";
+const SOURCES: [(EStopSource, &str); 3] =
+    [(EStopSource::Network, "network"), (EStopSource::Local, "local"), (EStopSource::Input, "input")];
+
+impl LatchFile {
+    #[must_use]
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        LatchFile { path: path.into() }
+    }
+
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// What the file says (nothing latched if there is no file).
+    pub fn load(&self) -> Result<Latched, LatchFileError> {
+        let text = match std::fs::read(&self.path) {
+            Ok(bytes) => bytes,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Latched::default()),
+            Err(source) => return Err(LatchFileError::Read { path: self.path.clone(), source }),
+        };
+        let corrupt = |why: String| LatchFileError::Corrupt { path: self.path.clone(), why };
+        let text = String::from_utf8(text).map_err(|_| corrupt("not UTF-8".into()))?;
+        parse(&text).map_err(corrupt)
+    }
+
+    /// Write `l`, atomically and durably.
+    pub fn store(&self, l: Latched) -> Result<(), LatchFileError> {
+        let err = |source| LatchFileError::Write { path: self.path.clone(), source };
+        let dir = match self.path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&dir).map_err(err)?;
+        let mut name = self.path.file_name().map(std::ffi::OsStr::to_os_string).unwrap_or_default();
+        name.push(".tmp");
+        let tmp = dir.join(name);
+        {
+            let mut f = std::fs::File::create(&tmp).map_err(err)?;
+            f.write_all(render(l).as_bytes()).map_err(err)?;
+            f.sync_all().map_err(err)?;
+        }
+        std::fs::rename(&tmp, &self.path).map_err(err)?;
+        // The rename itself is durable only once the directory is.
+        std::fs::File::open(&dir).and_then(|d| d.sync_all()).map_err(err)?;
+        Ok(())
+    }
+}
+
+fn render(l: Latched) -> String {
+    let estop: Vec<String> =
+        SOURCES.iter().filter(|(s, _)| l.estop & (*s as u8) != 0).map(|(_, n)| format!("\"{n}\"")).collect();
+    format!(
+        "{HEADER}\nversion = 1\nestop = [{}]\nfault = {}\nstops = {}\n",
+        estop.join(", "),
+        l.fault,
+        l.stops
+    )
+}
+
+fn parse(text: &str) -> Result<Latched, String> {
+    let mut version = None;
+    let (mut estop, mut fault, mut stops) = (None, None, None);
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let (key, value) = line.split_once('=').ok_or_else(|| format!("line {}: no `=`", i + 1))?;
+        let value = value.trim();
+        match key.trim() {
+            "version" => version = Some(value.to_owned()),
+            "estop" => {
+                let inner = value
+                    .strip_prefix('[')
+                    .and_then(|v| v.strip_suffix(']'))
+                    .ok_or_else(|| format!("line {}: estop is not a list", i + 1))?;
+                let mut bits = 0u8;
+                for item in inner.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+                    let name = item.trim_matches('"');
+                    let (s, _) = SOURCES
+                        .iter()
+                        .find(|(_, n)| *n == name)
+                        .ok_or_else(|| format!("line {}: unknown e-stop source `{name}`", i + 1))?;
+                    bits |= *s as u8;
+                }
+                estop = Some(bits);
+            }
+            "fault" => {
+                fault =
+                    Some(value.parse::<bool>().map_err(|_| format!("line {}: fault is not a bool", i + 1))?);
+            }
+            "stops" => {
+                stops =
+                    Some(value.parse::<u64>().map_err(|_| format!("line {}: stops is not a count", i + 1))?);
+            }
+            other => return Err(format!("line {}: unknown key `{other}`", i + 1)),
+        }
+    }
+    if version.as_deref() != Some("1") {
+        return Err(format!("version {}, expected 1", version.as_deref().unwrap_or("missing")));
+    }
+    match (estop, fault, stops) {
+        (Some(estop), Some(fault), Some(stops)) => Ok(Latched { estop, fault, stops }),
+        _ => Err("estop, fault or stops missing".into()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
+    use super::*;
+    use proptest::prelude::*;
+
+    fn dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("amr-latch-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn a_latch_survives_a_store_and_load_and_no_file_is_nothing_latched() {
+        let d = dir("roundtrip");
+        let f = LatchFile::new(d.join("sub/robot-a.safety"));
+        assert_eq!(f.load().unwrap(), Latched::default());
+        let l =
+            Latched { estop: EStopSource::Network as u8 | EStopSource::Input as u8, fault: true, stops: 17 };
+        f.store(l).unwrap();
+        assert_eq!(f.load().unwrap(), l);
+        assert!(!d.join("sub/robot-a.safety.tmp").exists(), "the temporary file was renamed");
+        f.store(Latched { stops: 18, ..Latched::default() }).unwrap();
+        assert_eq!(f.load().unwrap(), Latched { stops: 18, ..Latched::default() });
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn a_damaged_file_is_an_error_that_names_the_file() {
+        let d = dir("corrupt");
+        std::fs::create_dir_all(&d).unwrap();
+        let f = LatchFile::new(d.join("robot-a.safety"));
+        for text in [
+            &b""[..],
+            b"version = 1\nestop = []\nfault = false\n",
+            b"version = 2\nestop = []\nfault = false\nstops = 1\n",
+            b"version = 1\nestop = [\"nowhere\"]\nfault = false\nstops = 1\n",
+            b"version = 1\nestop = []\nfault = maybe\nstops = 1\n",
+            b"\xff\xfe",
+            // A write cut short.
+            b"# amr robot\nversion = 1\nestop = [\"network\"]\nfau",
+        ] {
+            std::fs::write(f.path(), text).unwrap();
+            let e = f.load().unwrap_err().to_string();
+            assert!(e.contains("robot-a.safety"), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    proptest! {
+        #[test]
+        fn any_latch_round_trips_and_no_text_panics(estop in 0u8..8, fault: bool, stops: u64, junk in ".{0,200}") {
+            let l = Latched { estop, fault, stops };
+            prop_assert_eq!(parse(&render(l)), Ok(l));
+            let _ = parse(&junk);
+        }
+    }
+}
