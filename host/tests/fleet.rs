@@ -339,7 +339,7 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     let at = Instant::now();
     signal("-USR2", robot_a);
     wait_for(&seen, "robot-a's e-stop reset by SIGUSR2", Duration::from_secs(5), latched(at, reset_state));
-    // An operator's e-stop over the network (`fleet/robot-a/estop`), confirmed by the robot.
+    // An operator's e-stop over the network (`fleet/robot-a/estop/operator`), confirmed by the robot.
     let operator = |reset: bool| {
         let mut args = vec![
             "estop".to_owned(),

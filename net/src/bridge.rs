@@ -363,6 +363,12 @@ pub async fn start_robot_bridge(
     Ok((RobotEnd { robot: robot.to_owned(), up: UplinkSender::new(up_tx), down: down_rx, missed }, bridge))
 }
 
+/// The key `sender` publishes e-stops and resets for `robot` on.
+#[must_use]
+pub fn estop_key(robot: &str, sender: &str) -> String {
+    format!("{PREFIX}/{robot}/estop/{sender}")
+}
+
 /// A robot's side of the link once its session is open.
 struct RobotLink {
     robot: String,
@@ -403,7 +409,8 @@ impl RobotLink {
             .map_err(zerr)?;
 
         // Commands: decoded, checked (for me, from the server, newer than the last) and passed on.
-        // The safety layer then applies its own rules (armed, sequence floor, stamp age).
+        // The safety layer then applies its own rules (armed, sequence floor, stamp age). A disarm
+        // is taken whatever its session, sequence or stamp: a stop is never refused.
         let fresh = Mutex::new(Freshness::default());
         let (me, cmd_stats, cmd_key, cmd_down) =
             (robot.clone(), Arc::clone(&stats), key("cmd"), down.clone());
@@ -414,8 +421,10 @@ impl RobotLink {
                 let checked = Envelope::decode(&bytes).and_then(|env| {
                     // For this robot and from the server, before it may touch the replay record.
                     let d = to_downlink(env.clone(), &me, &server)?;
-                    check_enabling_age(&env, clock.now_s())?;
-                    fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env, wall_now_s())?;
+                    if d != Downlink::Disarm {
+                        check_enabling_age(&env, clock.now_s())?;
+                        fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env, wall_now_s())?;
+                    }
                     Ok(d)
                 });
                 match checked {
@@ -425,22 +434,27 @@ impl RobotLink {
             })
             .await
             .map_err(zerr)?;
-        // E-stops and resets, from the server or an operator: checked per sender (each has its own
-        // sessions), then into the same queue as the commands, in arrival order.
+        // E-stops and resets, from the server or an operator, each on its own key
+        // (`fleet/<robot>/estop/<sender>`), which the server's access control lets only that
+        // authenticated name publish on: the sender is the key's, never a field it fills in. An
+        // e-stop is taken whatever its session, sequence or stamp; a reset is checked for age and
+        // replay against that sender's own record. Then into the same queue as the commands, in
+        // arrival order.
         let fresh_per_sender: Mutex<BTreeMap<String, Freshness>> = Mutex::new(BTreeMap::new());
-        let (me, estop_stats, estop_key) = (robot.clone(), Arc::clone(&stats), key("estop"));
+        let (me, estop_stats, estop_key) = (robot.clone(), Arc::clone(&stats), key("estop/*"));
         let _estop_subscriber = session
             .declare_subscriber(estop_key.clone())
             .callback(move |sample| {
                 let bytes = sample.payload().to_bytes();
+                let sender = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_owned();
                 let checked = Envelope::decode(&bytes).and_then(|env| {
-                    if !estop_senders.contains(&env.origin) {
-                        return Err(Reject::NotAnOperator { origin: env.origin });
+                    let d = to_estop(env.clone(), &me, &sender, &estop_senders)?;
+                    if d == Downlink::EStop {
+                        return Ok(d);
                     }
-                    let d = to_estop(env.clone(), &me, &estop_senders)?;
                     check_enabling_age(&env, clock.now_s())?;
                     let mut fresh = fresh_per_sender.lock().unwrap_or_else(PoisonError::into_inner);
-                    fresh.entry(env.origin.clone()).or_default().check(&env, wall_now_s())?;
+                    fresh.entry(sender.clone()).or_default().check(&env, wall_now_s())?;
                     Ok(d)
                 });
                 match checked {
@@ -647,7 +661,7 @@ pub async fn start_server_bridge(
             .express(true)
             .await
             .map_err(zerr)?;
-        let estop_key = format!("{PREFIX}/{robot}/estop");
+        let estop_key = estop_key(robot, &server);
         let (session, stats) = (session.clone(), Arc::clone(&stats));
         let mut stamper = Stamper::new(sid, &server, robot);
         let mut estop_stamper = Stamper::new(sid, &server, robot);
@@ -718,10 +732,10 @@ pub fn decode_status(bytes: &[u8]) -> Result<ServerStatus, Reject> {
 pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
 
 /// E-stop `robots` (or, with `reset`, clear their e-stop) as operator `user`: publish on each
-/// robot's `fleet/<robot>/estop` at the highest priority, then wait up to `timeout` for each
+/// robot's `fleet/<robot>/estop/<user>` at the highest priority, then wait up to `timeout` for each
 /// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
 /// periodically): `EStop`, or after a reset any other state. The server's access control lets only
-/// the server and the configured operators publish there.
+/// `user` publish on its own key.
 pub async fn operator_estop(
     settings: &NetSettings,
     user: &str,
@@ -769,7 +783,7 @@ pub async fn operator_estop(
         let (stamp, body) = from_downlink(&msg, now);
         let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
         session
-            .put(format!("{PREFIX}/{robot}/estop"), bytes)
+            .put(estop_key(robot, user), bytes)
             .priority(Priority::RealTime)
             .congestion_control(CongestionControl::Block)
             .express(true)

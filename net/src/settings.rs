@@ -289,7 +289,8 @@ const ALL_MESSAGES: [&str; 9] = [
 /// - Every peer that joined may subscribe to the fleet's keys and receive them (observers, tools).
 /// - A robot may publish only its own scan, odometry and health, and hold only its own liveliness
 ///   token.
-/// - An operator may publish e-stops and resets (`fleet/<robot>/estop`), nothing else.
+/// - An operator may publish e-stops and resets on its own key (`fleet/<robot>/estop/<name>`),
+///   nothing else.
 /// - Nobody but the server publishes commands or the server's status: the server's own
 ///   publications are local to its router and pass no ingress rule.
 ///
@@ -335,13 +336,16 @@ pub fn access_control(names: Names, robots: &[String], operators: &[&str]) -> se
         subjects.push(json!({ "id": subject, name_key: [r] }));
         policies.push(json!({ "rules": [rule, token], "subjects": [subject] }));
     }
-    if !operators.is_empty() {
+    // Each operator on its own key: a robot takes the sender's name from the key, so no operator
+    // can speak for the server or another operator.
+    for (i, o) in operators.iter().enumerate() {
+        let (rule, subject) = (format!("estop{i}"), format!("operator{i}"));
         rules.push(json!({
-            "id": "estop", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
-            "key_exprs": [format!("{PREFIX}/*/estop")],
+            "id": rule, "permission": "allow", "flows": ["ingress"], "messages": ["put"],
+            "key_exprs": [format!("{PREFIX}/*/estop/{o}")],
         }));
-        subjects.push(json!({ "id": "operators", name_key: operators }));
-        policies.push(json!({ "rules": ["estop"], "subjects": ["operators"] }));
+        subjects.push(json!({ "id": subject, name_key: [o] }));
+        policies.push(json!({ "rules": [rule], "subjects": [subject] }));
     }
     json!({
         "enabled": true,
@@ -380,7 +384,7 @@ mod tests {
     #[test]
     fn access_control_is_an_allow_list_keyed_on_the_chosen_names() {
         let robots = vec!["robot-a".to_owned(), "robot-b".to_owned()];
-        let acl = access_control(Names::Certificates, &robots, &["operator"]);
+        let acl = access_control(Names::Certificates, &robots, &["operator", "night-shift"]);
         assert_eq!(acl["default_permission"], "deny");
         let rule =
             |id: &str| acl["rules"].as_array().unwrap().iter().find(|r| r["id"] == id).unwrap().clone();
@@ -389,7 +393,9 @@ mod tests {
         };
         assert_eq!(keys("robot0"), ["fleet/robot-a/scan", "fleet/robot-a/odom", "fleet/robot-a/health"]);
         assert_eq!(keys("robot1-alive"), ["fleet/robot-b/alive"]);
-        assert_eq!(keys("estop"), ["fleet/*/estop"]);
+        assert_eq!(keys("estop0"), ["fleet/*/estop/operator"]);
+        assert_eq!(keys("estop1"), ["fleet/*/estop/night-shift"]);
+        assert_eq!(acl["subjects"][4]["cert_common_names"], serde_json::json!(["night-shift"]));
         // Nobody is allowed to publish commands or the server's status (only the server's local
         // publications make them), and every allow rule but the join rules is ingress only.
         for r in acl["rules"].as_array().unwrap() {

@@ -67,6 +67,8 @@ pub enum Reject {
     NotFromServer { origin: String, server: String },
     #[error("an e-stop from `{origin}`, neither the server nor an operator")]
     NotAnOperator { origin: String },
+    #[error("an envelope claiming to be from `{origin}` on `{key}`'s key")]
+    ForgedOrigin { origin: String, key: String },
     #[error("a {kind} message on a {channel} key")]
     WrongChannel { kind: &'static str, channel: &'static str },
     #[error("envelope {seq} of session {session:#x} is not newer than {last}: replayed or reordered")]
@@ -96,6 +98,7 @@ impl Reject {
             Reject::WrongRobot { .. } => "wrong-robot",
             Reject::NotFromServer { .. } => "not-from-server",
             Reject::NotAnOperator { .. } => "not-an-operator",
+            Reject::ForgedOrigin { .. } => "forged-origin",
             Reject::WrongChannel { .. } => "wrong-channel",
             Reject::Replayed { .. } | Reject::OldSession { .. } | Reject::FutureSession { .. } => "replayed",
             Reject::Stale { .. } => "stale",
@@ -228,15 +231,19 @@ pub fn is_estop(d: &Downlink) -> bool {
     matches!(d, Downlink::EStop | Downlink::ResetEStop)
 }
 
-/// The e-stop or reset in an envelope received on `fleet/<robot>/estop`, if it is for `me` and
-/// from one of `senders` (the server and the operators; the server's access control lets only
-/// them publish there, by their authenticated user names).
-pub fn to_estop(env: Envelope, me: &str, senders: &[String]) -> Result<Downlink, Reject> {
+/// The e-stop or reset in an envelope received on `fleet/<robot>/estop/<sender>`, if it is for
+/// `me` and `sender` (the key's, which the server's access control lets only that authenticated
+/// name publish on) is one of `senders` (the server and the operators) and the envelope names the
+/// same sender.
+pub fn to_estop(env: Envelope, me: &str, sender: &str, senders: &[String]) -> Result<Downlink, Reject> {
     if env.robot != me {
         return Err(Reject::WrongRobot { key: me.to_owned(), robot: env.robot });
     }
-    if !senders.contains(&env.origin) {
-        return Err(Reject::NotAnOperator { origin: env.origin });
+    if !senders.iter().any(|s| s == sender) {
+        return Err(Reject::NotAnOperator { origin: sender.to_owned() });
+    }
+    if env.origin != sender {
+        return Err(Reject::ForgedOrigin { origin: env.origin, key: sender.to_owned() });
     }
     match env.body {
         Body::Downlink(d) if is_estop(&d) => Ok(d),
@@ -281,8 +288,8 @@ fn static_channel(c: &str) -> &'static str {
 pub const MAX_SESSION_AHEAD_S: f64 = 5.0;
 
 /// Oldest arm or e-stop reset a robot takes from the network, by its stamp, s. Messages that
-/// stop (disarm, e-stop) are taken however late they come: stopping is always safe, and a replay
-/// of one is refused by [`Freshness`] anyway.
+/// stop (disarm, e-stop) are taken whatever their stamp, session or sequence: a stop is never
+/// refused (a replayed one stops a robot that must then be reset and armed, which is safe).
 pub const MAX_ENABLING_AGE_S: f64 = 2.0;
 
 /// Refuses replays of one sender (one `Freshness` per sender): an envelope not newer than the last

@@ -412,8 +412,10 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
         for (i, origin) in ["operator", "server"].iter().enumerate() {
             let seq = 10 * k + i as u64 + 1;
             let e = forged(origin, seq, Downlink::ResetEStop).encode().unwrap();
-            bridge_b.session().unwrap().put("fleet/robot-a/estop", e.clone()).await.unwrap();
-            observer.put("fleet/robot-a/estop", e).await.unwrap();
+            for key in [format!("fleet/robot-a/estop/{origin}"), "fleet/robot-a/estop/*".into()] {
+                bridge_b.session().unwrap().put(key.as_str(), e.clone()).await.unwrap();
+                observer.put(key.as_str(), e.clone()).await.unwrap();
+            }
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
@@ -464,6 +466,78 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
     let outcome = operator.await.unwrap().unwrap();
     assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
     let _ = observer.close().await;
+    bridge_a.shutdown().await;
+    bridge_b.shutdown().await;
+    srv.bridge.shutdown().await;
+}
+
+/// A stop is never refused, and no sender can speak for another: an operator publishes, on its own
+/// key, resets that claim to come from the server in a session far ahead of the server's, and tries
+/// the server's key. The robot refuses them (forged origin; the server's key is denied by the access
+/// control), and the server's e-stop and reset still reach it. An e-stop from an older session
+/// than one seen is still taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operator_posing_as_the_server_cannot_lock_out_the_servers_stops() {
+    let s = setup("forge");
+    let Fleet { up, srv, mut a, bridge_a, bridge_b, .. } = fleet(&s).await;
+    let operator = zenoh::open(settings(&s).client_config("operator").unwrap()).await.unwrap();
+    let now = FleetClock::wall().now_s();
+    let envelope = |origin: &str, session: u64, seq: u64, d: Downlink| amr_net::wire::Envelope {
+        version: amr_msgs::SCHEMA_VERSION,
+        session,
+        seq,
+        origin: origin.into(),
+        robot: "robot-a".into(),
+        stamp_s: now,
+        sent_s: now,
+        body: amr_net::wire::Body::Downlink(d),
+    };
+    // Newer than the server's session (its start, in ns), within the 5 s a session may be ahead.
+    let ahead = ((now + 4.0) * 1e9) as u64;
+    let forged_before = bridge_a.stats.rejected("forged-origin");
+    for seq in 1..=5 {
+        for d in [Downlink::ResetEStop, Downlink::EStop] {
+            let e = envelope("server", ahead, seq, d).encode().unwrap();
+            operator.put("fleet/robot-a/estop/operator", e.clone()).await.unwrap();
+            operator.put("fleet/robot-a/estop/server", e).await.unwrap();
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
+    }
+    timeout(WAIT, async {
+        while bridge_a.stats.rejected("forged-origin") < forged_before + 10 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the forged envelopes on the operator's key refused as forged");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(a.down.try_recv().is_err(), "a forged envelope reached robot-a");
+
+    // The server's e-stop and reset both arrive.
+    for want in [Downlink::EStop, Downlink::ResetEStop] {
+        let mut got = None;
+        for _ in 0..100 {
+            assert!(up.down.send("robot-a", want));
+            if let Ok(Some(d)) = timeout(Duration::from_millis(50), a.down.recv()).await {
+                got = Some(d);
+                break;
+            }
+        }
+        assert_eq!(got, Some(want), "the server's {want:?}");
+        while a.down.try_recv().is_ok() {}
+    }
+
+    // The operator's own: a reset in a newer session, then an e-stop from an older session and an
+    // already used sequence number: the reset's record does not gate the e-stop.
+    let reset = envelope("operator", ahead, 10, Downlink::ResetEStop).encode().unwrap();
+    let old_estop = envelope("operator", 1, 1, Downlink::EStop).encode().unwrap();
+    let mut order = Vec::new();
+    for bytes in [reset, old_estop] {
+        operator.put("fleet/robot-a/estop/operator", bytes).await.unwrap();
+        order.push(timeout(WAIT, a.down.recv()).await.expect("delivered").unwrap());
+    }
+    assert_eq!(order, [Downlink::ResetEStop, Downlink::EStop]);
+    let _ = operator.close().await;
     bridge_a.shutdown().await;
     bridge_b.shutdown().await;
     srv.bridge.shutdown().await;
