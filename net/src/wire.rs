@@ -81,6 +81,8 @@ pub enum Reject {
     FutureSession { session: u64, now_s: f64 },
     #[error("a {kind} stamped {age_s:.3} s ago: older than {MAX_ENABLING_AGE_S} s")]
     Stale { kind: &'static str, age_s: f64 },
+    #[error("a {kind} stamped {ahead_s:.3} s ahead of this clock: more than {MAX_ENABLING_AHEAD_S} s")]
+    Ahead { kind: &'static str, ahead_s: f64 },
     #[error("non-finite {0}")]
     NotFinite(&'static str),
 }
@@ -101,7 +103,7 @@ impl Reject {
             Reject::ForgedOrigin { .. } => "forged-origin",
             Reject::WrongChannel { .. } => "wrong-channel",
             Reject::Replayed { .. } | Reject::OldSession { .. } | Reject::FutureSession { .. } => "replayed",
-            Reject::Stale { .. } => "stale",
+            Reject::Stale { .. } | Reject::Ahead { .. } => "stale",
         }
     }
 }
@@ -292,6 +294,11 @@ pub const MAX_SESSION_AHEAD_S: f64 = 5.0;
 /// refused (a replayed one stops a robot that must then be reset and armed, which is safe).
 pub const MAX_ENABLING_AGE_S: f64 = 2.0;
 
+/// How far ahead of the robot's clock an arm or e-stop reset may be stamped, s: the fleet's clocks
+/// are synchronised (NTP, PTP) to milliseconds; a sender further ahead is refused rather than
+/// trusted (the robot's safety layer refuses an arm beyond its command timeout either way).
+pub const MAX_ENABLING_AHEAD_S: f64 = 0.5;
+
 /// Refuses replays of one sender (one `Freshness` per sender): an envelope not newer than the last
 /// one accepted from the same session (replayed or reordered), one from an older session than the
 /// newest seen (a sample recorded in an earlier run of the sender), and a session starting in the
@@ -323,8 +330,8 @@ impl Freshness {
     }
 }
 
-/// Refuses an arm or e-stop reset stamped more than [`MAX_ENABLING_AGE_S`] before `now_s` (or not
-/// finite); every other downlink passes (commands have the safety layer's own, tighter, age limit).
+/// Refuses an arm or e-stop reset stamped more than [`MAX_ENABLING_AGE_S`] before `now_s` or more
+/// than [`MAX_ENABLING_AHEAD_S`] after it (or not finite); every other downlink passes (commands have the safety layer's own, tighter, age limit).
 pub fn check_enabling_age(env: &Envelope, now_s: f64) -> Result<(), Reject> {
     let kind = match &env.body {
         Body::Downlink(Downlink::Arm { .. }) => "arm",
@@ -332,7 +339,13 @@ pub fn check_enabling_age(env: &Envelope, now_s: f64) -> Result<(), Reject> {
         _ => return Ok(()),
     };
     let age_s = now_s - env.stamp_s;
-    if age_s.is_finite() && age_s <= MAX_ENABLING_AGE_S { Ok(()) } else { Err(Reject::Stale { kind, age_s }) }
+    if !(age_s.is_finite() && age_s <= MAX_ENABLING_AGE_S) {
+        return Err(Reject::Stale { kind, age_s });
+    }
+    if -age_s > MAX_ENABLING_AHEAD_S {
+        return Err(Reject::Ahead { kind, ahead_s: -age_s });
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -483,12 +496,18 @@ mod tests {
     }
 
     #[test]
-    fn a_stale_arm_or_reset_is_refused_a_stale_stop_is_not() {
+    fn a_stale_or_future_arm_or_reset_is_refused_a_stale_stop_is_not() {
         let at = |d: Downlink, stamp_s: f64| Envelope { stamp_s, ..env(Body::Downlink(d)) };
         let now = 100.0;
         let arm = Downlink::Arm { seq: 1, stops: 1, stamp_s: 97.0 };
         assert!(matches!(check_enabling_age(&at(arm, 97.0), now), Err(Reject::Stale { kind: "arm", .. })));
         assert!(check_enabling_age(&at(arm, 98.5), now).is_ok());
+        assert!(check_enabling_age(&at(arm, 100.4), now).is_ok());
+        assert!(matches!(check_enabling_age(&at(arm, 102.0), now), Err(Reject::Ahead { kind: "arm", .. })));
+        assert!(matches!(
+            check_enabling_age(&at(Downlink::ResetEStop, 100.6), now),
+            Err(Reject::Ahead { kind: "reset_estop", .. })
+        ));
         assert!(matches!(
             check_enabling_age(&at(Downlink::ResetEStop, f64::NAN), now),
             Err(Reject::Stale { kind: "reset_estop", .. })
