@@ -57,6 +57,7 @@ drills! {
     slow_consumer => "slow-consumer",
     estop => "estop",
     estop_input => "estop-input",
+    estop_restart => "estop-restart",
 }
 
 /// The chaos soak, shortened from 10 minutes to 40 s: still several faults of several kinds.

@@ -166,12 +166,17 @@ pub fn without_line(e: &amr_core::config::ConfigError) -> String {
 #[must_use]
 #[allow(clippy::expect_used, reason = "the tests' own literal")]
 pub fn short_scenario(segments: &str) -> amr_core::config::ScenarioConfig {
-    let text = format!(
+    toml::from_str(&short_scenario_text(segments)).expect("a valid scenario")
+}
+
+/// The text of [`short_scenario`] (one lap).
+#[must_use]
+pub fn short_scenario_text(segments: &str) -> String {
+    format!(
         "map = \"paper-site\"\nspacing_m = 0.9\nlaps = 1\nsegments = {segments}\n\
          [start]\nx_m = -2.0\ny_m = 0.0\nyaw_deg = 0.0\n\
          [limits]\nmax_speed_mps = 0.22\nmax_accel_mps2 = 0.05\nmax_yaw_rate_radps = 0.2\n"
-    );
-    toml::from_str(&text).expect("a valid scenario")
+    )
 }
 
 /// Options of a simulation of `scenario` with typical noise, at most `max_s` seconds long.

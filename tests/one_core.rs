@@ -47,6 +47,7 @@ fn setups() -> (Setup, ServerSetup) {
         seed: SEED,
         auto_arm: false,
         policy: RestartPolicy::default(),
+        progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };
     (eval, server)
 }

@@ -27,6 +27,7 @@ fn a_recorded_simulation_replays_to_the_same_estimates() {
         seed: 9,
         auto_arm: true,
         policy: RestartPolicy::default(),
+        progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };
     let stats = rt.block_on(async {
         let sim = Sim::start(&config, options).await.unwrap();

@@ -182,6 +182,8 @@ pub(crate) struct ServerArgs {
     pub scenario: String,
     pub seed: u64,
     pub auto_arm: bool,
+    pub progress_file: Option<PathBuf>,
+    pub fresh: bool,
     pub net: NetArgs,
     pub rec: crate::record_cmd::RecordArgs,
 }
@@ -207,6 +209,18 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
     let (sc, map) = (chosen.scenario, chosen.map);
     let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
     let settings = args.net.settings(&config)?;
+    let progress_file = match &args.progress_file {
+        Some(f) => f.clone(),
+        None => default_state_dir()
+            .context("no place for the plan's progress: pass --progress-file")?
+            .join(format!("server-{}.progress", args.scenario)),
+    };
+    if args.fresh && progress_file.exists() {
+        std::fs::remove_file(&progress_file)
+            .with_context(|| format!("removing the plan's progress {}", progress_file.display()))?;
+    }
+    let progress = amr_actors::server::progress::PlanProgress::file(&progress_file)?;
+    tracing::info!(file = %progress_file.display(), "plan progress file");
     runtime()?.block_on(async move {
         let clock = FleetClock::wall();
         let (end, bridge) = amr_net::start_server_bridge(&settings, &ids, clock).await?;
@@ -220,6 +234,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
             seed: args.seed,
             auto_arm: args.auto_arm,
             policy: RestartPolicy::default(),
+            progress: std::sync::Arc::new(progress),
         };
         let tree = start_server(setup.clone(), end, clock).await.context("starting the server")?;
         let mut sources = amr_record::RecordSources::server(&tree.ports, &setup);

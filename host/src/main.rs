@@ -282,6 +282,15 @@ enum Command {
         /// `rearm`).
         #[arg(long)]
         auto_arm: bool,
+        /// Where the formation keeps its progress in the plan, so that a restarted server resumes
+        /// the job where it was, never later (default: server-<scenario>.progress in
+        /// $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else ~/.local/state/amr). Removed when the
+        /// plan finishes.
+        #[arg(long, value_name = "FILE")]
+        progress_file: Option<PathBuf>,
+        /// Start the plan from its beginning: forget the recorded progress.
+        #[arg(long)]
+        fresh: bool,
         #[command(flatten)]
         net: fleet_cmd::NetArgs,
         #[command(flatten)]
@@ -608,8 +617,17 @@ fn main() -> ExitCode {
         Command::Estop { robots, reset, user, config, timeout_ms, net } => {
             fleet_cmd::estop(&fleet_cmd::EstopArgs { robots, reset, user, config, timeout_ms, net })
         }
-        Command::Server { config, scenario, seed, auto_arm, net, rec } => {
-            fleet_cmd::server(&fleet_cmd::ServerArgs { config, scenario, seed, auto_arm, net, rec })
+        Command::Server { config, scenario, seed, auto_arm, progress_file, fresh, net, rec } => {
+            fleet_cmd::server(&fleet_cmd::ServerArgs {
+                config,
+                scenario,
+                seed,
+                auto_arm,
+                progress_file,
+                fresh,
+                net,
+                rec,
+            })
         }
         Command::Eval {
             scenario,

@@ -124,6 +124,7 @@ pub(crate) fn replay(
         seed,
         auto_arm: false,
         policy: RestartPolicy::default(),
+        progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };
     let report = amr_record::replay(input, out, &setup, configuration)
         .with_context(|| format!("replaying {}", input.display()))?;

@@ -242,6 +242,7 @@ impl Sim {
             seed: options.seed,
             auto_arm: true,
             policy: RestartPolicy::default(),
+            progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
         };
         let server = start_server(setup.clone(), server_end, clock).await?;
         let mut trees = Vec::new();
@@ -768,6 +769,33 @@ impl RobotRig {
     #[must_use]
     pub fn stops(&self) -> u64 {
         self.tree.ports.stops.load(std::sync::atomic::Ordering::SeqCst)
+    }
+
+    /// Kill the robot as `kill -9` kills its process (its runtime ends where every task is: nothing
+    /// runs on the way out, no quick stop is sent) and start it again on the same devices with
+    /// `options` (e.g. the same latch file), on a new link. Only for a rig started apart.
+    pub async fn kill_and_restart(&mut self, options: RobotOptions) -> Result<(), SimError> {
+        let Some(old) = self.apart.take() else {
+            return Err(SimError::Site("only a robot on a runtime of its own can be killed".into()));
+        };
+        drop(old);
+        // The killed runtime's thread winds down; a real restart takes far longer than this.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let id = self.robot.id.as_str().to_owned();
+        let (server, mut ends, link) = in_process(std::slice::from_ref(&id));
+        let end = ends.pop().ok_or(SimError::Site("no link end".into()))?;
+        let apart = Apart::start().map_err(|e| SimError::Site(format!("the robot's runtime: {e}")))?;
+        let (robot, overrides, clock) = (self.robot.clone(), self.mocks.overrides(), self.clock);
+        let tree = apart
+            .handle
+            .spawn(async move { start_robot(&robot, overrides, end, clock, options).await })
+            .await
+            .map_err(|e| SimError::Site(format!("starting the robot: {e}")))??;
+        self.tree = tree;
+        self.server = server;
+        self.link = link;
+        self.apart = Some(apart);
+        Ok(())
     }
 
     /// Robot `config.server.robots[0]` alone in the scenario's world (its formation partner absent).

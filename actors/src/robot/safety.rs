@@ -324,7 +324,10 @@ impl SafetyActor {
     fn publish(&self, s: &mut SafetyActorState) {
         let now = s.core.state();
         self.ports.stops.store(s.core.stops(), Ordering::SeqCst);
-        self.ports.fault_latch.store(now == SafetyState::Fault, Ordering::SeqCst);
+        if now == SafetyState::Fault {
+            // Lowered only by a reset on the robot (`apply`).
+            self.ports.fault_latch.store(true, Ordering::SeqCst);
+        }
         let latched = self.ports.latched();
         if s.persisted != Some(latched) {
             match self.ports.persist_latches() {
@@ -411,15 +414,21 @@ impl SafetyActor {
             }
             SafetyInput::Link(Downlink::ResetEStop) | SafetyInput::Control(SafetyControl::ResetEStop) => {
                 let local = matches!(input, SafetyInput::Control(_));
-                let clear = self.ports.estop_latch.reset(local);
-                if local && s.core.state() == SafetyState::Fault {
+                if s.core.state() == SafetyState::Fault && !local {
                     // A fault is reset only on the robot.
+                    tracing::warn!(robot = %self.ports.robot, "a network reset refused: a fault is latched");
+                    self.counters.count("safety.refused.reset");
+                    return;
+                }
+                let clear = self.ports.estop_latch.reset(local);
+                if s.core.state() == SafetyState::Fault {
                     tracing::warn!(robot = %self.ports.robot, "fault reset on the robot");
+                    self.ports.fault_latch.store(false, Ordering::SeqCst);
                     s.core.reset_fault(!clear);
                 } else if clear {
                     s.core.reset_estop();
                 } else {
-                    tracing::warn!(robot = %self.ports.robot, local, state = ?s.core.state(), "reset refused: held by another source, or a fault");
+                    tracing::warn!(robot = %self.ports.robot, local, "e-stop reset refused: held by another source");
                     self.counters.count("safety.refused.reset");
                 }
             }
@@ -487,7 +496,10 @@ impl Actor for SafetyActor {
         if let SafetyMsg::Tick = msg {
             // The latch is the authority: an e-stop latched by a source that could not reach this
             // actor still stops the robot within a cycle.
-            if self.ports.estop_latch.is_set()
+            if self.ports.fault_latch.load(Ordering::SeqCst) && s.core.state() != SafetyState::Fault {
+                tracing::warn!(robot = %self.ports.robot, "fault latched outside this actor: stopping");
+                s.core.fault();
+            } else if self.ports.estop_latch.is_set()
                 && !matches!(s.core.state(), SafetyState::EStop | SafetyState::Fault)
             {
                 tracing::warn!(robot = %self.ports.robot, "e-stop latched outside this actor: stopping");

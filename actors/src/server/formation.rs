@@ -34,6 +34,17 @@ const AWAY_FROM_START_M: f64 = 0.25;
 const AWAY_FROM_START_RAD: f64 = 0.25;
 /// Heading weight of the whole-plan search for where V is, m per rad.
 const HEADING_WEIGHT_M_PER_RAD: f64 = 0.5;
+/// How close V must be to a plan point after the recorded progress, in position and heading, for a
+/// fresh formation to resume there.
+const RESUME_MATCH_M: f64 = 0.5;
+const RESUME_MATCH_RAD: f64 = 0.35;
+/// Around the recorded progress (this much plan time before and after it), the best match to V is
+/// taken if it is this close: the formation lags its plan in turns (here by up to 0.4 m and 0.5 rad
+/// measured) and coasts when its server dies.
+const RESUME_BACK_S: f64 = 10.0;
+const RESUME_AHEAD_S: f64 = 10.0;
+const RESUME_NEAR_M: f64 = 0.75;
+const RESUME_NEAR_RAD: f64 = 0.8;
 
 /// Where the formation is.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,6 +84,10 @@ pub struct FormationStatus {
 pub(crate) struct FormationParams {
     /// V's reference, sampled every `period_s`.
     pub plan: Arc<Vec<Reference>>,
+    /// The plan's identity in `progress`.
+    pub plan_id: String,
+    /// How far the formation got, across restarts of the server.
+    pub progress: Arc<super::progress::PlanProgress>,
     pub period_s: f64,
     /// Per robot: lateral slot in V.
     pub slots: Vec<f64>,
@@ -134,6 +149,9 @@ pub(crate) struct FormationState {
     plan_s: f64,
     lost: Option<usize>,
     arm_allowed: bool,
+    /// How far an earlier formation on this plan got (this one resumes there or after, never
+    /// before), s.
+    record_s: Option<f64>,
     published: Option<FormationStatus>,
     /// When it was published, fleet-clock seconds.
     published_at_s: f64,
@@ -241,7 +259,7 @@ impl FormationActor {
                 if ready && (unverified.is_none() || may_reform) && state.arm_allowed {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
-                    } else if self.away_from_start(state, now) {
+                    } else if state.record_s.is_some() || self.away_from_start(state, now) {
                         self.resume_where_v_is(state, now);
                     }
                     for i in 0..state.robots.len() {
@@ -305,6 +323,7 @@ impl FormationActor {
                     let k = (state.plan_s / dt).round() as usize;
                     let Some(r) = self.params.plan.get(k).copied() else {
                         tracing::info!("formation: plan finished");
+                        self.params.progress.clear();
                         self.command_all_zero(state, now);
                         self.disarm_all(state);
                         state.phase = Phase::Finished;
@@ -315,6 +334,7 @@ impl FormationActor {
                         self.steer(state, i, &r, pose, (r.v_mps, r.w_radps), now);
                     }
                     state.plan_s += dt;
+                    self.params.progress.note(&self.params.plan_id, state.plan_s);
                 }
             }
             Phase::Stopped { .. } => {
@@ -387,29 +407,67 @@ impl FormationActor {
         d.translation_norm() > AWAY_FROM_START_M || d.theta.abs() > AWAY_FROM_START_RAD
     }
 
-    /// A fresh formation whose robots are not at the plan's start (the server restarted mid-run):
-    /// start the plan at its point nearest V, in position and heading, over the whole plan.
+    /// A fresh formation: resume the plan where an earlier formation on this plan got (the record;
+    /// the plan's start without one) and V is. Around the record (the formation lags its plan, and
+    /// coasts when its server dies) the best match to V, if close; else the first point after the
+    /// record that matches V, and on down to the best match of that pass. On a plan of laps every
+    /// lap passes the same places: the first match after the record is the lap the job was in,
+    /// never a later one.
     fn resume_where_v_is(&self, state: &mut FormationState, now: f64) {
         let Some(v) = Self::v_now(state, now) else { return };
-        let cost = |r: &Reference| {
+        let off = |r: &Reference| {
             let d = r.pose.inverse() * v;
-            d.translation_norm() + HEADING_WEIGHT_M_PER_RAD * d.theta.abs()
+            (d.translation_norm(), d.theta.abs())
         };
-        let best = self
-            .params
-            .plan
+        let cost = |r: &Reference| {
+            let (m, rad) = off(r);
+            m + HEADING_WEIGHT_M_PER_RAD * rad
+        };
+        let dt = self.params.period_s;
+        let plan = &self.params.plan;
+        let k0 = state.record_s.map_or(0, |s| ((s / dt).floor().max(0.0) as usize).min(plan.len()));
+        let steps = |s: f64| (s / dt).round() as usize;
+        let around = plan
             .iter()
             .enumerate()
+            .skip(k0.saturating_sub(steps(RESUME_BACK_S)))
+            .take(steps(RESUME_BACK_S + RESUME_AHEAD_S))
             .min_by(|(_, a), (_, b)| cost(a).total_cmp(&cost(b)))
-            .map(|(k, _)| k);
-        if let Some(k) = best {
-            let dt = self.params.period_s;
-            tracing::info!(
-                to_s = k as f64 * dt,
-                "formation: started away from the plan's start, resuming where V is"
-            );
-            state.plan_s = k as f64 * dt;
-        }
+            .filter(|(_, r)| {
+                let (m, rad) = off(r);
+                m <= RESUME_NEAR_M && rad <= RESUME_NEAR_RAD
+            });
+        let after = || {
+            let (mut k, _) = plan.iter().enumerate().skip(k0).find(|(_, r)| {
+                let (m, rad) = off(r);
+                m <= RESUME_MATCH_M && rad <= RESUME_MATCH_RAD
+            })?;
+            while plan.get(k + 1).is_some_and(|n| cost(n) <= cost(&plan[k])) {
+                k += 1;
+            }
+            Some(k)
+        };
+        let k = match around.map(|(k, _)| k).or_else(after) {
+            Some(k) => k,
+            None => {
+                // V matches no plan point after the record: the nearest one after it (never before).
+                let best =
+                    plan.iter().enumerate().skip(k0).min_by(|(_, a), (_, b)| cost(a).total_cmp(&cost(b)));
+                let Some((k, r)) = best else { return };
+                tracing::warn!(
+                    from_s = k0 as f64 * dt,
+                    off_m = off(r).0,
+                    "formation: V matches no plan point after the recorded progress; resuming at the nearest"
+                );
+                k
+            }
+        };
+        tracing::info!(
+            record_s = ?state.record_s,
+            to_s = k as f64 * dt,
+            "formation: resuming where the job was and V is"
+        );
+        state.plan_s = k as f64 * dt;
     }
 
     /// After a stop the robots coasted on (ramping down) while the plan was paused: resume the plan
@@ -500,6 +558,7 @@ impl Actor for FormationActor {
             plan_s: 0.0,
             lost: None,
             arm_allowed: self.params.auto_arm,
+            record_s: self.params.progress.load(&self.params.plan_id),
             published: None,
             published_at_s: f64::NEG_INFINITY,
         })

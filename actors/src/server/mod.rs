@@ -14,6 +14,7 @@ pub mod core;
 pub mod formation;
 pub mod localizer;
 pub mod ports;
+pub mod progress;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -69,6 +70,9 @@ pub struct ServerSetup {
     /// Arm as soon as ready (simulation) or wait for the operator.
     pub auto_arm: bool,
     pub policy: RestartPolicy,
+    /// Where the formation keeps its progress in the plan (shared by the servers that follow
+    /// this one: a restarted server resumes there, never later).
+    pub progress: Arc<progress::PlanProgress>,
 }
 
 /// Why the server could not start.
@@ -224,10 +228,13 @@ pub async fn start_server(
         setup: core_setup(&setup, &[setup.server.configuration]),
         lost_after_s: LOST_AFTER_S,
     };
+    let plan = reference(sc, setup.robots.len(), FORMATION_PERIOD_S);
     let formation = FormationActor {
         ports: Arc::clone(&ports),
         params: FormationParams {
-            plan: Arc::new(reference(sc, setup.robots.len(), FORMATION_PERIOD_S)),
+            plan_id: progress::plan_id(&plan),
+            progress: Arc::clone(&setup.progress),
+            plan: Arc::new(plan),
             period_s: FORMATION_PERIOD_S,
             slots: slot_y,
             gains: FormationGains::DEFAULT,

@@ -42,6 +42,7 @@ fn setup(configuration: Configuration) -> ServerSetup {
         seed: 5,
         auto_arm: false,
         policy: RestartPolicy::default(),
+        progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     }
 }
 

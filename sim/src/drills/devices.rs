@@ -13,10 +13,11 @@ use hil_mocks::tim551::Fault as LidarFault;
 use ractor::ActorRef;
 
 use super::{
-    Check, all_ok, child, drive, drive_from, events_from, health, keep_counters, rig, rig_on, wheels_still,
-    wheels_turning,
+    Check, all_ok, child, drive, drive_from, events_from, health, keep_counters, rig, rig_on, rig_with,
+    wheels_still, wheels_turning,
 };
 use crate::{RobotRig, SimCan};
+use amr_actors::robot::RobotOptions;
 
 fn kinds(rig: &RobotRig, supervisor: &str, from: usize) -> Vec<EventKind> {
     rig.tree
@@ -982,4 +983,110 @@ pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
         })
         .await;
     end_without_restarts(rig, c, n0).await;
+}
+
+/// A restart is not a reset (ISO 13850): the robot is e-stopped while driving, its process killed
+/// (`kill -9`: nothing runs on the way out) and started again on the same devices and state file,
+/// and the server re-arms it and commands on. It comes back in EStop, refuses the arm, and no wheel
+/// moves until the e-stop is reset and a new arm comes. Then the same for a fault (the supervisor
+/// escalates), which a reset over the network does not clear; only a reset on the robot does.
+pub(crate) async fn estop_restart(config: &Config, seed: u64, c: &mut Check) {
+    let dir = std::env::temp_dir().join(format!("amr-drill-estop-restart-{}-{seed}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let options = RobotOptions { latch_file: Some(dir.join("robot.safety")), ..RobotOptions::default() };
+    let Some(mut rig) = rig_with(config, seed, SimCan::InProcess, true, options.clone(), c).await else {
+        return;
+    };
+    let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
+    let state = |rig: &RobotRig| *rig.tree.ports.safety_now.borrow();
+    let id = rig.tree.id.clone();
+    c.inject();
+    c.that(rig.server.down.send(&id, Downlink::EStop), "the e-stop queued on the link");
+    c.detection =
+        c.within("EStop", Duration::from_millis(300), || state(&rig) == Some(SafetyState::EStop)).await;
+    c.safe_state = c.within("the wheels at rest", Duration::from_secs(2), || wheels_still(&rig)).await;
+    drop(feed);
+
+    if let Err(e) = rig.kill_and_restart(options.clone()).await {
+        return c.fail(format!("restarting the robot: {e}"));
+    }
+    c.within("the restarted robot in EStop, from its state file", Duration::from_secs(5), || {
+        state(&rig) == Some(SafetyState::EStop)
+    })
+    .await;
+    // Latched, the drives are not enabled (they stay Starting); the others come up.
+    let sensors_ok = |rig: &RobotRig| {
+        [Device::Lidar, Device::Imu, Device::CanBus].iter().all(|d| health(rig, *d) == Some(Health::Ok))
+    };
+    c.within("the restarted robot's sensors and bus Ok", Duration::from_secs(15), || sensors_ok(&rig)).await;
+    // The server re-arms, as `rearm` or `--auto-arm` would, and commands on.
+    let feed = drive_from(&rig, 0.15, 100_000);
+    c.throughout(
+        "re-armed after the restart: still EStop, every wheel still",
+        Duration::from_secs(2),
+        || state(&rig) == Some(SafetyState::EStop) && wheels_still(&rig),
+    )
+    .await;
+    c.that(rig.tree.counters.get("safety.refused.arm.latched") >= 1, "the arm was refused (latched)");
+    drop(feed);
+    c.that(rig.server.down.send(&id, Downlink::ResetEStop), "the reset queued on the link");
+    c.within("reset: Disarmed(EStopReset)", Duration::from_millis(500), || {
+        state(&rig) == Some(SafetyState::Disarmed(DisarmReason::EStopReset))
+    })
+    .await;
+    c.throughout("reset, not armed: every wheel still", Duration::from_millis(500), || wheels_still(&rig))
+        .await;
+    let feed = drive_from(&rig, 0.15, 200_000);
+    c.recovery = c
+        .within("turning again after the reset and a new arm", Duration::from_secs(10), || {
+            wheels_turning(&rig, 1000.0)
+        })
+        .await;
+
+    // A fault: the LiDAR fails four times within the restart window; the supervisor escalates.
+    let sup = rig.tree.supervisor.clone();
+    for k in 1..=4 {
+        let Some(lidar) = child(&sup, "lidar").await else { break };
+        let lidar: ActorRef<LidarMsg> = lidar.into();
+        let _ = lidar.cast(LidarMsg::InjectFailure(format!("drill: failure {k}")));
+        tokio::time::sleep(Duration::from_millis(900)).await;
+    }
+    c.within("the escalation reported: Fault", Duration::from_secs(5), || {
+        state(&rig) == Some(SafetyState::Fault)
+    })
+    .await;
+    c.within("the wheels at rest after the fault", Duration::from_secs(3), || wheels_still(&rig)).await;
+    drop(feed);
+    if let Err(e) = rig.kill_and_restart(options.clone()).await {
+        return c.fail(format!("restarting the robot after the fault: {e}"));
+    }
+    c.within("the restarted robot in Fault, from its state file", Duration::from_secs(5), || {
+        state(&rig) == Some(SafetyState::Fault)
+    })
+    .await;
+    c.within("the restarted robot's sensors and bus Ok", Duration::from_secs(15), || sensors_ok(&rig)).await;
+    let feed = drive_from(&rig, 0.15, 300_000);
+    let refused = rig.tree.counters.get("safety.refused.reset");
+    c.that(rig.server.down.send(&id, Downlink::ResetEStop), "a network reset queued");
+    c.throughout(
+        "re-armed and reset over the network: still Fault, every wheel still",
+        Duration::from_secs(2),
+        || state(&rig) == Some(SafetyState::Fault) && wheels_still(&rig),
+    )
+    .await;
+    c.that(rig.tree.counters.get("safety.refused.reset") > refused, "the network reset was refused");
+    drop(feed);
+    rig.tree.reset_estop();
+    c.within("reset on the robot: Disarmed(FaultReset)", Duration::from_millis(500), || {
+        state(&rig) == Some(SafetyState::Disarmed(DisarmReason::FaultReset))
+    })
+    .await;
+    let _feed = drive_from(&rig, 0.15, 400_000);
+    c.within("turning again after the fault's reset and a new arm", Duration::from_secs(10), || {
+        wheels_turning(&rig, 1000.0)
+    })
+    .await;
+    keep_counters(&rig, c);
+    rig.tree.shutdown().await;
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -125,6 +125,10 @@ pub const DRILLS: &[Drill] = &[
     },
     Drill { name: "estop", about: "e-stop: wheels commanded to zero within 100 ms; orderly shutdown" },
     Drill {
+        name: "estop-restart",
+        about: "e-stop, kill -9 the robot, restart it, re-arm: still EStop, no wheel moves until reset and arm; the same for a fault",
+    },
+    Drill {
         name: "soak",
         about: "seeded chaos: random faults from this list, invariants checked throughout",
     },
@@ -298,6 +302,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "slow-consumer" => fleet::slow_consumer(config, seed, &mut c).await,
         "estop" => devices::estop(config, seed, &mut c).await,
         "estop-input" => devices::estop_input(config, seed, &mut c).await,
+        "estop-restart" => devices::estop_restart(config, seed, &mut c).await,
         "soak" => soak::soak(config, seed, soak::SOAK_FULL, &mut c).await,
         _ => return None,
     }
@@ -356,11 +361,22 @@ pub(crate) async fn rig_on(
     apart: bool,
     c: &mut Check,
 ) -> Option<RobotRig> {
+    rig_with(config, seed, can, apart, RobotOptions::default(), c).await
+}
+
+/// [`rig_on`] with the robot's `options`.
+pub(crate) async fn rig_with(
+    config: &Config,
+    seed: u64,
+    can: SimCan,
+    apart: bool,
+    options: RobotOptions,
+    c: &mut Check,
+) -> Option<RobotRig> {
     let Some(scenario) = config.scenarios.get("straight").cloned() else {
         c.fail("setup: the configuration has no `straight` scenario");
         return None;
     };
-    let options = RobotOptions::default();
     let started = if apart {
         RobotRig::start_apart(config, &scenario, seed, can, options).await
     } else {
