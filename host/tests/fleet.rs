@@ -170,6 +170,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
         "--scenario".into(),
         "short".into(),
         "--auto-arm".into(),
+        "--progress-file".into(),
+        tmp.path().join("server.progress").display().to_string(),
         "--certs".into(),
         certs_s.into(),
         "--endpoint".into(),
@@ -439,7 +441,12 @@ fn credentials_stay_out_of_the_logs_at_trace_level() {
             .map(|s| (*s).to_owned())
             .chain(["--endpoint".to_owned(), endpoint.clone()])
             .chain(if what == "server" {
-                vec!["--scenario".to_owned(), "short".to_owned()]
+                vec![
+                    "--scenario".to_owned(),
+                    "short".to_owned(),
+                    "--progress-file".to_owned(),
+                    tmp.path().join("server.progress").display().to_string(),
+                ]
             } else {
                 vec!["--state-file".to_owned(), tmp.path().join("robot-a.safety").display().to_string()]
             })
