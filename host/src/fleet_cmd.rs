@@ -17,7 +17,6 @@ use amr_net::NetSettings;
 use amr_net::network::NetworkConfig;
 use amr_sim::served::{WorldManifest, serve_world};
 use anyhow::Context;
-use tokio::io::AsyncBufReadExt as _;
 
 use crate::mock_cmd::runtime;
 
@@ -87,16 +86,37 @@ async fn stop_signal() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
-/// network, until Ctrl-C or SIGTERM (the drives quick-stop).
-/// Where a robot keeps its state by default: systemd's `StateDirectory=`, else the XDG state
-/// directory.
+/// Where a robot or the server keeps its state by default: systemd's `StateDirectory=`, else the
+/// XDG state directory.
 fn default_state_dir() -> Option<PathBuf> {
     let var = |name| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
     var("STATE_DIRECTORY")
         .or_else(|| var("XDG_STATE_HOME").map(|d| d.join("amr")))
         .or_else(|| var("HOME").map(|h| h.join(".local/state/amr")))
 }
+
+/// Standard input's lines, read on a thread of their own: a read that blocks (an interactive
+/// terminal, a pipe held open) never holds up the process's exit, as tokio's stdin, whose read
+/// runs on the runtime's blocking pool, does (the runtime waits for it when it shuts down).
+fn stdin_lines() -> tokio::sync::mpsc::Receiver<String> {
+    let (tx, rx) = tokio::sync::mpsc::channel(16);
+    let spawned = std::thread::Builder::new().name("stdin".into()).spawn(move || {
+        use std::io::BufRead as _;
+        for line in std::io::stdin().lock().lines() {
+            let Ok(line) = line else { break };
+            if tx.blocking_send(line).is_err() {
+                break;
+            }
+        }
+    });
+    if let Err(e) = spawned {
+        tracing::error!(error = %e, "cannot read standard input: no operator commands");
+    }
+    rx
+}
+
+/// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
+/// network, until Ctrl-C or SIGTERM (the drives quick-stop).
 
 pub(crate) fn robot(
     file: &Path,
@@ -244,7 +264,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
             auto_arm = args.auto_arm,
             "server running; commands on stdin: rearm, stop, estop, reset-estop; Ctrl-C stops it"
         );
-        let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
+        let mut lines = stdin_lines();
         let mut stdin_open = true;
         let mut tick = tokio::time::interval(Duration::from_millis(250));
         let mut last: Option<(String, BTreeSet<String>)> = None;
@@ -253,8 +273,8 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         loop {
             tokio::select! {
                 r = &mut stop => { r?; break; }
-                line = lines.next_line(), if stdin_open => match line {
-                    Ok(Some(l)) => match l.trim() {
+                line = lines.recv(), if stdin_open => match line {
+                    Some(l) => match l.trim() {
                         "rearm" => { tree.rearm().await; }
                         "stop" => {
                             if let Some(f) = tree.formation_actor().await { let _ = f.cast(FormationMsg::Stop); }
@@ -274,7 +294,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
                         "" => {}
                         other => tracing::warn!(command = other, "unknown command (have: rearm, stop, estop, reset-estop)"),
                     },
-                    _ => stdin_open = false,
+                    None => stdin_open = false,
                 },
                 _ = tick.tick() => {
                     let Some(st) = tree.formation_status().await else { continue };

@@ -487,3 +487,60 @@ fn credentials_stay_out_of_the_logs_at_trace_level() {
         assert!(!text.contains("Zq81xx"), "a password in {}", log.display());
     }
 }
+
+/// `amr server` exits promptly on SIGTERM and on Ctrl-C (SIGINT) while its standard input is open
+/// and idle (an operator's terminal; here a pipe the test holds open).
+#[test]
+fn the_server_exits_promptly_on_a_signal_with_its_stdin_held_open() {
+    let tmp = tempfile::tempdir().unwrap();
+    let creds = write_config(tmp.path());
+    let config = tmp.path().join("config");
+    for sig in ["-TERM", "-INT"] {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let log = tmp.path().join(format!("server{sig}.log"));
+        let args: Vec<String> = [
+            "server",
+            "--config",
+            config.join("server.toml").to_str().unwrap(),
+            "--insecure",
+            "--credentials",
+            creds.to_str().unwrap(),
+            "--endpoint",
+            &endpoint,
+            "--scenario",
+            "short",
+            "--progress-file",
+            tmp.path().join("server.progress").to_str().unwrap(),
+        ]
+        .iter()
+        .map(|s| (*s).to_owned())
+        .collect();
+        let mut procs = Procs(vec![("server".into(), spawn(&args, &log, true))]);
+        let t0 = Instant::now();
+        while !std::fs::read_to_string(&log).unwrap_or_default().contains("server running") {
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "the server did not start: {}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let child = procs.child("server");
+        let pid = child.id().to_string();
+        assert!(Command::new("kill").args([sig, &pid]).status().unwrap().success());
+        let t0 = Instant::now();
+        let status = loop {
+            if let Some(st) = child.try_wait().unwrap() {
+                break st;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(10),
+                "the server still runs 10 s after kill {sig} with its stdin open: {}",
+                std::fs::read_to_string(&log).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(status.success(), "kill {sig}: {status}");
+        eprintln!("kill {sig}: exited after {:?}", t0.elapsed());
+    }
+}
