@@ -45,7 +45,7 @@ fn setups() -> (Setup, ServerSetup) {
         amcl,
         scenario,
         seed: SEED,
-        auto_arm: false,
+        auto_arm: amr_actors::server::AutoArm::Off,
         policy: RestartPolicy::default(),
         progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };

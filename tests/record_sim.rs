@@ -25,7 +25,7 @@ fn a_recorded_simulation_replays_to_the_same_estimates() {
         robots: formation_robots(&config.server, &config.robots).unwrap(),
         scenario,
         seed: 9,
-        auto_arm: true,
+        auto_arm: amr_actors::server::AutoArm::Mock,
         policy: RestartPolicy::default(),
         progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };

@@ -403,6 +403,7 @@ mod tests {
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
             stops: 1,
+            mock: false,
         });
         assert_eq!(server.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
 
@@ -414,6 +415,7 @@ mod tests {
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
             stops: 1,
+            mock: false,
         });
         // Both messages reach the router and are lost there; b is unaffected.
         tokio::time::timeout(std::time::Duration::from_secs(2), async {
@@ -471,6 +473,7 @@ mod tests {
             stamp_s: 0.0,
             state: amr_msgs::SafetyState::Armed,
             stops: 1,
+            mock: false,
         });
         assert_eq!(new.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
     }

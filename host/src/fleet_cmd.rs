@@ -154,7 +154,8 @@ pub(crate) fn robot(
     runtime()?.block_on(async move {
         let clock = FleetClock::wall();
         let (end, bridge) = amr_net::start_robot_bridge(&settings, &id, clock).await?;
-        let options = RobotOptions { latch_file: Some(state_file), ..RobotOptions::default() };
+        let options =
+            RobotOptions { latch_file: Some(state_file), mock: mock.is_some(), ..RobotOptions::default() };
         let tree = start_robot(&robot, overrides, end, clock, options).await.context("starting the robot")?;
         tracing::info!(
             robot = %id,
@@ -202,6 +203,7 @@ pub(crate) struct ServerArgs {
     pub scenario: String,
     pub seed: u64,
     pub auto_arm: bool,
+    pub auto_arm_hardware: bool,
     pub progress_file: Option<PathBuf>,
     pub fresh: bool,
     pub net: NetArgs,
@@ -252,7 +254,11 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
             robots,
             scenario: sc,
             seed: args.seed,
-            auto_arm: args.auto_arm,
+            auto_arm: match (args.auto_arm, args.auto_arm_hardware) {
+                (_, true) => amr_actors::server::AutoArm::Hardware,
+                (true, false) => amr_actors::server::AutoArm::Mock,
+                (false, false) => amr_actors::server::AutoArm::Off,
+            },
             policy: RestartPolicy::default(),
             progress: std::sync::Arc::new(progress),
         };

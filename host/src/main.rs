@@ -278,10 +278,13 @@ enum Command {
         scenario: String,
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Arm the formation as soon as every robot is healthy and localised (otherwise: on
-        /// `rearm`).
+        /// Arm the formation once, as soon as every robot is healthy and localised (otherwise, and
+        /// after any stop: on `rearm`), if every robot reports mock devices (`amr robot --mock`).
         #[arg(long)]
         auto_arm: bool,
+        /// `--auto-arm` on real hardware too: the formation moves with nobody's `rearm`.
+        #[arg(long)]
+        auto_arm_hardware: bool,
         /// Where the formation keeps its progress in the plan, so that a restarted server resumes
         /// the job where it was, never later (default: server-<scenario>.progress in
         /// $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else ~/.local/state/amr). Removed when the
@@ -617,18 +620,27 @@ fn main() -> ExitCode {
         Command::Estop { robots, reset, user, config, timeout_ms, net } => {
             fleet_cmd::estop(&fleet_cmd::EstopArgs { robots, reset, user, config, timeout_ms, net })
         }
-        Command::Server { config, scenario, seed, auto_arm, progress_file, fresh, net, rec } => {
-            fleet_cmd::server(&fleet_cmd::ServerArgs {
-                config,
-                scenario,
-                seed,
-                auto_arm,
-                progress_file,
-                fresh,
-                net,
-                rec,
-            })
-        }
+        Command::Server {
+            config,
+            scenario,
+            seed,
+            auto_arm,
+            auto_arm_hardware,
+            progress_file,
+            fresh,
+            net,
+            rec,
+        } => fleet_cmd::server(&fleet_cmd::ServerArgs {
+            config,
+            scenario,
+            seed,
+            auto_arm,
+            auto_arm_hardware,
+            progress_file,
+            fresh,
+            net,
+            rec,
+        }),
         Command::Eval {
             scenario,
             map,

@@ -122,7 +122,7 @@ pub(crate) fn replay(
         map,
         scenario: sc,
         seed,
-        auto_arm: false,
+        auto_arm: amr_actors::server::AutoArm::Off,
         policy: RestartPolicy::default(),
         progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     };

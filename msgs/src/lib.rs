@@ -127,6 +127,9 @@ pub enum Uplink {
         /// Counts the robot's stops (start-up, disarm of any cause, halt, e-stop, its reset,
         /// fault, its reset); kept across restarts. An arm must carry the current value.
         stops: u64,
+        /// The robot drives mock devices (a simulated world), not hardware: a server arms such a
+        /// formation by itself when told to (`--auto-arm`), a real one only when the operator says.
+        mock: bool,
     },
 }
 

@@ -430,6 +430,7 @@ mod tests {
             stamp_s: 1.0,
             state: SafetyState::Armed,
             stops: 1,
+            mock: false,
         };
         let mut u = env(Body::Uplink(safety.clone()));
         u.origin = "robot-b".into();
@@ -441,6 +442,7 @@ mod tests {
             stamp_s: 1.0,
             state: SafetyState::Armed,
             stops: 1,
+            mock: false,
         };
         assert!(matches!(
             to_uplink(env(Body::Uplink(b)), "robot-a", "health"),
@@ -544,6 +546,7 @@ mod tests {
             stamp_s: f64::NAN,
             state: SafetyState::Armed,
             stops: 1,
+            mock: false,
         };
         assert_eq!(
             to_uplink(env(Body::Uplink(safety)), "robot-a", "health"),
@@ -573,6 +576,7 @@ mod tests {
                 stamp_s: 3.0,
                 state: SafetyState::Disarmed(DisarmReason::Watchdog),
                 stops: 1,
+                mock: false,
             },
         ];
         for u in ups {

@@ -105,7 +105,14 @@ async fn wait_alive(b: &ServerBridge, robot: &str, present: bool) -> Duration {
 }
 
 fn safety(robot: &str, seq: u64) -> Uplink {
-    Uplink::Safety { robot: robot.into(), seq, stamp_s: 1.0, state: SafetyState::Armed, stops: 1 }
+    Uplink::Safety {
+        robot: robot.into(),
+        seq,
+        stamp_s: 1.0,
+        state: SafetyState::Armed,
+        stops: 1,
+        mock: false,
+    }
 }
 
 /// Receive the next uplink that is not the bridge's own link-health report.
@@ -276,6 +283,7 @@ async fn only_the_server_may_command_and_no_robot_may_pose_as_another() {
             stamp_s: FleetClock::wall().now_s(),
             state: SafetyState::EStop,
             stops: 1,
+            mock: false,
         }),
         ..forged.clone()
     };
@@ -457,6 +465,7 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
             stamp_s: FleetClock::wall().now_s(),
             state: SafetyState::EStop,
             stops: 1,
+            mock: false,
         });
         if operator.is_finished() {
             break;

@@ -273,6 +273,7 @@ mod tests {
                 stamp_s: 0.6,
                 state: SafetyState::Disarmed(DisarmReason::Watchdog),
                 stops: 3,
+                mock: false,
             },
             Uplink::Odom {
                 robot: "a".into(),

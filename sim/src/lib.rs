@@ -240,14 +240,23 @@ impl Sim {
             robots: robots.clone(),
             scenario: sc.clone(),
             seed: options.seed,
-            auto_arm: true,
+            auto_arm: amr_actors::server::AutoArm::Mock,
             policy: RestartPolicy::default(),
             progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
         };
         let server = start_server(setup.clone(), server_end, clock).await?;
         let mut trees = Vec::new();
         for ((r, end), m) in robots.iter().zip(robot_ends).zip(&mocks) {
-            trees.push(start_robot(r, m.overrides(), end, clock, RobotOptions::default()).await?);
+            trees.push(
+                start_robot(
+                    r,
+                    m.overrides(),
+                    end,
+                    clock,
+                    RobotOptions { mock: true, ..RobotOptions::default() },
+                )
+                .await?,
+            );
         }
 
         // The observer scores estimates and records health.
@@ -364,7 +373,7 @@ impl Sim {
         let end =
             self.link.new_server_end().ok_or(SimError::Site("the link cannot take a new server".into()))?;
         let mut setup = self.setup.clone();
-        setup.auto_arm = false;
+        setup.auto_arm = amr_actors::server::AutoArm::Off;
         if let Some(v) = self.last_v_carried().or_else(|| self.last_v()) {
             let prior = setup.amcl.initial_pose;
             let num = |x: f64| amr_core::config::value::Finite::new(x).map_err(SimError::Site);
@@ -786,6 +795,7 @@ impl RobotRig {
         let end = ends.pop().ok_or(SimError::Site("no link end".into()))?;
         let apart = Apart::start().map_err(|e| SimError::Site(format!("the robot's runtime: {e}")))?;
         let (robot, overrides, clock) = (self.robot.clone(), self.mocks.overrides(), self.clock);
+        let options = RobotOptions { mock: true, ..options };
         let tree = apart
             .handle
             .spawn(async move { start_robot(&robot, overrides, end, clock, options).await })
@@ -866,6 +876,7 @@ impl RobotRig {
         let mut overrides = mocks.overrides();
         tweak(&mut overrides);
         let config = robot.clone();
+        let options = RobotOptions { mock: true, ..options };
         let (tree, apart) = if apart {
             let apart = Apart::start().map_err(|e| SimError::Site(format!("the robot's runtime: {e}")))?;
             let tree = apart

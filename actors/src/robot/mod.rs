@@ -77,6 +77,8 @@ pub struct RobotOptions {
     /// Where the robot keeps its latched stops and stop counter across restarts
     /// ([`latches::LatchFile`]); `None` starts with nothing latched and keeps nothing.
     pub latch_file: Option<std::path::PathBuf>,
+    /// The devices are mocks in a simulated world (reported to the server with the safety state).
+    pub mock: bool,
 }
 
 impl Default for RobotOptions {
@@ -88,7 +90,7 @@ impl Default for RobotOptions {
             backoff_initial: Duration::from_millis(100),
             backoff_max: Duration::from_secs(5),
         };
-        RobotOptions { policy, drives_policy: policy, odom_decimation: 5, latch_file: None }
+        RobotOptions { policy, drives_policy: policy, odom_decimation: 5, latch_file: None, mock: false }
     }
 }
 
@@ -182,7 +184,7 @@ pub async fn start_robot(
             }
         },
     };
-    let ports = RobotPorts::restored(id.clone(), clock, file, latched);
+    let ports = RobotPorts::restored(id.clone(), clock, file, latched, options.mock);
     let counters = Counters::default();
     let events = EventLog::default();
 
@@ -309,5 +311,6 @@ fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
         stamp_s: ports.clock.now_s(),
         state: SafetyState::Fault,
         stops,
+        mock: ports.mock,
     });
 }

@@ -241,6 +241,8 @@ pub struct RobotPorts {
     /// Where the latches and the counter are kept across restarts of the robot (none in a
     /// simulation that starts every robot afresh).
     pub latch_file: Option<super::latches::LatchFile>,
+    /// The devices are mocks in a simulated world.
+    pub mock: bool,
 }
 
 impl RobotPorts {
@@ -257,7 +259,7 @@ impl RobotPorts {
 
     #[must_use]
     pub fn new(robot: impl Into<String>, clock: FleetClock) -> Arc<Self> {
-        Self::restored(robot, clock, None, super::latches::Latched::default())
+        Self::restored(robot, clock, None, super::latches::Latched::default(), false)
     }
 
     /// Ports whose latches and stop counter start as `latched` (read from `file`, where they are
@@ -268,6 +270,7 @@ impl RobotPorts {
         clock: FleetClock,
         file: Option<super::latches::LatchFile>,
         latched: super::latches::Latched,
+        mock: bool,
     ) -> Arc<Self> {
         let estop_latch = EStopLatch::default();
         estop_latch.sources.store(latched.estop, Ordering::SeqCst);
@@ -291,6 +294,7 @@ impl RobotPorts {
             fault_latch: AtomicBool::new(latched.fault),
             stops: AtomicU64::new(latched.stops),
             latch_file: file,
+            mock,
         })
     }
 

@@ -122,9 +122,14 @@ impl Actor for UplinkActor {
                 Uplink::Odom { robot, msg: o }
             }
             UplinkMsg::Health(report) => Uplink::Health { robot, seq, stamp_s: now, report },
-            UplinkMsg::Safety(s) => {
-                Uplink::Safety { robot, seq, stamp_s: now, state: s, stops: self.stops() }
-            }
+            UplinkMsg::Safety(s) => Uplink::Safety {
+                robot,
+                seq,
+                stamp_s: now,
+                state: s,
+                stops: self.stops(),
+                mock: self.ports.mock,
+            },
             UplinkMsg::Resend => {
                 let board: Vec<HealthReport> = self.ports.health_board.borrow().values().cloned().collect();
                 for report in board {
@@ -138,7 +143,14 @@ impl Actor for UplinkActor {
                 }
                 let Some(s) = *self.ports.safety_now.borrow() else { return Ok(()) };
                 state.seq += 1;
-                Uplink::Safety { robot, seq: state.seq, stamp_s: now, state: s, stops: self.stops() }
+                Uplink::Safety {
+                    robot,
+                    seq: state.seq,
+                    stamp_s: now,
+                    state: s,
+                    stops: self.stops(),
+                    mock: self.ports.mock,
+                }
             }
         };
         self.link.send(up);

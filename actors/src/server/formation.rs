@@ -94,9 +94,11 @@ pub(crate) struct FormationParams {
     pub gains: FormationGains,
     pub limits: ScenarioLimits,
     pub on_robot_lost: OnRobotLost,
-    /// Arm by itself as soon as everything is ready (a simulation); otherwise wait for
+    /// Arm by itself, once per server run, as soon as everything is ready; otherwise wait for
     /// [`FormationMsg::Rearm`].
-    pub auto_arm: bool,
+    pub auto_arm: super::AutoArm,
+    /// A formation of this server run has run (after that only the operator arms).
+    pub auto_armed: Arc<std::sync::atomic::AtomicBool>,
 }
 
 /// Messages of the formation actor.
@@ -128,6 +130,8 @@ struct RobotView {
     safety: Option<SafetyState>,
     /// The robot's stop counter, as last reported: an arm carries it.
     stops: u64,
+    /// It reports mock devices.
+    mock: bool,
     odom: Option<OdomMsg>,
     /// When the robot's current odometry frame began (its first pose's stamp): an estimate
     /// anchored on a scan from before belongs to the old frame.
@@ -149,6 +153,10 @@ pub(crate) struct FormationState {
     plan_s: f64,
     lost: Option<usize>,
     arm_allowed: bool,
+    /// The operator allowed the arm (`rearm`), not `auto_arm`.
+    by_operator: bool,
+    /// Auto-arm was refused for robots on real hardware (said once).
+    auto_refused: bool,
     /// How far an earlier formation on this plan got (this one resumes there or after, never
     /// before), s.
     record_s: Option<f64>,
@@ -256,7 +264,25 @@ impl FormationActor {
                 // A fresh formation, placed in its slots, waits for V.
                 let own_verified = state.robots.iter().all(|r| r.own_verified_now(now).is_some());
                 let may_reform = state.plan_s > 0.0 && own_verified;
-                if ready && (unverified.is_none() || may_reform) && state.arm_allowed {
+                // `--auto-arm` moves only robots that say they drive mock devices.
+                let mock: Vec<bool> = state.robots.iter().map(|r| r.mock).collect();
+                let auto_may = arm_authorised(self.params.auto_arm, state.by_operator, &mock);
+                if ready && (unverified.is_none() || may_reform) && state.arm_allowed && !auto_may {
+                    if !state.auto_refused {
+                        let real: Vec<&String> = state
+                            .robots
+                            .iter()
+                            .zip(self.ports.robots.iter())
+                            .filter(|(r, _)| !r.mock)
+                            .map(|(_, n)| n)
+                            .collect();
+                        tracing::warn!(
+                            ?real,
+                            "auto-arm: these robots drive real hardware; waiting for the operator's rearm"
+                        );
+                        state.auto_refused = true;
+                    }
+                } else if ready && (unverified.is_none() || may_reform) && state.arm_allowed {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
                     } else if state.record_s.is_some() || self.away_from_start(state, now) {
@@ -272,6 +298,7 @@ impl FormationActor {
             Phase::Arming { since_s } => {
                 if state.robots.iter().all(|r| r.safety == Some(SafetyState::Armed)) {
                     tracing::info!(plan_s = state.plan_s, "formation running");
+                    self.params.auto_armed.store(true, std::sync::atomic::Ordering::SeqCst);
                     state.phase = Phase::Running;
                 } else if now - since_s > ARM_TIMEOUT_S {
                     state.phase = Phase::Waiting;
@@ -557,7 +584,10 @@ impl Actor for FormationActor {
             robots: vec![RobotView { seq: seq0, ..RobotView::default() }; self.ports.robots.len()],
             plan_s: 0.0,
             lost: None,
-            arm_allowed: self.params.auto_arm,
+            arm_allowed: self.params.auto_arm != super::AutoArm::Off
+                && !self.params.auto_armed.load(std::sync::atomic::Ordering::SeqCst),
+            by_operator: false,
+            auto_refused: false,
             record_s: self.params.progress.load(&self.params.plan_id),
             published: None,
             published_at_s: f64::NEG_INFINITY,
@@ -596,9 +626,10 @@ impl Actor for FormationActor {
                     Uplink::Health { report, .. } => {
                         r.health.insert(report.device, report.health);
                     }
-                    Uplink::Safety { state: s, stops, .. } => {
+                    Uplink::Safety { state: s, stops, mock, .. } => {
                         r.safety = Some(s);
                         r.stops = stops;
+                        r.mock = mock;
                     }
                     Uplink::Scan(_) => {}
                 }
@@ -632,6 +663,7 @@ impl Actor for FormationActor {
             FormationMsg::Rearm => {
                 tracing::info!("formation: re-arm by the operator");
                 state.arm_allowed = true;
+                state.by_operator = true;
                 if matches!(state.phase, Phase::Stopped { .. }) {
                     state.phase = Phase::Waiting;
                 }
@@ -643,5 +675,32 @@ impl Actor for FormationActor {
         }
         self.publish(state);
         Ok(())
+    }
+}
+
+/// Whether an allowed arm may be sent: the operator's `rearm` always; `--auto-arm` only if every
+/// robot reports mock devices (`mock`), unless the operator allowed it on hardware too.
+fn arm_authorised(auto_arm: super::AutoArm, by_operator: bool, mock: &[bool]) -> bool {
+    use super::AutoArm;
+    by_operator
+        || match auto_arm {
+            AutoArm::Off => false,
+            AutoArm::Mock => mock.iter().all(|m| *m),
+            AutoArm::Hardware => true,
+        }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::AutoArm;
+    use super::arm_authorised;
+
+    #[test]
+    fn auto_arm_moves_only_mock_robots_unless_the_operator_says() {
+        assert!(arm_authorised(AutoArm::Mock, false, &[true, true]));
+        assert!(!arm_authorised(AutoArm::Mock, false, &[true, false]), "one robot on hardware");
+        assert!(arm_authorised(AutoArm::Mock, true, &[false, false]), "the operator's rearm");
+        assert!(arm_authorised(AutoArm::Hardware, false, &[false, false]));
+        assert!(!arm_authorised(AutoArm::Off, false, &[true, true]));
     }
 }

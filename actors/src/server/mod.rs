@@ -55,6 +55,17 @@ pub(crate) fn compute<R>(f: impl FnOnce() -> R) -> R {
     }
 }
 
+/// Whether the formation arms by itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AutoArm {
+    /// Only on the operator's `rearm`.
+    Off,
+    /// Once per server run, as soon as ready, if every robot reports mock devices (a simulation).
+    Mock,
+    /// Once per server run, as soon as ready, whatever the robots drive (the operator said so).
+    Hardware,
+}
+
 /// Everything the server needs.
 #[derive(Debug, Clone)]
 pub struct ServerSetup {
@@ -67,8 +78,8 @@ pub struct ServerSetup {
     /// V's plan and where the formation starts.
     pub scenario: ScenarioConfig,
     pub seed: u64,
-    /// Arm as soon as ready (simulation) or wait for the operator.
-    pub auto_arm: bool,
+    /// Arm by itself once as soon as ready, or wait for the operator.
+    pub auto_arm: AutoArm,
     pub policy: RestartPolicy,
     /// Where the formation keeps its progress in the plan (shared by the servers that follow
     /// this one: a restarted server resumes there, never later).
@@ -229,6 +240,8 @@ pub async fn start_server(
         lost_after_s: LOST_AFTER_S,
     };
     let plan = reference(sc, setup.robots.len(), FORMATION_PERIOD_S);
+    // Once per server run: a restarted formation actor does not arm by itself again.
+    let auto_armed = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let formation = FormationActor {
         ports: Arc::clone(&ports),
         params: FormationParams {
@@ -241,6 +254,7 @@ pub async fn start_server(
             limits: sc.limits,
             on_robot_lost: setup.server.on_robot_lost,
             auto_arm: setup.auto_arm,
+            auto_armed: Arc::clone(&auto_armed),
         },
         link: link.down.clone(),
         status: Arc::clone(&formation_status),

@@ -40,7 +40,7 @@ fn setup(configuration: Configuration) -> ServerSetup {
         amcl: config.amcl.clone(),
         scenario,
         seed: 5,
-        auto_arm: false,
+        auto_arm: amr_actors::server::AutoArm::Off,
         policy: RestartPolicy::default(),
         progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
     }
