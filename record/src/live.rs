@@ -157,10 +157,10 @@ pub async fn serve_with(
         loop {
             match listener.accept().await {
                 Ok((stream, peer)) => {
-                    let (h, name, options) = (h.clone(), name.clone(), Arc::clone(&options));
-                    let slot = Arc::clone(&slots).try_acquire_owned().ok();
+                    let (h, name, options, slots) =
+                        (h.clone(), name.clone(), Arc::clone(&options), Arc::clone(&slots));
                     tokio::spawn(async move {
-                        if let Err(e) = connection(stream, h, &name, &options, slot).await {
+                        if let Err(e) = connection(stream, h, &name, &options, slots).await {
                             tracing::debug!(%peer, error = %e, "live: connection ended");
                         }
                     });
@@ -216,18 +216,16 @@ fn refuse(status: u16, why: &str) -> ErrorResponse {
     e
 }
 
-/// Accept the handshake only for our subprotocol, with the token if one is set, while a client
-/// slot is free; answer with the subprotocol.
+/// Accept the handshake only for our subprotocol, with the token if one is set, and then only if a
+/// client slot is free (`take_slot`, asked last: a client that fails the checks never holds one);
+/// answer with the subprotocol.
 #[allow(clippy::result_large_err, reason = "tungstenite's callback signature")]
 fn negotiate(
     req: &Request,
     mut resp: Response,
     token: Option<&str>,
-    slot_free: bool,
+    take_slot: impl FnOnce() -> bool,
 ) -> Result<Response, ErrorResponse> {
-    if !slot_free {
-        return Err(refuse(503, "too many live-view clients"));
-    }
     if let Some(t) = token
         && !presented_token(req).is_some_and(|p| same_secret(p.as_bytes(), t.as_bytes()))
     {
@@ -240,28 +238,46 @@ fn negotiate(
         .filter_map(|v| v.to_str().ok())
         .flat_map(|v| v.split(','))
         .any(|p| p.trim() == SUBPROTOCOL);
-    if offered {
-        resp.headers_mut().insert("Sec-WebSocket-Protocol", HeaderValue::from_static(SUBPROTOCOL));
-        Ok(resp)
-    } else {
+    if !offered {
         let mut e = ErrorResponse::new(Some(format!("subprotocol {SUBPROTOCOL} required")));
         *e.status_mut() = tokio_tungstenite::tungstenite::http::StatusCode::BAD_REQUEST;
-        Err(e)
+        return Err(e);
     }
+    if !take_slot() {
+        return Err(refuse(503, "too many live-view clients"));
+    }
+    resp.headers_mut().insert("Sec-WebSocket-Protocol", HeaderValue::from_static(SUBPROTOCOL));
+    Ok(resp)
 }
+
+/// How long a client has to complete the WebSocket handshake.
+pub const HANDSHAKE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
 
 async fn connection(
     stream: TcpStream,
     hub: Hub,
     name: &str,
     options: &LiveOptions,
-    slot: Option<tokio::sync::OwnedSemaphorePermit>,
+    slots: Arc<tokio::sync::Semaphore>,
 ) -> Result<(), tokio_tungstenite::tungstenite::Error> {
-    let (token, free) = (options.token.as_deref(), slot.is_some());
+    let token = options.token.as_deref();
+    let mut slot = None;
+    let take = || {
+        slot = slots.try_acquire_owned().ok();
+        slot.is_some()
+    };
     #[allow(clippy::result_large_err, reason = "tungstenite's callback signature")]
-    let mut ws =
-        tokio_tungstenite::accept_hdr_async(stream, |req: &Request, resp| negotiate(req, resp, token, free))
-            .await?;
+    let handshake =
+        tokio_tungstenite::accept_hdr_async(stream, |req: &Request, resp| negotiate(req, resp, token, take));
+    let mut ws = match tokio::time::timeout(HANDSHAKE_TIMEOUT, handshake).await {
+        Ok(ws) => ws?,
+        Err(_) => {
+            return Err(tokio_tungstenite::tungstenite::Error::Io(std::io::Error::new(
+                std::io::ErrorKind::TimedOut,
+                "no WebSocket handshake within 5 s",
+            )));
+        }
+    };
     // Held for as long as the client is connected.
     let _slot = slot;
     // Subscribe before the snapshot: a channel born in between is advertised twice, never missed.

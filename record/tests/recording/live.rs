@@ -305,3 +305,37 @@ async fn the_live_view_bounds_its_clients_and_their_subscriptions() {
     assert_eq!(status["level"], 2);
     assert_eq!(status["message"], "1 subscription(s) refused: at most 3 per client");
 }
+
+/// Sockets that never complete a handshake, and clients without the token, hold no client slot:
+/// with every slot's worth of them open, a client with the token still gets in; an idle socket is
+/// closed once the handshake time is up.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_sockets_and_clients_without_the_token_hold_no_slot() {
+    use amr_record::{LiveOptions, serve_with};
+    use tokio::io::AsyncReadExt as _;
+    let options =
+        LiveOptions { token: Some("s3cret-token".into()), max_clients: 2, ..LiveOptions::default() };
+    let server = serve_with("127.0.0.1:0".parse().unwrap(), Hub::default(), "t", options).await.unwrap();
+    let mut idle = Vec::new();
+    for _ in 0..4 {
+        idle.push(tokio::net::TcpStream::connect(server.addr).await.unwrap());
+    }
+    for _ in 0..4 {
+        assert_eq!(handshake(server.addr, "/?token=wrong").await.err().map(|s| s.as_u16()), Some(401));
+    }
+    let first = handshake(server.addr, "/?token=s3cret-token").await;
+    let second = handshake(server.addr, "/?token=s3cret-token").await;
+    assert!(first.is_ok() && second.is_ok(), "the slots went to the clients with the token");
+    assert_eq!(
+        handshake(server.addr, "/?token=s3cret-token").await.err().map(|s| s.as_u16()),
+        Some(503),
+        "a third client with the token"
+    );
+    // The server closes an idle socket after the handshake time (read: end of stream or an error).
+    let t0 = std::time::Instant::now();
+    let mut buf = [0u8; 16];
+    let read = tokio::time::timeout(Duration::from_secs(10), idle[0].read(&mut buf)).await;
+    assert!(matches!(read, Ok(Ok(0) | Err(_))), "{read:?}");
+    let waited = t0.elapsed();
+    assert!(waited >= Duration::from_secs(4), "closed after {waited:?}");
+}
