@@ -383,13 +383,19 @@ pub(crate) fn certs(args: &CertsArgs) -> anyhow::Result<()> {
     } else {
         args.server_hosts.clone()
     };
-    let server = (!args.no_server)
-        .then(|| network.as_ref().map_or_else(|| "server".to_owned(), |n| n.server.user.as_str().to_owned()));
+    let server_name = network.as_ref().map_or_else(|| "server".to_owned(), |n| n.server.user.as_str().to_owned());
+    // Joining a fleet, the server's name and hosts are still not any member's.
+    let reserved = if args.no_server {
+        std::iter::once(server_name.clone()).chain(server_hosts.iter().cloned()).collect()
+    } else {
+        Vec::new()
+    };
     let req = amr_net::certs::CertRequest {
         server_hosts: if args.no_server { Vec::new() } else { server_hosts.clone() },
-        server,
+        server: (!args.no_server).then_some(server_name),
         robots,
         others: operators,
+        reserved,
         days: args.days,
     };
     let made = amr_net::certs::make(&args.out, &req)?;

@@ -58,6 +58,9 @@ pub struct CertRequest {
     pub robots: Vec<String>,
     /// Operators (`amr estop`) and observers: anyone else who joins.
     pub others: Vec<String>,
+    /// Names no member may take although no certificate is made for them here: the fleet's server
+    /// and its hosts when joining a fleet (a member named so would pass as the server).
+    pub reserved: Vec<String>,
     /// How long members' certificates are valid, days (the CA: ten years).
     pub days: u32,
 }
@@ -82,9 +85,9 @@ pub fn make(out: &Path, req: &CertRequest) -> Result<Made, CertError> {
         if !seen.insert(n.as_str()) {
             return Err(CertError::Request(format!("`{n}` is named twice")));
         }
-        if Some(*n) != req.server.as_ref() && req.server_hosts.iter().any(|h| h == *n) {
+        if Some(*n) != req.server.as_ref() && req.server_hosts.iter().chain(&req.reserved).any(|h| h == *n) {
             return Err(CertError::Request(format!(
-                "`{n}` is also one of the server's hosts: its certificate would pass as the server's"
+                "`{n}` is the server's name or one of its hosts: its certificate would pass as the server's"
             )));
         }
     }
@@ -224,6 +227,7 @@ mod tests {
             server_hosts: vec!["127.0.0.1".into(), "localhost".into()],
             robots: vec!["robot-a".into(), "robot-b".into()],
             others: vec!["operator".into()],
+            reserved: vec![],
             days: 30,
         }
     }
@@ -256,8 +260,16 @@ mod tests {
             server_hosts: vec![],
             robots: vec!["robot-c".into()],
             others: vec![],
+            reserved: vec!["server".into(), "localhost".into()],
             days: 30,
         };
+        // Joining, no member may be named like the server or one of its hosts.
+        for name in ["server", "localhost"] {
+            let mut bad = join.clone();
+            bad.robots.push(name.into());
+            let e = make(dir.path(), &bad).unwrap_err().to_string();
+            assert!(e.contains("pass as the server"), "{e}");
+        }
         let made = make(dir.path(), &join).unwrap();
         assert!(!made.new_ca);
         assert_eq!(std::fs::read(dir.path().join("ca.pem")).unwrap(), ca);

@@ -45,6 +45,7 @@ fn setup(name: &str) -> Setup {
             server_hosts: vec!["127.0.0.1".into()],
             robots: robots(),
             others: vec!["observer".into(), "operator".into()],
+            reserved: vec![],
             days: 2,
         };
         amr_net::certs::make(&dir.join(sub), &req).unwrap();
