@@ -216,6 +216,8 @@ impl NetSettings {
                 set(&mut c, &format!("transport/link/tls/{side}_private_key"), &path(&files.key))?;
                 // A robot checks that the server's certificate is valid for the host it dialled.
                 set(&mut c, "transport/link/tls/verify_name_on_connect", &json!(true))?;
+                // A link ends when either side's certificate expires (not only new ones fail).
+                set(&mut c, "transport/link/tls/close_link_on_expiration", &json!(true))?;
             }
         }
         Ok(c)

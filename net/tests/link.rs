@@ -552,3 +552,51 @@ async fn an_operator_posing_as_the_server_cannot_lock_out_the_servers_stops() {
     bridge_b.shutdown().await;
     srv.bridge.shutdown().await;
 }
+
+/// A link ends when a certificate expires: robot-a's, re-signed by the fleet's CA to expire a few
+/// seconds after the robot joins, is refused from then on (the server sees it gone and it does not
+/// come back), while robot-b stays.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_closes_when_its_certificate_expires() {
+    use rcgen::{
+        CertificateParams, DistinguishedName, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
+        KeyUsagePurpose,
+    };
+    let s = setup("expiry");
+    let certs = s.dir.join("certs");
+    let ca_key = KeyPair::from_pem(&std::fs::read_to_string(certs.join("ca.key")).unwrap()).unwrap();
+    let issuer =
+        Issuer::from_ca_cert_pem(&std::fs::read_to_string(certs.join("ca.pem")).unwrap(), ca_key).unwrap();
+    let mut p = CertificateParams::new(vec!["robot-a".to_owned()]).unwrap();
+    let mut dn = DistinguishedName::new();
+    dn.push(DnType::OrganizationName, "amr fleet");
+    dn.push(DnType::CommonName, "robot-a");
+    p.distinguished_name = dn;
+    p.is_ca = IsCa::ExplicitNoCa;
+    p.key_usages = vec![KeyUsagePurpose::DigitalSignature];
+    p.extended_key_usages = vec![ExtendedKeyUsagePurpose::ServerAuth, ExtendedKeyUsagePurpose::ClientAuth];
+    p.use_authority_key_identifier_extension = true;
+    let now = time::OffsetDateTime::now_utc();
+    p.not_before = now - time::Duration::hours(1);
+    p.not_after = now + time::Duration::seconds(6);
+    let key = KeyPair::generate().unwrap();
+    let cert = p.signed_by(&key, &issuer).unwrap();
+    std::fs::write(certs.join("robot-a.pem"), cert.pem()).unwrap();
+    std::fs::write(certs.join("robot-a.key"), key.serialize_pem()).unwrap();
+
+    let (_up, srv) = server(&s).await;
+    let (_a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
+    let (_b, bridge_b) = start_robot_bridge(&settings(&s), "robot-b", FleetClock::wall()).await.unwrap();
+    wait_alive(&srv, "robot-a", true).await;
+    wait_alive(&srv, "robot-b", true).await;
+    let joined = std::time::Instant::now();
+    wait_alive(&srv, "robot-a", false).await;
+    let gone = joined.elapsed();
+    assert!(gone < Duration::from_secs(9), "robot-a seen gone {gone:?} after joining");
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let alive = srv.alive.borrow().clone();
+    assert!(!alive.contains("robot-a") && alive.contains("robot-b"), "{alive:?}");
+    bridge_a.shutdown().await;
+    bridge_b.shutdown().await;
+    srv.bridge.shutdown().await;
+}
