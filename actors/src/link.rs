@@ -4,16 +4,115 @@
 //! that a drill can cut; the network link (Zenoh) hands out the same ends from its bridge actors.
 //!
 //! Sensor data is lossy by design: when a queue is full the newest message is dropped and counted,
-//! so a slow consumer never blocks a robot. Commands are small and few; the robot's command
-//! watchdog, not the link, decides what a late command means.
+//! so a slow consumer never blocks a robot. Scans travel apart from everything else, in
+//! [`ScanSlots`]: a few per robot, the newest replacing the oldest, so a robot that sends scans at
+//! any rate costs the server bounded memory and never crowds out the other robots' odometry, health
+//! and safety reports. Commands are small and few; the robot's command watchdog, not the link,
+//! decides what a late command means.
 
-use std::collections::BTreeMap;
-use std::sync::Arc;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{Notify, mpsc, watch};
 
-use amr_msgs::{Downlink, Uplink};
+use crate::clock::FleetClock;
+use amr_msgs::{Downlink, ScanMsg, Uplink};
+
+/// Scans the server holds per robot before the newest replaces the oldest: half a second at
+/// 15 Hz, more than a localisation that keeps up ever needs.
+pub const SCANS_PER_ROBOT: usize = 8;
+
+/// Scans on their way to the server: per robot at most [`SCANS_PER_ROBOT`], the newest replacing
+/// the oldest; taken in arrival order. Each is stamped with the server's clock when it arrives
+/// (once the server has given its clock: [`ScanSlots::stamp_with`]; before that, when taken).
+#[derive(Debug, Clone)]
+pub struct ScanSlots(Arc<SlotsInner>);
+
+#[derive(Debug)]
+struct SlotsInner {
+    per_robot: usize,
+    /// Arrival counter, and per robot its queue of (arrival, scan, received).
+    queues: Mutex<(u64, BTreeMap<String, VecDeque<(u64, ScanMsg, Option<f64>)>>)>,
+    ready: Notify,
+    clock: OnceLock<FleetClock>,
+    dropped: AtomicU64,
+    held_peak: AtomicU64,
+}
+
+impl Default for ScanSlots {
+    fn default() -> Self {
+        ScanSlots::new(SCANS_PER_ROBOT)
+    }
+}
+
+impl ScanSlots {
+    /// Slots for `per_robot` scans of each robot.
+    #[must_use]
+    pub fn new(per_robot: usize) -> Self {
+        ScanSlots(Arc::new(SlotsInner {
+            per_robot: per_robot.max(1),
+            queues: Mutex::new((0, BTreeMap::new())),
+            ready: Notify::new(),
+            clock: OnceLock::new(),
+            dropped: AtomicU64::new(0),
+            held_peak: AtomicU64::new(0),
+        }))
+    }
+
+    /// Stamp arrivals with `clock` from now on.
+    pub fn stamp_with(&self, clock: FleetClock) {
+        let _ = self.0.clock.set(clock);
+    }
+
+    /// A scan arrived; false if it replaced its robot's oldest.
+    pub fn push(&self, scan: ScanMsg) -> bool {
+        let received = self.0.clock.get().map(FleetClock::now_s);
+        let mut q = self.0.queues.lock().unwrap_or_else(PoisonError::into_inner);
+        let (next, queues) = &mut *q;
+        *next += 1;
+        let robot = queues.entry(scan.robot.clone()).or_default();
+        let kept = robot.len() < self.0.per_robot;
+        if !kept {
+            robot.pop_front();
+            self.0.dropped.fetch_add(1, Ordering::Relaxed);
+        }
+        robot.push_back((*next, scan, received));
+        let held: usize = queues.values().map(VecDeque::len).sum();
+        self.0.held_peak.fetch_max(held as u64, Ordering::Relaxed);
+        drop(q);
+        self.0.ready.notify_one();
+        kept
+    }
+
+    /// Every scan held, in arrival order, with when it arrived (`now_s` for those that came
+    /// before the server gave its clock).
+    #[must_use]
+    pub fn take(&self, now_s: f64) -> Vec<(ScanMsg, f64)> {
+        let mut q = self.0.queues.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut all: Vec<(u64, ScanMsg, Option<f64>)> = q.1.values_mut().flat_map(std::mem::take).collect();
+        drop(q);
+        all.sort_by_key(|(n, _, _)| *n);
+        all.into_iter().map(|(_, s, rx)| (s, rx.unwrap_or(now_s))).collect()
+    }
+
+    /// Wait until a scan arrives (returns at once if one arrived since the last wait).
+    pub async fn ready(&self) {
+        self.0.ready.notified().await;
+    }
+
+    /// Scans replaced by newer ones before they were taken.
+    #[must_use]
+    pub fn dropped(&self) -> u64 {
+        self.0.dropped.load(Ordering::Relaxed)
+    }
+
+    /// The most scans held at once.
+    #[must_use]
+    pub fn held_peak(&self) -> u64 {
+        self.0.held_peak.load(Ordering::Relaxed)
+    }
+}
 
 /// Depth of each queue: about one second of scans at 15 Hz with odometry at 50 Hz.
 const DEPTH: usize = 128;
@@ -110,7 +209,9 @@ impl UplinkSender {
 /// The server's end of the link.
 #[derive(Debug)]
 pub struct ServerEnd {
+    /// Everything but scans.
     pub up: mpsc::Receiver<Uplink>,
+    pub scans: ScanSlots,
     pub down: DownlinkSender,
 }
 
@@ -156,7 +257,7 @@ pub struct LinkControl {
 #[derive(Debug)]
 struct ServerSwitch {
     robots: usize,
-    up: watch::Sender<mpsc::Sender<Uplink>>,
+    up: watch::Sender<(mpsc::Sender<Uplink>, ScanSlots)>,
     down: BTreeMap<String, mpsc::UnboundedSender<mpsc::Receiver<Downlink>>>,
 }
 
@@ -242,7 +343,8 @@ impl LinkControl {
 impl ServerSwitch {
     fn new_end(&self) -> ServerEnd {
         let (up_tx, up_rx) = mpsc::channel(DEPTH * self.robots.max(1));
-        self.up.send_replace(up_tx);
+        let scans = ScanSlots::default();
+        self.up.send_replace((up_tx, scans.clone()));
         let mut downs = BTreeMap::new();
         for (robot, supply) in &self.down {
             let (tx, rx) = mpsc::channel(DEPTH);
@@ -250,7 +352,7 @@ impl ServerSwitch {
                 downs.insert(robot.clone(), tx);
             }
         }
-        ServerEnd { up: up_rx, down: DownlinkSender::new(downs) }
+        ServerEnd { up: up_rx, scans, down: DownlinkSender::new(downs) }
     }
 }
 
@@ -268,7 +370,7 @@ enum DownEvent {
 #[must_use]
 pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) {
     let (first_up, _) = mpsc::channel(1);
-    let (up_switch, _) = watch::channel(first_up);
+    let (up_switch, _) = watch::channel((first_up, ScanSlots::default()));
     let mut supplies = BTreeMap::new();
     let mut ends = Vec::new();
     let mut routers = Vec::new();
@@ -307,19 +409,28 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
                 if server_rx.has_changed().unwrap_or(false) {
                     to_server = server_rx.borrow_and_update().clone();
                 }
-                let delay = ctl.scan_delay(&robot);
-                if matches!(msg, Uplink::Scan(_)) && !delay.is_zero() && !ctl.is_cut(&robot) {
-                    // Each scan on its own timer: late, not slower (the others are not held up).
-                    let (to, ctl) = (to_server.clone(), ctl.clone());
-                    tokio::spawn(async move {
-                        tokio::time::sleep(delay).await;
-                        if to.try_send(msg).is_err() {
-                            ctl.lost.fetch_add(1, Ordering::Relaxed);
-                        }
-                    });
+                if ctl.is_cut(&robot) {
+                    ctl.lost.fetch_add(1, Ordering::Relaxed);
                     continue;
                 }
-                if ctl.is_cut(&robot) || to_server.try_send(msg).is_err() {
+                let msg = match msg {
+                    Uplink::Scan(scan) => {
+                        let (slots, delay) = (to_server.1.clone(), ctl.scan_delay(&robot));
+                        if delay.is_zero() {
+                            slots.push(scan);
+                        } else {
+                            // Each scan on its own timer: late, not slower (the others are not
+                            // held up).
+                            tokio::spawn(async move {
+                                tokio::time::sleep(delay).await;
+                                slots.push(scan);
+                            });
+                        }
+                        continue;
+                    }
+                    other => other,
+                };
+                if to_server.0.try_send(msg).is_err() {
                     ctl.lost.fetch_add(1, Ordering::Relaxed);
                 }
             }

@@ -383,7 +383,8 @@ pub(crate) fn certs(args: &CertsArgs) -> anyhow::Result<()> {
     } else {
         args.server_hosts.clone()
     };
-    let server_name = network.as_ref().map_or_else(|| "server".to_owned(), |n| n.server.user.as_str().to_owned());
+    let server_name =
+        network.as_ref().map_or_else(|| "server".to_owned(), |n| n.server.user.as_str().to_owned());
     // Joining a fleet, the server's name and hosts are still not any member's.
     let reserved = if args.no_server {
         std::iter::once(server_name.clone()).chain(server_hosts.iter().cloned()).collect()

@@ -557,11 +557,15 @@ pub async fn start_server_bridge(
     let session = zenoh::open(settings.server_config(robots)?).await.map_err(zerr)?;
     let stats = Arc::new(BridgeStats::default());
     let (up_tx, up_rx) = mpsc::channel::<Uplink>(DEPTH * robots.len().max(1));
+    // Scans apart, a few per robot (the newest replacing the oldest): a robot flooding scans costs
+    // bounded memory and never crowds out the others' odometry, health and safety.
+    let scans = amr_actors::link::ScanSlots::default();
     let known: Arc<BTreeSet<String>> = Arc::new(robots.iter().cloned().collect());
     let mut declared: Vec<Box<dyn std::any::Any + Send>> = Vec::new();
 
     for channel in ["scan", "odom", "health"] {
-        let (up_tx, stats, known) = (up_tx.clone(), Arc::clone(&stats), Arc::clone(&known));
+        let (up_tx, stats, known, scans) =
+            (up_tx.clone(), Arc::clone(&stats), Arc::clone(&known), scans.clone());
         let fresh: Mutex<BTreeMap<String, Freshness>> = Mutex::default();
         let sub = session
             .declare_subscriber(format!("{PREFIX}/*/{channel}"))
@@ -589,6 +593,12 @@ pub async fn start_server_bridge(
                     Ok(u)
                 });
                 match checked {
+                    Ok(Uplink::Scan(scan)) => {
+                        stats.delivered.fetch_add(1, Ordering::Relaxed);
+                        if !scans.push(scan) {
+                            stats.queue_full.fetch_add(1, Ordering::Relaxed);
+                        }
+                    }
                     Ok(u) => {
                         if up_tx.try_send(u).is_ok() {
                             stats.delivered.fetch_add(1, Ordering::Relaxed);
@@ -708,7 +718,7 @@ pub async fn start_server_bridge(
         robots = ?robots,
         "link: server bridge listening"
     );
-    let end = ServerEnd { up: up_rx, down: DownlinkSender::new(downs) };
+    let end = ServerEnd { up: up_rx, scans, down: DownlinkSender::new(downs) };
     let sb = ServerBridge {
         bridge,
         alive: alive_rx,

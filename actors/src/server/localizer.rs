@@ -16,8 +16,8 @@ use super::ports::{ServerPorts, ServerStats};
 /// Messages of the localizer actor.
 #[derive(Debug)]
 pub enum LocalizerMsg {
-    /// A message the server received, with the clock when it came off the link.
-    Uplink(Box<Uplink>, f64),
+    /// Scans are waiting in [`ServerPorts::scans`].
+    Scans,
     /// Check for lost robots.
     Tick,
     /// A drill: for `during` from now, every scan first blocks the actor's worker thread for
@@ -39,6 +39,10 @@ pub(crate) struct LocalizerActor {
 #[derive(Debug)]
 pub(crate) struct LocalizerState {
     core: ServerCore,
+    /// A [`LocalizerMsg::Scans`] is queued: the waker sends no other until it is handled, so the
+    /// mailbox holds at most one however fast scans come.
+    pending: Arc<std::sync::atomic::AtomicBool>,
+    _waker: crate::robot::ports::AbortOnDrop<()>,
     /// The drill's stall per scan, and until when.
     #[cfg(feature = "fault-injection")]
     stall: Option<(Duration, Instant)>,
@@ -54,13 +58,25 @@ impl Actor for LocalizerActor {
         myself: ActorRef<LocalizerMsg>,
         (): (),
     ) -> Result<LocalizerState, ActorProcessingErr> {
-        self.ports.uplink.subscribe(myself.clone(), |(u, rx)| match &u {
-            Uplink::Scan(_) => Some(LocalizerMsg::Uplink(Box::new(u), rx)),
-            _ => None,
+        let pending = Arc::new(std::sync::atomic::AtomicBool::new(true));
+        let (slots, flag, me) = (self.ports.scans.clone(), Arc::clone(&pending), myself.clone());
+        let waker = tokio::spawn(async move {
+            loop {
+                if !flag.swap(true, std::sync::atomic::Ordering::SeqCst)
+                    && me.cast(LocalizerMsg::Scans).is_err()
+                {
+                    return;
+                }
+                slots.ready().await;
+            }
         });
+        // Whatever arrived while no localizer ran.
+        myself.cast(LocalizerMsg::Scans)?;
         myself.send_interval(Duration::from_millis(100), || LocalizerMsg::Tick);
         Ok(LocalizerState {
             core: ServerCore::new(self.setup.clone()),
+            pending,
+            _waker: crate::robot::ports::AbortOnDrop(waker),
             #[cfg(feature = "fault-injection")]
             stall: None,
         })
@@ -73,45 +89,14 @@ impl Actor for LocalizerActor {
         state: &mut LocalizerState,
     ) -> Result<(), ActorProcessingErr> {
         match msg {
-            LocalizerMsg::Uplink(u, rx) => {
-                #[cfg(feature = "fault-injection")]
-                let stall = state.stall;
-                let core = &mut state.core;
-                let mut times = StageTimes::default();
-                let mut amcl_s = 0.0;
-                let mut last = Instant::now();
-                let step = super::compute(|| {
-                    #[cfg(feature = "fault-injection")]
-                    if let Some((each, until)) = stall
-                        && Instant::now() < until
-                    {
-                        std::thread::sleep(each);
-                    }
-                    core.offer(&u, rx, &mut |lap| {
-                        let now = Instant::now();
-                        let d = now.duration_since(last).as_secs_f64();
-                        last = now;
-                        match lap {
-                            Lap::RobotAmcl => {}
-                            Lap::Pipeline(_, Stage::Preprocess) => times.preprocess_s += d,
-                            Lap::Pipeline(_, Stage::Tracking) => times.tracking_s += d,
-                            Lap::Pipeline(_, Stage::Heading) => times.heading_s += d,
-                            Lap::Pipeline(_, Stage::VirtualScan) => times.virtual_scan_s += d,
-                            Lap::VirtualAmcl(_) => amcl_s += d,
-                        }
-                    })
-                });
-                if step.odometry_restarted {
-                    ServerStats::add(&self.ports.stats.odometry_restarts);
+            LocalizerMsg::Scans => {
+                state.pending.store(false, std::sync::atomic::Ordering::SeqCst);
+                for (scan, rx) in self.ports.scans.take(self.ports.clock.now_s()) {
+                    let u = Uplink::Scan(scan);
+                    // For recorders and observers: the scans the localizer processed, in order.
+                    self.ports.uplink.send((u.clone(), rx));
+                    self.scan(state, &u, rx);
                 }
-                if let Some(why) = &step.refused {
-                    let n = self.ports.stats.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    // The first few, then every 1000th: a robot sending garbage cannot flood the log.
-                    if n < 10 || n.is_multiple_of(1000) {
-                        tracing::warn!(robot = %u.robot(), kind = why.kind(), %why, refused = n + 1, "localizer: scan refused");
-                    }
-                }
-                self.publish(&state.core, step, times, amcl_s);
             }
             LocalizerMsg::Tick => {
                 let now = self.ports.clock.now_s();
@@ -136,6 +121,48 @@ impl Actor for LocalizerActor {
 }
 
 impl LocalizerActor {
+    /// One scan through the core, and what came out published.
+    fn scan(&self, state: &mut LocalizerState, u: &Uplink, rx: f64) {
+        #[cfg(feature = "fault-injection")]
+        let stall = state.stall;
+        let core = &mut state.core;
+        let mut times = StageTimes::default();
+        let mut amcl_s = 0.0;
+        let mut last = Instant::now();
+        let step = super::compute(|| {
+            #[cfg(feature = "fault-injection")]
+            if let Some((each, until)) = stall
+                && Instant::now() < until
+            {
+                std::thread::sleep(each);
+            }
+            core.offer(u, rx, &mut |lap| {
+                let now = Instant::now();
+                let d = now.duration_since(last).as_secs_f64();
+                last = now;
+                match lap {
+                    Lap::RobotAmcl => {}
+                    Lap::Pipeline(_, Stage::Preprocess) => times.preprocess_s += d,
+                    Lap::Pipeline(_, Stage::Tracking) => times.tracking_s += d,
+                    Lap::Pipeline(_, Stage::Heading) => times.heading_s += d,
+                    Lap::Pipeline(_, Stage::VirtualScan) => times.virtual_scan_s += d,
+                    Lap::VirtualAmcl(_) => amcl_s += d,
+                }
+            })
+        });
+        if step.odometry_restarted {
+            ServerStats::add(&self.ports.stats.odometry_restarts);
+        }
+        if let Some(why) = &step.refused {
+            let n = self.ports.stats.refused.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            // The first few, then every 1000th: a robot sending garbage cannot flood the log.
+            if n < 10 || n.is_multiple_of(1000) {
+                tracing::warn!(robot = %u.robot(), kind = why.kind(), %why, refused = n + 1, "localizer: scan refused");
+            }
+        }
+        self.publish(&state.core, step, times, amcl_s);
+    }
+
     fn publish(&self, core: &ServerCore, step: super::core::Step, times: StageTimes, amcl_s: f64) {
         let ports = &self.ports;
         if let Some(all_back) = step.back {

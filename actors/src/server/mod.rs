@@ -229,7 +229,7 @@ pub async fn start_server(
     clock: FleetClock,
 ) -> Result<ServerTree, ServerError> {
     let ids: Vec<String> = setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect();
-    let ports = ServerPorts::new(ids, clock);
+    let ports = ServerPorts::with_scans(ids, clock, link.scans.clone());
     let events = EventLog::default();
     let formation_status = Arc::new(OutputPort::<FormationStatus>::default());
     let sc = &setup.scenario;

@@ -64,6 +64,9 @@ pub struct ServerPorts {
     /// Everything the robots sent, with the fleet clock when it came off the link (stamped once,
     /// here: the localizer's sync gate, the recorder and a replay all see the same time).
     pub uplink: OutputPort<(Uplink, f64)>,
+    /// The scans, apart from the rest of the uplink (bounded per robot): the localizer takes them
+    /// from here and publishes on `uplink` those it processes.
+    pub scans: crate::link::ScanSlots,
     pub fused: OutputPort<FusedFrame>,
     pub estimates: OutputPort<Estimate>,
     pub status: OutputPort<FusionStatus>,
@@ -78,11 +81,19 @@ pub struct ServerPorts {
 impl ServerPorts {
     #[must_use]
     pub fn new(robots: Vec<String>, clock: FleetClock) -> Arc<Self> {
+        Self::with_scans(robots, clock, crate::link::ScanSlots::default())
+    }
+
+    /// Ports whose scans come through `scans`.
+    #[must_use]
+    pub fn with_scans(robots: Vec<String>, clock: FleetClock, scans: crate::link::ScanSlots) -> Arc<Self> {
         let n = robots.len();
+        scans.stamp_with(clock);
         Arc::new(ServerPorts {
             clock,
             robots,
             uplink: OutputPort::default(),
+            scans,
             fused: OutputPort::default(),
             estimates: OutputPort::default(),
             status: OutputPort::default(),

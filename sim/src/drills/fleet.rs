@@ -698,8 +698,13 @@ pub(crate) async fn bad_scan(config: &Config, seed: u64, c: &mut Check) {
         scan(-2.35, deg, 0.05, 10.0, 271, now, false),
     ];
     c.inject();
+    // Where the link puts scans, one at a time (eight at once would fill the robot's slots, the
+    // newest replacing the oldest).
     for u in &bad {
-        sim.server.ports.uplink.send((u.clone(), now));
+        if let Uplink::Scan(scan) = u {
+            sim.server.ports.scans.push(scan.clone());
+        }
+        tokio::time::sleep(Duration::from_millis(30)).await;
     }
     c.detection = c
         .within("every bad scan refused and counted", Duration::from_secs(2), || {
