@@ -60,6 +60,15 @@ drills! {
     estop_restart => "estop-restart",
 }
 
+/// One robot floods the server with scans, shortened from 60 s to 15 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_flood_shortened() {
+    let _turn = ONE_AT_A_TIME.lock().await;
+    let config = load(&ConfigSource::Embedded).unwrap();
+    let outcome = amr_sim::drills::scan_flood(&config, 5, Duration::from_secs(15)).await;
+    assert!(outcome.passed, "{}\n{outcome:#?}", table(std::slice::from_ref(&outcome)));
+}
+
 /// The chaos soak, shortened from 10 minutes to 40 s: still several faults of several kinds.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn soak_shortened() {

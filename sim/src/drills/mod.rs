@@ -129,6 +129,10 @@ pub const DRILLS: &[Drill] = &[
         about: "e-stop, kill -9 the robot, restart it, re-arm: still EStop, no wheel moves until reset and arm; the same for a fault",
     },
     Drill {
+        name: "scan-flood",
+        about: "one robot sends scans at 10x its rate for 60 s: server memory bounded, the other's reports on time",
+    },
+    Drill {
         name: "soak",
         about: "seeded chaos: random faults from this list, invariants checked throughout",
     },
@@ -303,6 +307,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "estop" => devices::estop(config, seed, &mut c).await,
         "estop-input" => devices::estop_input(config, seed, &mut c).await,
         "estop-restart" => devices::estop_restart(config, seed, &mut c).await,
+        "scan-flood" => fleet::scan_flood(config, seed, fleet::FLOOD_FULL, &mut c).await,
         "soak" => soak::soak(config, seed, soak::SOAK_FULL, &mut c).await,
         _ => return None,
     }
@@ -310,6 +315,13 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
 }
 
 pub use soak::SOAK_MIN;
+
+/// The scan-flood drill, flooding for `length` (CI runs a shortened one).
+pub async fn scan_flood(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
+    let mut c = Check::new("scan-flood");
+    fleet::scan_flood(config, seed, length, &mut c).await;
+    c.finish()
+}
 
 /// The soak drill for `length` (CI runs a shortened one; at least [`SOAK_MIN`] to mean anything).
 pub async fn soak(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
