@@ -55,6 +55,8 @@ pub(crate) struct DriveState {
     states: BTreeMap<NodeId, State402>,
     resets: BTreeMap<NodeId, u32>,
     quick_stopped: bool,
+    /// Per drive, whether its digital inputs read the e-stop pressed.
+    inputs_pressed: std::collections::BTreeMap<NodeId, bool>,
     last_positions: Option<(i32, i32, f64)>,
     nodes: [NodeId; 2],
 }
@@ -73,11 +75,43 @@ impl DriveActor {
         [self.drive.drives().left.node_id, self.drive.drives().right.node_id]
     }
 
-    fn send(&self, state: &DriveState, cmd: MasterCommand) {
-        if let Some(bus) = &state.bus
-            && bus.commands.try_send(cmd).is_err()
-        {
+    /// Send `cmd` to the master; whether it was queued (false with no bus, or a full queue).
+    fn send(&self, state: &DriveState, cmd: MasterCommand) -> bool {
+        let Some(bus) = &state.bus else { return false };
+        let sent = bus.commands.try_send(cmd).is_ok();
+        if !sent {
             self.counters.count("drives.command_dropped");
+        }
+        sent
+    }
+
+    /// Ask for a quick stop (`true`) or enabled drives; remembered as done only once the master has
+    /// it (a full queue: asked again next cycle), or with no bus at all, when the next bus gets it.
+    fn set_quick_stop(&self, state: &mut DriveState, on: bool) {
+        let cmd = if on { MasterCommand::QuickStop } else { MasterCommand::Enable };
+        if self.send(state, cmd) || state.bus.is_none() {
+            state.quick_stopped = on;
+        }
+    }
+
+    /// The drive's digital inputs read `bits`: the e-stop input's level into the latch; a press
+    /// stops at once (`changed`: a new reading, counted).
+    fn on_inputs(&self, state: &mut DriveState, node: NodeId, bits: u32, changed: bool) {
+        let pressed = self.drive.drives().estop_pressed(bits);
+        let was = self.ports.estop_latch.sources() & crate::robot::ports::EStopSource::Input as u8 != 0;
+        // Pressed on any drive that reads the chain.
+        state.inputs_pressed.insert(node, pressed);
+        self.ports.estop_latch.input(state.inputs_pressed.values().any(|p| *p));
+        if pressed && (changed || !was) {
+            // The e-stop chain wired to the drive: latched like every e-stop (only a local reset
+            // clears it, once the input is released).
+            tracing::error!(robot = %self.ports.robot, node, bits, "e-stop input pressed");
+            self.counters.count("drives.estop_input");
+            self.ports.safety_inbox.push(SafetyInput::EStopInput);
+        }
+        if pressed && !state.quick_stopped {
+            // Not waiting for the safety layer's next cycle.
+            self.set_quick_stop(state, true);
         }
     }
 
@@ -150,6 +184,7 @@ impl Actor for DriveActor {
             states: BTreeMap::new(),
             resets: BTreeMap::new(),
             quick_stopped: false,
+            inputs_pressed: std::collections::BTreeMap::new(),
             last_positions: None,
             nodes: self.nodes(),
         })
@@ -237,7 +272,13 @@ impl DriveActor {
                 }
             }
             DriveMsg::Master(ev) => match ev {
-                MasterEvent::Cycle { positions } => self.odometry(state, &positions),
+                MasterEvent::Cycle { positions, inputs } => {
+                    self.odometry(state, &positions);
+                    // The inputs' level every cycle: a lost change event cannot hide a press.
+                    for (node, bits) in inputs {
+                        self.on_inputs(state, node, bits, false);
+                    }
+                }
                 MasterEvent::Enabled { node } => {
                     state.enabled.insert(node);
                     state.resets.remove(&node);
@@ -279,18 +320,14 @@ impl DriveActor {
                     tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
                 }
                 MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
-                MasterEvent::Inputs { node, bits } => {
-                    let pressed = self.drive.drives().estop_pressed(bits);
-                    self.ports.estop_latch.input(pressed);
-                    if pressed {
-                        // The e-stop chain wired to the drive: latched like every e-stop (only a
-                        // local reset clears it, once the input is released).
-                        tracing::error!(robot = %self.ports.robot, node, bits, "e-stop input pressed");
-                        self.counters.count("drives.estop_input");
-                        self.ports.safety_inbox.push(SafetyInput::EStopInput);
-                        // Not waiting for the safety layer's next cycle.
-                        state.quick_stopped = true;
-                        self.send(state, MasterCommand::QuickStop);
+                MasterEvent::Inputs { node, bits } => self.on_inputs(state, node, bits, true),
+                MasterEvent::EventsLost { count } => {
+                    tracing::error!(robot = %self.ports.robot, count, "CANopen events lost: drives degraded");
+                    self.counters.count("drives.events_lost");
+                    state.enabled.clear();
+                    state.health.set(&self.ports, Health::Degraded, "CANopen events lost");
+                    if !state.quick_stopped {
+                        self.send(state, MasterCommand::Enable);
                     }
                 }
                 // The bus's error state is the CAN bus actor's health.
@@ -301,11 +338,7 @@ impl DriveActor {
             },
             DriveMsg::Wheels(c) => {
                 if c.quick_stop != state.quick_stopped {
-                    state.quick_stopped = c.quick_stop;
-                    self.send(
-                        state,
-                        if c.quick_stop { MasterCommand::QuickStop } else { MasterCommand::Enable },
-                    );
+                    self.set_quick_stop(state, c.quick_stop);
                 }
                 let targets = if c.quick_stop {
                     self.nodes().map(|n| (n, 0))

@@ -173,14 +173,24 @@ pub enum MasterEvent {
         /// The node.
         node: NodeId,
     },
-    /// A SYNC was sent; the positions received since the previous one (for odometry).
+    /// A SYNC was sent; the positions received since the previous one (for odometry), and the
+    /// digital inputs as last read (their level every cycle: a lost [`MasterEvent::Inputs`]
+    /// cannot hide a pressed e-stop).
     Cycle {
         /// (node, position actual) of each drive whose TPDO2 arrived.
         positions: Vec<(NodeId, i32)>,
+        /// (node, 0x60FD) of each operational drive whose inputs are watched and known.
+        inputs: Vec<(NodeId, u32)>,
     },
     /// No target was set for [`MasterConfig::target_hold_ms`]: every target is zero from this
     /// cycle on, until the next [`Master::set_targets`].
     TargetsExpired,
+    /// Events were dropped on their way to the user (its queue was full): what the drives did
+    /// meanwhile is unknown (from the shell, not the master).
+    EventsLost {
+        /// How many.
+        count: u64,
+    },
     /// A user SDO request finished.
     SdoDone {
         /// The id returned when it was queued.
@@ -358,10 +368,13 @@ impl Master {
     pub fn enable(&mut self, now: Instant) {
         self.goal = Goal::Enabled;
         let t = ms(self.config.enable_timeout_ms);
-        // Drives still booting or configuring get their deadline when configured.
+        // Drives still booting or configuring get their deadline when configured; those enabled
+        // already are confirmed again (the user may have lost the first confirmation).
         for d in &mut self.drives {
             if d.phase == Phase::Operational && d.state != Some(State402::OperationEnabled) {
                 d.enable_deadline = Some(now + t);
+            } else if d.phase == Phase::Operational {
+                self.events.push_back(MasterEvent::Enabled { node: d.setup.node_id });
             }
         }
     }
@@ -529,8 +542,14 @@ impl Master {
                 }
             })
             .collect();
+        let inputs: Vec<(NodeId, u32)> = self
+            .drives
+            .iter()
+            .filter(|d| d.phase == Phase::Operational)
+            .filter_map(|d| Some((d.setup.node_id, d.inputs?)))
+            .collect();
         if self.drives.iter().any(|d| d.phase == Phase::Operational) {
-            self.events.push_back(MasterEvent::Cycle { positions });
+            self.events.push_back(MasterEvent::Cycle { positions, inputs });
         }
         let moving = self.all_enabled() && self.goal == Goal::Enabled;
         for d in &mut self.drives {
@@ -658,6 +677,11 @@ impl Master {
             return;
         }
         self.events.push_back(MasterEvent::StateChanged { node, state: new });
+        if old == Some(State402::OperationEnabled) || new == State402::OperationEnabled {
+            // Leaving Operation enabled, and entering it again: the targets set before do not
+            // apply; motion needs a target set after the drive is back.
+            self.zero_targets();
+        }
         let d = &mut self.drives[i];
         if new == State402::Fault {
             let error_code = d.last_emcy_code;
@@ -691,14 +715,34 @@ impl Master {
         self.events.push_back(MasterEvent::Error(e));
     }
 
-    /// Send a reset-communication to drive `i` and wait for its boot-up.
+    /// Stop drive `i`, then send it a reset-communication and wait for its boot-up.
+    ///
+    /// Stop first: a reset of communication (CiA 301) leaves the drive's application running, in
+    /// whatever state and at whatever target it had, and resets its watchdog of our heartbeat
+    /// (0x1016) to off until it is configured again. So a quick stop (0x6040 = 0x0002) and a zero
+    /// target (0x60FF = 0) go first, as expedited SDO writes, which a drive takes in
+    /// PRE-OPERATIONAL and OPERATIONAL alike (PDOs only in the latter); their confirmations find
+    /// no request in flight and are ignored.
     fn reset_drive(&mut self, i: usize, now: Instant) {
         let d = &mut self.drives[i];
         d.phase = Phase::WaitingBoot;
         d.state = None;
         d.enable_deadline = None;
+        d.sdo.cancel();
+        d.current = None;
+        d.jobs.clear();
         d.boot_deadline = Some(now + ms(self.config.can.boot_timeout_ms));
-        self.tx.push_back(NmtCommand::ResetCommunication.frame(d.setup.node_id));
+        let node = d.setup.node_id;
+        let stop = [
+            (ObjectAddr::new(0x6040, 0), controlword::QUICK_STOP.to_le_bytes().to_vec()),
+            (ObjectAddr::new(0x60FF, 0), 0i32.to_le_bytes().to_vec()),
+        ];
+        for (addr, data) in stop {
+            if let Some(body) = super::sdo::expedited_download(addr, &data) {
+                self.tx.push_back(Cob::SdoRequest(node).frame(&body));
+            }
+        }
+        self.tx.push_back(NmtCommand::ResetCommunication.frame(node));
     }
 
     /// A boot-up: forget the drive's state and configure it again before it may be enabled.

@@ -44,6 +44,8 @@ pub async fn run_master<T: CanTransport>(
     mut commands: mpsc::Receiver<MasterCommand>,
     events: mpsc::Sender<MasterEvent>,
 ) -> Result<(), CanopenError> {
+    // Events dropped since the user last heard of a loss.
+    let mut lost: u64 = 0;
     // Bounded by the inputs: each pass handles one frame, command or timeout.
     loop {
         while let Some(frame) = master.poll_transmit() {
@@ -53,11 +55,18 @@ pub async fn run_master<T: CanTransport>(
                 return Err(err);
             }
         }
+        // Never block the master (its heartbeat keeps the drives alive): drop on a full channel,
+        // and say so as soon as there is room, before any newer event.
+        if lost > 0 && events.try_send(MasterEvent::EventsLost { count: lost }).is_ok() {
+            lost = 0;
+        }
         while let Some(ev) = master.poll_event() {
-            // Never block the master (its heartbeat keeps the drives alive): drop on a full channel.
             match events.try_send(ev) {
                 Ok(()) => {}
-                Err(mpsc::error::TrySendError::Full(ev)) => tracing::warn!(?ev, "master event dropped"),
+                Err(mpsc::error::TrySendError::Full(ev)) => {
+                    tracing::warn!(?ev, "master event dropped: the drives will count as degraded");
+                    lost += 1;
+                }
                 Err(mpsc::error::TrySendError::Closed(_)) => return Ok(()),
             }
         }

@@ -213,8 +213,11 @@ mod canopen {
     fn canopen_master_startup_frames_are_the_golden_ones() {
         let mut sim = Sim::new();
         sim.run(200);
-        // Reset communication first, then pre-operational after the boot-up.
-        assert_eq!(sim.sent[0], Cob::Nmt.frame(&[0x82, NODE]));
+        // Stop first (a reset of communication leaves a running drive running): quick stop and a
+        // zero target by SDO, then the reset, then pre-operational after the boot-up.
+        assert_eq!(sim.sent[0], Cob::SdoRequest(NODE).frame(&[0x2B, 0x40, 0x60, 0x00, 0x02, 0x00, 0, 0]));
+        assert_eq!(sim.sent[1], Cob::SdoRequest(NODE).frame(&[0x23, 0xFF, 0x60, 0x00, 0, 0, 0, 0]));
+        assert_eq!(sim.sent[2], Cob::Nmt.frame(&[0x82, NODE]));
         assert!(sim.sent.contains(&Cob::Nmt.frame(&[0x80, NODE])));
         let sdo = sim.sdo_bodies();
         let expected: [[u8; 8]; 6] = [
@@ -418,15 +421,23 @@ mod canopen {
         sim.run(40);
         let f = sim.sent.iter().rev().find(|f| f.cob() == Cob::Rpdo(1, NODE)).unwrap();
         assert_eq!(pdo::unpack(&pdo::RPDO1_MAP, f.data()).unwrap()[1], 4000, "a fresh command moves again");
-        let reset = sim.sent[lost_index..].iter().find(|f| f.cob() == Cob::Nmt).unwrap();
-        assert_eq!(reset.data(), [0x82, NODE], "reset communication on the loss");
+        let at = sim.sent[lost_index..].iter().position(|f| f.cob() == Cob::Nmt).unwrap() + lost_index;
+        assert_eq!(sim.sent[at].data(), [0x82, NODE], "reset communication on the loss");
+        // Stop first: quick stop and zero target by SDO just before the reset.
+        assert_eq!(
+            sim.sent[at - 2],
+            Cob::SdoRequest(NODE).frame(&[0x2B, 0x40, 0x60, 0x00, 0x02, 0x00, 0, 0])
+        );
+        assert_eq!(sim.sent[at - 1], Cob::SdoRequest(NODE).frame(&[0x23, 0xFF, 0x60, 0x00, 0, 0, 0, 0]));
         assert_eq!(sim.master.drive_status(NODE).unwrap().configurations, 2);
     }
 
     #[test]
     fn canopen_master_retries_a_lost_sdo_reply_then_resets_after_three() {
+        // The first two replies the fake drops answer the quick stop and zero target written before
+        // the reset (which the master does not wait for): two more are configuration replies.
         let mut sim = Sim::new();
-        sim.drive.drop_sdo_replies = 2;
+        sim.drive.drop_sdo_replies = 2 + 2;
         sim.run(1500);
         // Two timeouts (500 ms each) absorbed by retries: configured once, no error.
         assert!(!sim.events.iter().any(|e| matches!(e, MasterEvent::Error(_))), "{:?}", sim.events);
@@ -435,7 +446,7 @@ mod canopen {
         assert_eq!(uploads, 3, "0x1000 asked three times");
         // Three in a row: reported, the drive is reset and configured again.
         let mut sim = Sim::new();
-        sim.drive.drop_sdo_replies = 3;
+        sim.drive.drop_sdo_replies = 2 + 3;
         sim.run(2500);
         assert!(sim.events.iter().any(|e| matches!(
             e,

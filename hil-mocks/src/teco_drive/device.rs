@@ -609,7 +609,7 @@ impl TecoDrive {
             sdo_delay: Duration::ZERO,
             drop_next: 0,
         };
-        d.boot_up(now);
+        d.boot_up(now, false);
         d
     }
 
@@ -618,11 +618,33 @@ impl TecoDrive {
         self.od.cfg.node_id
     }
 
-    fn boot_up(&mut self, now: Instant) {
+    /// A boot-up: after a power-on or NMT Reset Node everything starts afresh; after NMT Reset
+    /// Communication (`keep_application`) only the communication objects do (CiA 301: NMT state,
+    /// 0x1016, 0x1017, the PDOs), while the application — the CiA 402 state machine, its mode,
+    /// target and ramps, and the motor — runs on as it was.
+    fn boot_up(&mut self, now: Instant, keep_application: bool) {
         let (motor, inputs) = (self.od.motor.clone(), self.od.inputs);
         let mut stats = self.od.stats;
         stats.boots += 1;
+        let o = &self.od;
+        let app = keep_application.then_some((
+            o.state,
+            o.controlword,
+            o.mode,
+            o.mode_display,
+            o.target_velocity,
+            (o.accel, o.decel, o.quick_stop_decel),
+            o.comm_loss,
+            o.error_code,
+        ));
         self.od = Objects::boot(self.od.cfg.clone(), now, motor, stats);
+        if let Some((state, cw, mode, display, target, (accel, decel, quick), comm_loss, error)) = app {
+            let o = &mut self.od;
+            (o.state, o.controlword, o.mode, o.mode_display, o.target_velocity) =
+                (state, cw, mode, display, target);
+            (o.accel, o.decel, o.quick_stop_decel, o.comm_loss, o.error_code) =
+                (accel, decel, quick, comm_loss, error);
+        }
         self.od.inputs = inputs;
         self.sdo = SdoServer::new();
         self.pending_rpdo = None;
@@ -755,7 +777,8 @@ impl TecoDrive {
                         NmtCommand::Start => self.od.nmt = NmtState::Operational,
                         NmtCommand::Stop => self.od.nmt = NmtState::Stopped,
                         NmtCommand::EnterPreOperational => self.od.nmt = NmtState::PreOperational,
-                        NmtCommand::ResetNode | NmtCommand::ResetCommunication => self.boot_up(now),
+                        NmtCommand::ResetNode => self.boot_up(now, false),
+                        NmtCommand::ResetCommunication => self.boot_up(now, true),
                     }
                 }
             }
@@ -807,7 +830,7 @@ impl TecoDrive {
             Fault::DriveFault { code } => self.od.fault(code),
             Fault::HeartbeatLoss(on) => self.heartbeat_silent = on,
             Fault::BusOff { duration } => self.bus_off_until = Some(now + duration),
-            Fault::Reboot => self.boot_up(now),
+            Fault::Reboot => self.boot_up(now, false),
             Fault::SdoAbort { index, code } => self.sdo_abort = Some((index, AbortCode(code))),
             Fault::SlowSdo(d) => self.sdo_delay = d,
             Fault::DropFrames(n) => self.drop_next = n,

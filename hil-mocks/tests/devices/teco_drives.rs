@@ -120,7 +120,7 @@ mod teco {
             let mut seen = Vec::new();
             let found = tokio::time::timeout(within, async {
                 while let Some(ev) = self.master.events.recv().await {
-                    if let MasterEvent::Cycle { positions } = &ev {
+                    if let MasterEvent::Cycle { positions, .. } = &ev {
                         let l = positions.iter().find(|(n, _)| *n == LEFT).map(|p| p.1);
                         let r = positions.iter().find(|(n, _)| *n == RIGHT).map(|p| p.1);
                         if let (Some(l), Some(r)) = (l, r) {
@@ -456,10 +456,38 @@ mod teco {
             assert_eq!(s.controlword, 0x0002);
             wait_drive(d, Duration::from_secs(2), |s| s.velocity_cps == 0.0).await;
         }
-        // Enable again: through Switch on disabled back to Operation enabled, then moving.
+        // Enable again: through Switch on disabled back to Operation enabled, at zero: the target set
+        // before the drives left Operation enabled no longer applies.
         rig.enable_both().await;
+        rig.run_for(Duration::from_millis(500)).await;
+        for d in &rig.drives {
+            let s = d.now();
+            assert!(s.state == State402::OperationEnabled && s.velocity_cps == 0.0, "{s:?}");
+        }
+        // A target set after re-entry moves them.
+        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.2, 0.0).to_vec())).await;
         wait_drive(rig.drive(RIGHT), Duration::from_secs(2), |s| s.velocity_cps < -90_000.0).await;
         assert!(!rig.log.iter().any(|e| matches!(e, MasterEvent::Error(_))), "{:?}", rig.log);
+    }
+
+    /// NMT Reset Communication (CiA 301) resets the communication objects, not the application: a
+    /// drive in Operation enabled runs on at its target (its watchdog of the master's heartbeat,
+    /// 0x1016, off and its PDOs unmapped until it is configured again). So a master must stop a
+    /// drive before it resets one.
+    #[tokio::test(start_paused = true)]
+    async fn teco_reset_communication_leaves_the_application_running() {
+        use amr_drivers::canopen::nmt::NmtCommand;
+        let mut rig = Rig::new().await;
+        rig.enable_both().await;
+        rig.send(MasterCommand::SetTargets(rig.dd.wheel_targets(0.2, 0.0).to_vec())).await;
+        rig.run_for(Duration::from_secs(1)).await;
+        let before = rig.drive(LEFT).now();
+        assert!(before.velocity_cps > 90_000.0 && before.master_consumer != 0, "{before:?}");
+        // From outside the master, so it has no part in it.
+        rig.sniffer.send_now(NmtCommand::ResetCommunication.frame(LEFT));
+        let after = wait_drive(rig.drive(LEFT), Duration::from_secs(1), |s| s.boots > before.boots).await;
+        assert_eq!(after.state, State402::OperationEnabled, "the application runs on");
+        assert!(after.velocity_cps > 90_000.0, "still turning: {after:?}");
     }
 
     #[tokio::test(start_paused = true)]

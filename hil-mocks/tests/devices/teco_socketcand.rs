@@ -189,7 +189,7 @@ mod teco {
                             moving_since = Some(tokio::time::Instant::now());
                         }
                     }
-                    MasterEvent::Cycle { positions } if positions.len() == 2 => {
+                    MasterEvent::Cycle { positions, .. } if positions.len() == 2 => {
                         odo.update(&dd, positions[0].1, positions[1].1);
                         if moving_since.is_some_and(|t| t.elapsed() > Duration::from_millis(600))
                             && stopped_at.is_none()

@@ -1090,3 +1090,36 @@ pub(crate) async fn estop_restart(config: &Config, seed: u64, c: &mut Check) {
     rig.tree.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// The CANopen master dies while the robot drives and a new one starts (the CAN bus actor
+/// restarted): a reset of communication leaves a drive's application running at its last target
+/// with its watchdog of the master off, so the new master quick-stops each drive before it resets
+/// it. Every drive enters Quick stop active and the wheels are at rest within the restart's backoff
+/// and the quick-stop ramp; the robot is halted and moves again only after a new arm.
+pub(crate) async fn new_master_moving(config: &Config, seed: u64, c: &mut Check) {
+    let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
+    let v = 0.2;
+    let Some(feed) = drive_until_turning(&rig, v, c).await else { return };
+    let Some(drives_cell) = child(&rig.tree.supervisor, "drives").await else {
+        return c.fail("setup: no `drives` supervisor");
+    };
+    let drives_sup: ActorRef<SupervisorMsg> = drives_cell.into();
+    let Some(bus) = child(&drives_sup, "can-bus").await else { return c.fail("setup: no `can-bus` actor") };
+    let n0 = rig.tree.events.len();
+    let ramp = Duration::from_secs_f64(v / rig.robot.devices.drives.quick_stop_decel_mps2);
+    c.inject();
+    let _ = ActorRef::<CanBusMsg>::from(bus).cast(CanBusMsg::InjectFailure("drill: master died".into()));
+    c.detection = c
+        .within("every drive quick-stopped by the new master", Duration::from_millis(600), || {
+            rig.mocks.drives.iter().all(|d| d.now().state == State402::QuickStopActive)
+        })
+        .await;
+    // The restart's backoff (100 ms), the quick-stop ramp, and a margin for the scheduler.
+    c.safe_state = c
+        .within("the wheels at rest", Duration::from_millis(100) + ramp + Duration::from_millis(400), || {
+            wheels_still(&rig)
+        })
+        .await;
+    refused_until_rearmed(&rig, c, feed, Duration::from_secs(1), v).await;
+    wrap_up(rig, c, n0).await;
+}

@@ -766,7 +766,7 @@ impl Actor for OwnEstimates {
 }
 
 /// How long the full scan-flood drill floods.
-pub const FLOOD_FULL: Duration = Duration::from_secs(60);
+pub(crate) const FLOOD_FULL: Duration = Duration::from_secs(60);
 
 /// One robot sends scans at ten times its LiDAR's rate (a faulty robot, or one with a stolen key):
 /// the server holds a bounded number of its scans (the newest replacing the oldest) and its

@@ -87,6 +87,10 @@ pub const DRILLS: &[Drill] = &[
         about: "an e-stop over the link while the safety actor restarts: latched, drives zeroed by the master's hold, back in EStop",
     },
     Drill {
+        name: "new-master-moving",
+        about: "the CANopen master dies while the robot drives: the new one quick-stops every drive before resetting it",
+    },
+    Drill {
         name: "drive-fault-moving",
         about: "a drive faults while the robot drives: halted, the drive reset and enabled at zero, no motion until a new arm",
     },
@@ -292,6 +296,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "drive-heartbeat" => devices::drive_heartbeat(config, seed, &mut c).await,
         "drive-reboot" => devices::drive_reboot(config, seed, &mut c).await,
         "drive-fault-moving" => devices::drive_fault_moving(config, seed, &mut c).await,
+        "new-master-moving" => devices::new_master_moving(config, seed, &mut c).await,
         "estop-during-restart" => devices::estop_during_restart(config, seed, &mut c).await,
         "safety-crash-moving" => devices::safety_crash_moving(config, seed, &mut c).await,
         "robot-restart-odometry" => fleet::robot_restart_odometry(config, seed, &mut c).await,
