@@ -29,11 +29,14 @@ pub const SCANS_PER_ROBOT: usize = 8;
 #[derive(Debug, Clone)]
 pub struct ScanSlots(Arc<SlotsInner>);
 
+/// A scan held: its arrival number, the scan, and when it arrived (once the clock is known).
+type Held = (u64, ScanMsg, Option<f64>);
+
 #[derive(Debug)]
 struct SlotsInner {
     per_robot: usize,
-    /// Arrival counter, and per robot its queue of (arrival, scan, received).
-    queues: Mutex<(u64, BTreeMap<String, VecDeque<(u64, ScanMsg, Option<f64>)>>)>,
+    /// Arrival counter, and per robot its queue.
+    queues: Mutex<(u64, BTreeMap<String, VecDeque<Held>>)>,
     ready: Notify,
     clock: OnceLock<FleetClock>,
     dropped: AtomicU64,
@@ -90,7 +93,7 @@ impl ScanSlots {
     #[must_use]
     pub fn take(&self, now_s: f64) -> Vec<(ScanMsg, f64)> {
         let mut q = self.0.queues.lock().unwrap_or_else(PoisonError::into_inner);
-        let mut all: Vec<(u64, ScanMsg, Option<f64>)> = q.1.values_mut().flat_map(std::mem::take).collect();
+        let mut all: Vec<Held> = q.1.values_mut().flat_map(std::mem::take).collect();
         drop(q);
         all.sort_by_key(|(n, _, _)| *n);
         all.into_iter().map(|(_, s, rx)| (s, rx.unwrap_or(now_s))).collect()

@@ -117,7 +117,6 @@ fn stdin_lines() -> tokio::sync::mpsc::Receiver<String> {
 
 /// `amr robot --config FILE [--mock [MANIFEST]]`: one robot's tree, linked to the server over the
 /// network, until Ctrl-C or SIGTERM (the drives quick-stop).
-
 pub(crate) fn robot(
     file: &Path,
     mock: Option<&Path>,
