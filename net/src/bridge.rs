@@ -28,8 +28,8 @@ use zenoh::sample::SampleKind;
 
 use crate::settings::{NetError, NetSettings, PREFIX};
 use crate::wire::{
-    Body, Envelope, Freshness, Reject, check_enabling_age, from_downlink, from_uplink, is_estop, to_downlink,
-    to_estop, to_uplink, uplink_channel,
+    Body, DownlinkGate, Envelope, Freshness, Reject, from_downlink, from_uplink, is_estop, to_uplink,
+    uplink_channel,
 };
 
 /// Queue depth between the trees and the bridge (as the in-process link's).
@@ -410,22 +410,18 @@ impl RobotLink {
 
         // Commands: decoded, checked (for me, from the server, newer than the last) and passed on.
         // The safety layer then applies its own rules (armed, sequence floor, stamp age). A disarm
-        // is taken whatever its session, sequence or stamp: a stop is never refused.
-        let fresh = Mutex::new(Freshness::default());
-        let (me, cmd_stats, cmd_key, cmd_down) =
-            (robot.clone(), Arc::clone(&stats), key("cmd"), down.clone());
+        // is taken whatever its session, sequence or stamp: a stop is never refused
+        // ([`DownlinkGate::on_cmd`]).
+        let gate = Arc::new(Mutex::new(DownlinkGate::default()));
+        let (me, cmd_stats, cmd_key, cmd_down, cmd_gate) =
+            (robot.clone(), Arc::clone(&stats), key("cmd"), down.clone(), Arc::clone(&gate));
         let _subscriber = session
             .declare_subscriber(cmd_key.clone())
             .callback(move |sample| {
                 let bytes = sample.payload().to_bytes();
                 let checked = Envelope::decode(&bytes).and_then(|env| {
-                    // For this robot and from the server, before it may touch the replay record.
-                    let d = to_downlink(env.clone(), &me, &server)?;
-                    if d != Downlink::Disarm {
-                        check_enabling_age(&env, clock.now_s())?;
-                        fresh.lock().unwrap_or_else(PoisonError::into_inner).check(&env, wall_now_s())?;
-                    }
-                    Ok(d)
+                    let mut gate = cmd_gate.lock().unwrap_or_else(PoisonError::into_inner);
+                    gate.on_cmd(&env, &me, &server, clock.now_s(), wall_now_s())
                 });
                 match checked {
                     Ok(d) => deliver(&cmd_down, &cmd_stats, d),
@@ -438,24 +434,17 @@ impl RobotLink {
         // (`fleet/<robot>/estop/<sender>`), which the server's access control lets only that
         // authenticated name publish on: the sender is the key's, never a field it fills in. An
         // e-stop is taken whatever its session, sequence or stamp; a reset is checked for age and
-        // replay against that sender's own record. Then into the same queue as the commands, in
-        // arrival order.
-        let fresh_per_sender: Mutex<BTreeMap<String, Freshness>> = Mutex::new(BTreeMap::new());
+        // replay against that sender's own record ([`DownlinkGate::on_estop`]). Then into the same
+        // queue as the commands, in arrival order.
         let (me, estop_stats, estop_key) = (robot.clone(), Arc::clone(&stats), key("estop/*"));
         let _estop_subscriber = session
             .declare_subscriber(estop_key.clone())
             .callback(move |sample| {
                 let bytes = sample.payload().to_bytes();
-                let sender = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_owned();
+                let sender = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default();
                 let checked = Envelope::decode(&bytes).and_then(|env| {
-                    let d = to_estop(env.clone(), &me, &sender, &estop_senders)?;
-                    if d == Downlink::EStop {
-                        return Ok(d);
-                    }
-                    check_enabling_age(&env, clock.now_s())?;
-                    let mut fresh = fresh_per_sender.lock().unwrap_or_else(PoisonError::into_inner);
-                    fresh.entry(sender.clone()).or_default().check(&env, wall_now_s())?;
-                    Ok(d)
+                    let mut gate = gate.lock().unwrap_or_else(PoisonError::into_inner);
+                    gate.on_estop(&env, &me, sender, &estop_senders, clock.now_s(), wall_now_s())
                 });
                 match checked {
                     Ok(d) => deliver(&down, &estop_stats, d),

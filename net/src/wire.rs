@@ -10,6 +10,8 @@
 //!
 //! Decoding never panics: any byte sequence gives an envelope or a [`Reject`] with the reason.
 
+use std::collections::BTreeMap;
+
 use amr_msgs::{Downlink, MAX_BEAMS, SCHEMA_VERSION, ServerStatus, Uplink};
 use serde::{Deserialize, Serialize};
 
@@ -348,6 +350,61 @@ pub fn check_enabling_age(env: &Envelope, now_s: f64) -> Result<(), Reject> {
     Ok(())
 }
 
+/// The checks a robot's bridge applies to what it receives, per key, with the replay records they
+/// keep: commands and arms on `fleet/<robot>/cmd` ([`DownlinkGate::on_cmd`]), e-stops and resets
+/// on `fleet/<robot>/estop/<sender>` ([`DownlinkGate::on_estop`]). Pure: the clocks are passed in.
+#[derive(Debug, Default, Clone)]
+pub struct DownlinkGate {
+    /// The server's envelopes on `cmd`.
+    cmd: Freshness,
+    /// Each sender's envelopes on its e-stop key.
+    per_sender: BTreeMap<String, Freshness>,
+}
+
+impl DownlinkGate {
+    /// An envelope received on `fleet/<me>/cmd`: for `me` and from `server` (checked before it may
+    /// touch the replay record), then an arm checked for age ([`check_enabling_age`], on the fleet
+    /// clock) and anything but a disarm for replay ([`Freshness`], on the wall clock). A disarm is
+    /// taken whatever its session, sequence or stamp: a stop is never refused.
+    pub fn on_cmd(
+        &mut self,
+        env: &Envelope,
+        me: &str,
+        server: &str,
+        now_fleet_s: f64,
+        now_wall_s: f64,
+    ) -> Result<Downlink, Reject> {
+        let d = to_downlink(env.clone(), me, server)?;
+        if d != Downlink::Disarm {
+            check_enabling_age(env, now_fleet_s)?;
+            self.cmd.check(env, now_wall_s)?;
+        }
+        Ok(d)
+    }
+
+    /// An envelope received on `fleet/<me>/estop/<sender>` (`sender`: the key's last segment): for
+    /// `me`, from one of `senders`, naming `sender` ([`to_estop`]). An e-stop is taken whatever its
+    /// session, sequence or stamp; a reset is checked for age and for replay against `sender`'s own
+    /// record.
+    pub fn on_estop(
+        &mut self,
+        env: &Envelope,
+        me: &str,
+        sender: &str,
+        senders: &[String],
+        now_fleet_s: f64,
+        now_wall_s: f64,
+    ) -> Result<Downlink, Reject> {
+        let d = to_estop(env.clone(), me, sender, senders)?;
+        if d == Downlink::EStop {
+            return Ok(d);
+        }
+        check_enabling_age(env, now_fleet_s)?;
+        self.per_sender.entry(sender.to_owned()).or_default().check(env, now_wall_s)?;
+        Ok(d)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, reason = "tests")]
@@ -516,6 +573,137 @@ mod tests {
         ));
         assert!(check_enabling_age(&at(Downlink::EStop, 10.0), now).is_ok(), "stopping is always safe");
         assert!(check_enabling_age(&at(Downlink::Disarm, 10.0), now).is_ok());
+    }
+
+    /// An envelope on robot-a's downlink keys: session `session_s` (s), sequence `seq`, stamped
+    /// `stamp_s`, from `origin`.
+    fn down(d: Downlink, origin: &str, session_s: u64, seq: u64, stamp_s: f64) -> Envelope {
+        Envelope {
+            session: session_s * 1_000_000_000,
+            seq,
+            origin: origin.into(),
+            stamp_s,
+            ..env(Body::Downlink(d))
+        }
+    }
+
+    fn senders() -> Vec<String> {
+        vec!["server".into(), "op".into()]
+    }
+
+    #[test]
+    fn the_gate_takes_an_estop_whatever_its_session_sequence_or_stamp() {
+        let now = 2000.0;
+        let mut g = DownlinkGate::default();
+        // The operator's newer session resets; an e-stop from its earlier run, replayed, long
+        // stamped, is taken all the same.
+        let reset = down(Downlink::ResetEStop, "op", 1500, 5, now);
+        assert_eq!(g.on_estop(&reset, "robot-a", "op", &senders(), now, now), Ok(Downlink::ResetEStop));
+        let old = down(Downlink::EStop, "op", 1000, 1, 10.0);
+        assert_eq!(g.on_estop(&old, "robot-a", "op", &senders(), now, now), Ok(Downlink::EStop));
+        assert_eq!(g.on_estop(&old, "robot-a", "op", &senders(), now, now), Ok(Downlink::EStop), "again");
+        // A reset is checked against the sender's record: a replay or an earlier session is refused.
+        assert!(matches!(
+            g.on_estop(&reset, "robot-a", "op", &senders(), now, now),
+            Err(Reject::Replayed { .. })
+        ));
+        let older = down(Downlink::ResetEStop, "op", 1000, 9, now);
+        assert!(matches!(
+            g.on_estop(&older, "robot-a", "op", &senders(), now, now),
+            Err(Reject::OldSession { .. })
+        ));
+        // Each sender has its own record: the server's reset of the same numbers is taken.
+        let server = down(Downlink::ResetEStop, "server", 1500, 5, now);
+        assert_eq!(g.on_estop(&server, "robot-a", "server", &senders(), now, now), Ok(Downlink::ResetEStop));
+        // A stale or future reset is refused before it touches the record.
+        let stale = down(Downlink::ResetEStop, "server", 1900, 1, now - 3.0);
+        assert!(matches!(
+            g.on_estop(&stale, "robot-a", "server", &senders(), now, now),
+            Err(Reject::Stale { .. })
+        ));
+        let next = down(Downlink::ResetEStop, "server", 1500, 6, now);
+        assert!(g.on_estop(&next, "robot-a", "server", &senders(), now, now).is_ok());
+    }
+
+    #[test]
+    fn the_gate_refuses_a_forged_origin_an_unknown_sender_or_another_robot_on_the_estop_key() {
+        let now = 2000.0;
+        let mut g = DownlinkGate::default();
+        // On the operator's key, an envelope that says it is the server's.
+        let forged = down(Downlink::ResetEStop, "server", 1500, 1, now);
+        assert!(matches!(
+            g.on_estop(&forged, "robot-a", "op", &senders(), now, now),
+            Err(Reject::ForgedOrigin { .. })
+        ));
+        let stranger = down(Downlink::EStop, "mallory", 1500, 1, now);
+        assert!(matches!(
+            g.on_estop(&stranger, "robot-a", "mallory", &senders(), now, now),
+            Err(Reject::NotAnOperator { .. })
+        ));
+        let mut other = down(Downlink::EStop, "op", 1500, 1, now);
+        other.robot = "robot-b".into();
+        assert!(matches!(
+            g.on_estop(&other, "robot-a", "op", &senders(), now, now),
+            Err(Reject::WrongRobot { .. })
+        ));
+        let arm = down(Downlink::Arm { seq: 1, stops: 1, stamp_s: now }, "op", 1500, 1, now);
+        assert!(matches!(
+            g.on_estop(&arm, "robot-a", "op", &senders(), now, now),
+            Err(Reject::WrongChannel { channel: "estop", .. })
+        ));
+        // None of them touched the operator's record.
+        let reset = down(Downlink::ResetEStop, "op", 1500, 1, now);
+        assert!(g.on_estop(&reset, "robot-a", "op", &senders(), now, now).is_ok());
+    }
+
+    #[test]
+    fn the_gate_takes_a_replayed_disarm_and_refuses_a_replayed_command_or_arm() {
+        let now = 2000.0;
+        let mut g = DownlinkGate::default();
+        let c = |seq: u64| Downlink::Command(Command { seq, stamp_s: now, v_mps: 0.1, w_radps: 0.0 });
+        let first = down(c(1), "server", 1500, 1, now);
+        assert_eq!(g.on_cmd(&first, "robot-a", "server", now, now), Ok(c(1)));
+        assert!(matches!(g.on_cmd(&first, "robot-a", "server", now, now), Err(Reject::Replayed { .. })));
+        // A disarm replayed, from an earlier session, stamped long ago: taken, and it leaves the
+        // record as it was (the next command is still taken).
+        let disarm = down(Downlink::Disarm, "server", 1000, 1, 10.0);
+        assert_eq!(g.on_cmd(&disarm, "robot-a", "server", now, now), Ok(Downlink::Disarm));
+        assert_eq!(g.on_cmd(&disarm, "robot-a", "server", now, now), Ok(Downlink::Disarm));
+        let far = down(Downlink::Disarm, "server", 9000, u64::MAX, 1e12);
+        assert_eq!(g.on_cmd(&far, "robot-a", "server", now, now), Ok(Downlink::Disarm));
+        let second = down(c(2), "server", 1500, 2, now);
+        assert_eq!(g.on_cmd(&second, "robot-a", "server", now, now), Ok(c(2)));
+        // An arm: fresh and new, or refused.
+        let arm = Downlink::Arm { seq: 3, stops: 1, stamp_s: now };
+        assert!(matches!(
+            g.on_cmd(&down(arm, "server", 1500, 3, now - 2.5), "robot-a", "server", now, now),
+            Err(Reject::Stale { .. })
+        ));
+        assert_eq!(g.on_cmd(&down(arm, "server", 1500, 3, now), "robot-a", "server", now, now), Ok(arm));
+        assert!(matches!(
+            g.on_cmd(&down(arm, "server", 1500, 3, now), "robot-a", "server", now, now),
+            Err(Reject::Replayed { .. })
+        ));
+        // Not from the server, or for another robot: refused before it touches the record (a newer
+        // session from elsewhere does not lock the server out).
+        let forged = down(c(1), "op", 1900, 1, now);
+        assert!(matches!(
+            g.on_cmd(&forged, "robot-a", "server", now, now),
+            Err(Reject::NotFromServer { .. })
+        ));
+        let newer_elsewhere = down(c(1), "server", 1900, 1, now);
+        assert!(matches!(
+            g.on_cmd(&newer_elsewhere, "robot-b", "server", now, now),
+            Err(Reject::WrongRobot { .. })
+        ));
+        assert!(g.on_cmd(&down(c(4), "server", 1500, 4, now), "robot-a", "server", now, now).is_ok());
+        // Sessions compare with the wall clock, stamps with the fleet clock.
+        let ahead = down(c(5), "server", 2100, 1, now);
+        assert!(matches!(
+            g.on_cmd(&ahead, "robot-a", "server", now, 2000.0),
+            Err(Reject::FutureSession { .. })
+        ));
+        assert!(g.on_cmd(&ahead, "robot-a", "server", now, 2096.0).is_ok());
     }
 
     #[test]

@@ -512,6 +512,161 @@ impl Actor for SafetyActor {
     }
 }
 
+/// What an input to [`SafetyHarness`] did.
+#[doc(hidden)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Applied {
+    /// It took effect: a command or an arm accepted, a stop made, a reset that cleared a latch.
+    pub taken: bool,
+    /// The output applied at once, without waiting for the next cycle (after an e-stop).
+    pub output: Option<WheelCommand>,
+}
+
+/// The safety layer as [`SafetyActor`] runs it, with time passed in, for fuzzing: the core with a
+/// robot's configured limits and timings, the e-stop and fault latches, the same dispatch of each
+/// input as `SafetyActor::apply` and the same latch check before each cycle. Nothing is published.
+#[doc(hidden)]
+#[derive(Debug)]
+pub struct SafetyHarness {
+    core: SafetyCore,
+    params: SafetyParams,
+    estop_latch: super::ports::EStopLatch,
+    fault_latch: bool,
+}
+
+impl SafetyHarness {
+    /// A robot with `cfg`'s limits and timings, started with nothing latched.
+    #[must_use]
+    pub fn new(cfg: &crate::config::RobotConfig) -> Self {
+        let params = super::safety_params(cfg);
+        SafetyHarness {
+            core: SafetyCore::new(params, 0),
+            params,
+            estop_latch: super::ports::EStopLatch::default(),
+            fault_latch: false,
+        }
+    }
+
+    #[must_use]
+    pub fn state(&self) -> SafetyState {
+        self.core.state()
+    }
+
+    /// The stop counter an arm must carry.
+    #[must_use]
+    pub fn stops(&self) -> u64 {
+        self.core.stops()
+    }
+
+    /// One input, as the actor applies it at `now_s`. [`SafetyInput::EStopInput`] expects the
+    /// latch set first ([`SafetyHarness::estop_input`]).
+    pub fn apply(&mut self, input: SafetyInput, now_s: f64) -> Applied {
+        let mut output = None;
+        let taken = match input {
+            SafetyInput::Link(Downlink::Command(c)) => self.core.offer(c, now_s).is_ok(),
+            SafetyInput::Link(Downlink::Arm { seq, stops, stamp_s }) => {
+                self.core.arm(seq, stops, stamp_s, now_s).is_ok()
+            }
+            SafetyInput::Link(Downlink::Disarm) => {
+                self.core.disarm(DisarmReason::Requested);
+                true
+            }
+            SafetyInput::Link(Downlink::EStop)
+            | SafetyInput::Control(SafetyControl::EStop)
+            | SafetyInput::EStopInput => {
+                match input {
+                    SafetyInput::Link(_) => self.estop_latch.set(EStopSource::Network),
+                    SafetyInput::Control(_) => self.estop_latch.set(EStopSource::Local),
+                    _ => {}
+                }
+                self.core.estop();
+                output = Some(self.core.tick(now_s));
+                true
+            }
+            SafetyInput::Link(Downlink::ResetEStop) | SafetyInput::Control(SafetyControl::ResetEStop) => {
+                let local = matches!(input, SafetyInput::Control(_));
+                if self.core.state() == SafetyState::Fault && !local {
+                    false
+                } else {
+                    let clear = self.estop_latch.reset(local);
+                    if self.core.state() == SafetyState::Fault {
+                        self.fault_latch = false;
+                        self.core.reset_fault(!clear)
+                    } else {
+                        clear && self.core.reset_estop()
+                    }
+                }
+            }
+            SafetyInput::Health(h) => {
+                let halt = halts(&h);
+                if halt {
+                    self.core.halt(DisarmReason::DeviceLost);
+                }
+                halt
+            }
+            SafetyInput::Missed => {
+                self.core.halt(DisarmReason::QueueFull);
+                true
+            }
+        };
+        self.latch_fault();
+        Applied { taken, output }
+    }
+
+    /// The e-stop input of a drive changed; pressed, it latches and stops the robot.
+    pub fn estop_input(&mut self, pressed: bool, now_s: f64) -> Applied {
+        self.estop_latch.input(pressed);
+        if pressed {
+            self.apply(SafetyInput::EStopInput, now_s)
+        } else {
+            Applied { taken: false, output: None }
+        }
+    }
+
+    /// A supervisor escalated: the fault is latched (the actor sees the latch before its next
+    /// cycle).
+    pub fn escalate(&mut self) {
+        self.fault_latch = true;
+    }
+
+    /// The safety actor restarted: a new core from the stop counter and the latches.
+    pub fn restart(&mut self, now_s: f64) -> Option<WheelCommand> {
+        self.core = SafetyCore::new(self.params, self.core.stops());
+        let out = if self.fault_latch {
+            self.core.fault();
+            Some(self.core.tick(now_s))
+        } else if self.estop_latch.is_set() {
+            self.core.estop();
+            Some(self.core.tick(now_s))
+        } else {
+            None
+        };
+        self.latch_fault();
+        out
+    }
+
+    /// One control cycle at `now_s`: the latches checked, then the wheel command.
+    pub fn tick(&mut self, now_s: f64) -> WheelCommand {
+        if self.fault_latch && self.core.state() != SafetyState::Fault {
+            self.core.fault();
+        } else if self.estop_latch.is_set()
+            && !matches!(self.core.state(), SafetyState::EStop | SafetyState::Fault)
+        {
+            self.core.estop();
+        }
+        let out = self.core.tick(now_s);
+        self.latch_fault();
+        out
+    }
+
+    /// As `SafetyActor::publish`: a fault stays latched until a reset on the robot.
+    fn latch_fault(&mut self) {
+        if self.core.state() == SafetyState::Fault {
+            self.fault_latch = true;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -754,6 +909,49 @@ mod tests {
         c.estop();
         assert_eq!(c.state(), SafetyState::Fault);
         assert!(c.tick(3.0).quick_stop);
+    }
+
+    #[test]
+    fn the_harness_applies_inputs_and_latches_as_the_actor_does() {
+        use crate::config::{ConfigSource, load};
+        let config = load(&ConfigSource::Embedded).unwrap();
+        let robot = config.robots.iter().find(|r| r.id.as_str() == "robot-a").unwrap();
+        let mut h = SafetyHarness::new(robot);
+        assert_eq!((h.state(), h.stops()), (SafetyState::Disarmed(DisarmReason::Startup), 1));
+        let link = |d: Downlink| SafetyInput::Link(d);
+        assert!(!h.apply(link(Downlink::Arm { seq: 1, stops: 0, stamp_s: 10.0 }), 10.0).taken);
+        assert!(h.apply(link(Downlink::Arm { seq: 1, stops: 1, stamp_s: 10.0 }), 10.0).taken);
+        assert!(h.apply(link(Downlink::Command(cmd(1, 10.0, 0.2, 0.0))), 10.0).taken);
+        assert!(h.tick(10.02).v_mps > 0.0);
+        // A network e-stop stops at once; with a local one too, a network reset clears only its own.
+        let stop = h.apply(link(Downlink::EStop), 10.03);
+        assert_eq!(stop.output, Some(WheelCommand { v_mps: 0.0, w_radps: 0.0, quick_stop: true }));
+        assert!(h.apply(SafetyInput::Control(SafetyControl::EStop), 10.04).taken);
+        assert!(!h.apply(link(Downlink::ResetEStop), 10.05).taken);
+        assert_eq!(h.state(), SafetyState::EStop);
+        assert!(h.apply(SafetyInput::Control(SafetyControl::ResetEStop), 10.06).taken);
+        assert_eq!(h.state(), SafetyState::Disarmed(DisarmReason::EStopReset));
+        // An escalation faults before the next cycle; only a reset on the robot clears it, and a
+        // restart keeps it.
+        h.escalate();
+        assert!(h.tick(10.08).quick_stop);
+        assert_eq!(h.state(), SafetyState::Fault);
+        assert!(!h.apply(link(Downlink::ResetEStop), 10.1).taken);
+        assert!(h.restart(10.12).is_some_and(|o| o.quick_stop));
+        assert_eq!(h.state(), SafetyState::Fault);
+        assert!(h.apply(SafetyInput::Control(SafetyControl::ResetEStop), 10.14).taken);
+        assert_eq!(h.state(), SafetyState::Disarmed(DisarmReason::FaultReset));
+        assert_eq!(h.restart(10.16), None);
+        // A pressed e-stop input holds until released, whatever the resets.
+        assert!(h.estop_input(true, 10.2).taken);
+        assert!(!h.apply(SafetyInput::Control(SafetyControl::ResetEStop), 10.22).taken);
+        assert!(!h.estop_input(false, 10.24).taken);
+        assert!(h.apply(SafetyInput::Control(SafetyControl::ResetEStop), 10.26).taken);
+        // A lost drive halts; a lidar does not.
+        let report = |device, health| HealthReport { device, health, detail: String::new() };
+        assert!(h.apply(SafetyInput::Health(report(Device::Drives, Health::Lost)), 10.3).taken);
+        assert!(!h.apply(SafetyInput::Health(report(Device::Lidar, Health::Lost)), 10.3).taken);
+        assert_eq!(h.state(), SafetyState::Disarmed(DisarmReason::DeviceLost));
     }
 
     /// One input to the safety layer, as the state-machine property test draws them.

@@ -192,7 +192,7 @@ impl RobotView {
     fn own_verified_now(&self, now_s: f64) -> Option<Se2> {
         let odom = self.odom?;
         let a = self.own.filter(|a| now_s - a.stamp_s <= ESTIMATE_FRESH_S)?;
-        self.own_integrity.verified().then(|| a.map * (a.odom.inverse() * odom.pose))
+        self.own_integrity.verified().then(|| a.map * (a.odom.inverse() * odom.pose)).filter(finite)
     }
 
     fn devices_ok(&self) -> bool {
@@ -206,8 +206,13 @@ impl RobotView {
         let odom = self.odom?;
         let fresh = |a: &Option<Anchored>| a.filter(|a| now_s - a.stamp_s <= ESTIMATE_FRESH_S);
         let a = fresh(&self.fused).or(fresh(&self.own))?;
-        Some(a.map * (a.odom.inverse() * odom.pose))
+        Some(a.map * (a.odom.inverse() * odom.pose)).filter(finite)
     }
+}
+
+/// A pose that is not finite (from odometry or an estimate that is not) is no pose.
+fn finite(p: &Se2) -> bool {
+    p.x.is_finite() && p.y.is_finite() && p.theta.is_finite()
 }
 
 impl FormationActor {
@@ -267,7 +272,14 @@ impl FormationActor {
                 // `--auto-arm` moves only robots that say they drive mock devices.
                 let mock: Vec<bool> = state.robots.iter().map(|r| r.mock).collect();
                 let auto_may = arm_authorised(self.params.auto_arm, state.by_operator, &mock);
-                if ready && (unverified.is_none() || may_reform) && state.arm_allowed && !auto_may {
+                // No arm while a robot is latched in e-stop or fault: it would refuse it, and the
+                // others would be armed beside it.
+                let latched = state
+                    .robots
+                    .iter()
+                    .any(|r| matches!(r.safety, Some(SafetyState::EStop | SafetyState::Fault)));
+                let may_arm = ready && !latched && (unverified.is_none() || may_reform) && state.arm_allowed;
+                if may_arm && !auto_may {
                     if !state.auto_refused {
                         let real: Vec<&String> = state
                             .robots
@@ -282,7 +294,7 @@ impl FormationActor {
                         );
                         state.auto_refused = true;
                     }
-                } else if ready && (unverified.is_none() || may_reform) && state.arm_allowed {
+                } else if may_arm {
                     if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
                     } else if state.record_s.is_some() || self.away_from_start(state, now) {
@@ -401,6 +413,8 @@ impl FormationActor {
     ) {
         let in_v = r.pose.inverse() * pose;
         let cmd = member_command(v, w, self.params.slots[i], &in_v, &self.params.gains);
+        // A pose far beyond any map can overflow the correction: then the robot is slowed to rest.
+        let cmd = if cmd.0.is_finite() && cmd.1.is_finite() { cmd } else { (0.0, 0.0) };
         let lim = &self.params.limits;
         let cmd = limit_twist(
             cmd,
@@ -690,6 +704,85 @@ fn arm_authorised(auto_arm: super::AutoArm, by_operator: bool, mock: &[bool]) ->
         }
 }
 
+/// The formation actor's handling driven directly rather than through its mailbox (fuzzing): the
+/// actor built as [`super::start_server`] builds it, its state from its own `pre_start`, each
+/// message handled by its own `handle` at once (the handler never waits). No timer runs: ticks are
+/// the caller's [`FormationMsg::Tick`]s. Its clock is the tokio clock (a paused one in a test
+/// runtime). Must be used inside a tokio runtime.
+#[doc(hidden)]
+#[derive(Debug)]
+pub struct FormationHarness {
+    actor: FormationActor,
+    state: FormationState,
+    /// A stopped actor's reference in place of the formation's own, which its handler does not
+    /// use.
+    myself: ActorRef<FormationMsg>,
+}
+
+/// The stand-in behind [`FormationHarness`]'s own reference.
+struct Ignore;
+
+impl Actor for Ignore {
+    type Msg = FormationMsg;
+    type State = ();
+    type Arguments = ();
+
+    async fn pre_start(&self, _myself: ActorRef<FormationMsg>, (): ()) -> Result<(), ActorProcessingErr> {
+        Ok(())
+    }
+}
+
+impl FormationHarness {
+    /// The formation of `setup`, sending on `link`, on `clock`.
+    pub async fn new(
+        setup: &super::ServerSetup,
+        link: DownlinkSender,
+        clock: crate::clock::FleetClock,
+    ) -> Result<Self, ActorProcessingErr> {
+        let ids = setup.robots.iter().map(|r| r.id.as_str().to_owned()).collect();
+        let sc = &setup.scenario;
+        let plan = amr_core::plan::reference(sc, setup.robots.len(), super::FORMATION_PERIOD_S);
+        let actor = FormationActor {
+            ports: ServerPorts::new(ids, clock),
+            params: FormationParams {
+                plan_id: super::progress::plan_id(&plan),
+                progress: Arc::clone(&setup.progress),
+                plan: Arc::new(plan),
+                period_s: super::FORMATION_PERIOD_S,
+                slots: amr_core::formation::slots(setup.robots.len(), sc.spacing_m.get()),
+                gains: FormationGains::DEFAULT,
+                limits: sc.limits,
+                on_robot_lost: setup.server.on_robot_lost,
+                auto_arm: setup.auto_arm,
+                auto_armed: Arc::new(std::sync::atomic::AtomicBool::new(false)),
+            },
+            link,
+            status: Arc::new(ractor::OutputPort::default()),
+        };
+        let (myself, _) = Actor::spawn(None, Ignore, ()).await?;
+        let state = actor.pre_start(myself.clone(), ()).await;
+        // Stopped, it ends the subscriptions and the timer `pre_start` gave it.
+        myself.stop(None);
+        Ok(FormationHarness { actor, state: state?, myself })
+    }
+
+    /// Handle `msg` as the actor does.
+    pub fn handle(&mut self, msg: FormationMsg) -> Result<(), ActorProcessingErr> {
+        let handled = self.actor.handle(self.myself.clone(), msg, &mut self.state);
+        let mut handled = std::pin::pin!(handled);
+        match handled.as_mut().poll(&mut std::task::Context::from_waker(std::task::Waker::noop())) {
+            std::task::Poll::Ready(r) => r,
+            std::task::Poll::Pending => Err("the formation's handler waited".into()),
+        }
+    }
+
+    /// The status now.
+    #[must_use]
+    pub fn status(&self) -> FormationStatus {
+        self.actor.status(&self.state)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::AutoArm;
@@ -702,5 +795,198 @@ mod tests {
         assert!(arm_authorised(AutoArm::Mock, true, &[false, false]), "the operator's rearm");
         assert!(arm_authorised(AutoArm::Hardware, false, &[false, false]));
         assert!(!arm_authorised(AutoArm::Off, false, &[true, true]));
+    }
+
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use amr_core::amcl::IntegrityState;
+    use amr_core::config::value::Count;
+    use amr_core::map::OccupancyGrid;
+    use amr_core::se2::Se2;
+    use amr_msgs::{
+        Anchored, Device, DisarmReason, Downlink, Estimate, EstimateIntegrity, EstimateSource, Health,
+        HealthReport, OdomMsg, SafetyState, Uplink,
+    };
+    use ractor::ActorRef;
+    use tokio::sync::mpsc;
+
+    use super::super::progress::PlanProgress;
+    use super::super::{ServerSetup, ServerTree, formation_robots, start_server};
+    use super::FormationMsg;
+    use crate::clock::FleetClock;
+    use crate::config::{ConfigSource, load};
+    use crate::link::{DownlinkSender, ScanSlots, ServerEnd};
+    use crate::supervisor::RestartPolicy;
+
+    /// A server on the embedded configuration (the straight scenario, no auto-arm) whose link ends
+    /// the test holds: the formation actor and each robot's downlink queue.
+    async fn server() -> (ServerTree, ActorRef<FormationMsg>, Vec<mpsc::Receiver<Downlink>>, Vec<Se2>) {
+        let config = load(&ConfigSource::Embedded).unwrap();
+        let robots = formation_robots(&config.server, &config.robots).unwrap();
+        let scenario = config.scenarios["straight"].clone();
+        let slots = amr_core::formation::slots(robots.len(), scenario.spacing_m.get());
+        let starts = slots.iter().map(|y| scenario.start_pose() * Se2::new(0.0, *y, 0.0)).collect();
+        let mut amcl = config.amcl.clone();
+        amcl.min_particles = Count::new(10).unwrap();
+        amcl.max_particles = Count::new(10).unwrap();
+        let setup = ServerSetup {
+            server: config.server.clone(),
+            vamr: config.vamr.clone(),
+            amcl,
+            // No scan comes: the localizer needs no map.
+            map: OccupancyGrid::filled(8, 8, 0.5, Se2::new(-2.0, -2.0, 0.0), 0),
+            robots,
+            scenario,
+            seed: 1,
+            auto_arm: super::super::AutoArm::Off,
+            policy: RestartPolicy::default(),
+            progress: Arc::new(PlanProgress::in_memory()),
+        };
+        let (_, up) = mpsc::channel(1);
+        let mut downs = std::collections::BTreeMap::new();
+        let mut queues = Vec::new();
+        for r in &setup.robots {
+            let (tx, rx) = mpsc::channel(4096);
+            downs.insert(r.id.as_str().to_owned(), tx);
+            queues.push(rx);
+        }
+        let end = ServerEnd { up, scans: ScanSlots::default(), down: DownlinkSender::new(downs) };
+        let tree = start_server(setup, end, FleetClock::start()).await.unwrap();
+        let formation = tree.formation_actor().await.unwrap();
+        (tree, formation, queues, starts)
+    }
+
+    const ROBOTS: [&str; 2] = ["robot-a", "robot-b"];
+
+    fn odom(robot: &str, seq: u64, stamp_s: f64, pose: Se2) -> FormationMsg {
+        let msg = OdomMsg { seq, frame: 1, stamp_s, pose, twist: (0.0, 0.0), gyro: true };
+        FormationMsg::Uplink(Box::new(Uplink::Odom { robot: robot.into(), msg }))
+    }
+
+    fn safety(robot: &str, state: SafetyState, stops: u64) -> FormationMsg {
+        FormationMsg::Uplink(Box::new(Uplink::Safety {
+            robot: robot.into(),
+            seq: 1,
+            stamp_s: 0.0,
+            state,
+            stops,
+            mock: true,
+        }))
+    }
+
+    /// Both robots healthy, at their odometry's origin, placed in their slots by a fused estimate.
+    fn localised(f: &ActorRef<FormationMsg>, starts: &[Se2], seq: u64, now: f64) {
+        for (robot, start) in ROBOTS.iter().zip(starts) {
+            f.cast(odom(robot, seq, now, Se2::IDENTITY)).unwrap();
+            for device in [Device::Lidar, Device::CanBus, Device::Drives] {
+                let report = HealthReport { device, health: Health::Ok, detail: String::new() };
+                let u = Uplink::Health { robot: (*robot).into(), seq, stamp_s: now, report };
+                f.cast(FormationMsg::Uplink(Box::new(u))).unwrap();
+            }
+            let _ = start;
+        }
+        let robots =
+            starts.iter().map(|s| Some(Anchored { map: *s, odom: Se2::IDENTITY, stamp_s: now })).collect();
+        let integrity = EstimateIntegrity {
+            state: IntegrityState::Tracking,
+            explained: 0.9,
+            level: 0.9,
+            disagrees: None,
+        };
+        let e = Estimate {
+            source: EstimateSource::Fused(amr_core::config::Configuration::T4),
+            stamp_s: now,
+            v: None,
+            robots,
+            integrity,
+        };
+        f.cast(FormationMsg::Estimate(Box::new(e))).unwrap();
+    }
+
+    /// Advance by one formation period and wait until the formation has ticked; what it sent.
+    async fn period(
+        f: &ActorRef<FormationMsg>,
+        queues: &mut [mpsc::Receiver<Downlink>],
+    ) -> Vec<(usize, Downlink)> {
+        tokio::time::advance(Duration::from_millis(50)).await;
+        for _ in 0..4 {
+            tokio::task::yield_now().await;
+        }
+        ractor::call!(f, FormationMsg::Status).unwrap();
+        let mut sent = Vec::new();
+        for (i, q) in queues.iter_mut().enumerate() {
+            while let Ok(d) = q.try_recv() {
+                sent.push((i, d));
+            }
+        }
+        sent
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn no_arm_goes_out_while_a_robot_is_latched_and_one_does_once_it_is_reset() {
+        let (tree, f, mut queues, starts) = server().await;
+        f.cast(safety("robot-a", SafetyState::EStop, 2)).unwrap();
+        f.cast(safety("robot-b", SafetyState::Disarmed(DisarmReason::Startup), 1)).unwrap();
+        f.cast(FormationMsg::Rearm).unwrap();
+        for k in 1..=40u32 {
+            localised(&f, &starts, u64::from(k), f64::from(k) * 0.05);
+            let sent = period(&f, &mut queues).await;
+            assert!(sent.is_empty(), "sent {sent:?} while robot-a is e-stopped");
+            if k == 20 {
+                f.cast(safety("robot-a", SafetyState::Fault, 3)).unwrap();
+            }
+        }
+        // Reset on the robot: the operator's rearm stands, and the arm carries each robot's count.
+        f.cast(safety("robot-a", SafetyState::Disarmed(DisarmReason::FaultReset), 4)).unwrap();
+        localised(&f, &starts, 41, 2.05);
+        let sent = period(&f, &mut queues).await;
+        let arms: Vec<(usize, u64)> = sent
+            .iter()
+            .filter_map(|(i, d)| match d {
+                Downlink::Arm { stops, .. } => Some((*i, *stops)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(arms, vec![(0, 4), (1, 1)], "{sent:?}");
+        tree.shutdown().await;
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_pose_that_is_not_finite_is_no_pose_and_nothing_that_is_not_finite_is_sent() {
+        let (tree, f, mut queues, starts) = server().await;
+        for robot in ROBOTS {
+            f.cast(safety(robot, SafetyState::Disarmed(DisarmReason::Startup), 1)).unwrap();
+        }
+        f.cast(FormationMsg::Rearm).unwrap();
+        let mut moving = false;
+        let mut stopped = false;
+        for k in 1..=60u32 {
+            let now = f64::from(k) * 0.05;
+            localised(&f, &starts, u64::from(k), now);
+            if k >= 3 {
+                for robot in ROBOTS {
+                    f.cast(safety(robot, SafetyState::Armed, 1)).unwrap();
+                }
+            }
+            if k >= 30 {
+                // robot-a's odometry breaks: NaN, then beyond any map.
+                let pose = if k < 45 { Se2::new(f64::NAN, 0.0, 0.0) } else { Se2::new(1e308, -1e308, 3.0) };
+                f.cast(odom("robot-a", 100 + u64::from(k), now, pose)).unwrap();
+            }
+            for (i, d) in period(&f, &mut queues).await {
+                match d {
+                    Downlink::Command(c) => {
+                        assert!(c.v_mps.is_finite() && c.w_radps.is_finite(), "to robot {i} at {now}: {c:?}");
+                        moving |= c.v_mps != 0.0 && k < 30;
+                    }
+                    Downlink::Disarm => stopped = true,
+                    _ => {}
+                }
+            }
+        }
+        assert!(moving, "the formation never ran");
+        assert!(stopped, "robot-a not localised: the formation stops (on_robot_lost = stop)");
+        tree.shutdown().await;
     }
 }
