@@ -2,10 +2,12 @@
 //! power cycle of its computer) is not a reset (ISO 13850: an e-stop is cleared only by a
 //! deliberate reset).
 //!
-//! The file holds which e-stop sources hold the latch, whether a fault is latched, and the stop
-//! counter (an arm must carry it, so it must never go back). The safety actor writes it, atomically
-//! (a temporary file, fsynced, renamed over the old one, the directory fsynced), whenever one of
-//! these changes and before it reports the new state up the link. A missing file is a robot that
+//! The file holds which e-stop sources hold the latch, whether a fault is latched, and a count
+//! reserved above every stop count used so far (an arm must carry the count, so it must never go
+//! back; a reservation a thousand ahead keeps the file from being written on every disarm). The
+//! safety actor writes it, atomically (a temporary file, fsynced, renamed over the old one, the
+//! directory fsynced), whenever one of these changes and before it reports the new state up the
+//! link. A missing file is a robot that
 //! never latched anything; a file that cannot be read or parsed counts as a latched local e-stop,
 //! cleared only by a reset on the robot (which writes a good file).
 
@@ -20,7 +22,7 @@ pub struct Latched {
     /// The e-stop sources that hold the latch ([`EStopSource`] bits).
     pub estop: u8,
     pub fault: bool,
-    /// The stop counter.
+    /// The stop counter's reservation: above every count used so far (a restart starts above it).
     pub stops: u64,
 }
 

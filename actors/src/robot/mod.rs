@@ -300,6 +300,7 @@ fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
     // Latched on disk before it is reported: a restart does not clear it.
     ports.fault_latch.store(true, std::sync::atomic::Ordering::SeqCst);
     let stops = ports.stops.fetch_add(1, std::sync::atomic::Ordering::SeqCst).wrapping_add(1);
+    ports.reserve_stops(stops);
     if let Err(e) = ports.persist_latches() {
         tracing::error!(robot = %ports.robot, error = %e, "the fault is not on disk");
     }

@@ -203,6 +203,9 @@ pub struct BusLink {
     pub commands: mpsc::Sender<MasterCommand>,
 }
 
+/// How many stops one reservation in the latch file covers.
+pub const STOP_RESERVE: u64 = 1000;
+
 /// Every port of one robot.
 #[derive(Debug)]
 pub struct RobotPorts {
@@ -238,6 +241,9 @@ pub struct RobotPorts {
     /// The safety layer's stop counter (an arm must carry it), kept here across restarts of the
     /// safety actor.
     pub stops: AtomicU64,
+    /// The stop count reserved in the latch file: every count used so far is below it, so a
+    /// restart starts above it (see [`RobotPorts::reserve_stops`]).
+    pub stops_reserved: AtomicU64,
     /// Where the latches and the counter are kept across restarts of the robot (none in a
     /// simulation that starts every robot afresh).
     pub latch_file: Option<super::latches::LatchFile>,
@@ -293,6 +299,7 @@ impl RobotPorts {
             estop_latch,
             fault_latch: AtomicBool::new(latched.fault),
             stops: AtomicU64::new(latched.stops),
+            stops_reserved: AtomicU64::new(latched.stops),
             latch_file: file,
             mock,
         })
@@ -304,8 +311,21 @@ impl RobotPorts {
         super::latches::Latched {
             estop: self.estop_latch.sources(),
             fault: self.fault_latch.load(Ordering::SeqCst),
-            stops: self.stops.load(Ordering::SeqCst),
+            stops: self.stops_reserved.load(Ordering::SeqCst),
         }
+    }
+
+    /// Make sure the count `stops` is below the reservation; true if the reservation moved (the
+    /// latch file must be written). The file holds a count reserved [`STOP_RESERVE`] ahead rather
+    /// than the count itself, so the control loop writes it once per that many stops, not on every
+    /// disarm.
+    pub fn reserve_stops(&self, stops: u64) -> bool {
+        let reserved = self.stops_reserved.load(Ordering::SeqCst);
+        if stops < reserved {
+            return false;
+        }
+        self.stops_reserved.store(stops.saturating_add(STOP_RESERVE), Ordering::SeqCst);
+        true
     }
 
     /// Write what is latched now to the latch file (if any). A failure is logged and counted by
@@ -359,6 +379,22 @@ mod tests {
 
     fn disarm() -> SafetyInput {
         SafetyInput::Link(Downlink::Disarm)
+    }
+
+    #[test]
+    fn the_stop_count_on_disk_is_a_reservation_above_every_count_used() {
+        use crate::robot::latches::Latched;
+        let from_disk = Latched { stops: 5, ..Latched::default() };
+        let p = RobotPorts::restored("r", FleetClock::start(), None, from_disk, false);
+        // The first count after a restart (5 + 1) moves the reservation: one write.
+        assert!(p.reserve_stops(6));
+        assert_eq!(p.latched().stops, 6 + STOP_RESERVE);
+        // The next thousand stops need no write.
+        assert!((7..6 + STOP_RESERVE).all(|n| !p.reserve_stops(n)));
+        assert!(p.reserve_stops(6 + STOP_RESERVE));
+        assert_eq!(p.latched().stops, 6 + 2 * STOP_RESERVE);
+        // A restart from what is on disk starts above every count used.
+        assert!(p.latched().stops > 6 + STOP_RESERVE);
     }
 
     #[test]

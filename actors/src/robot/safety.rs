@@ -324,6 +324,7 @@ impl SafetyActor {
     fn publish(&self, s: &mut SafetyActorState) {
         let now = s.core.state();
         self.ports.stops.store(s.core.stops(), Ordering::SeqCst);
+        self.ports.reserve_stops(s.core.stops());
         if now == SafetyState::Fault {
             // Lowered only by a reset on the robot (`apply`).
             self.ports.fault_latch.store(true, Ordering::SeqCst);
