@@ -136,8 +136,9 @@ impl Server {
             robots,
             scenario,
             seed: 1,
-            auto_arm: false,
+            auto_arm: amr_actors::server::AutoArm::Off,
             policy: RestartPolicy::default(),
+            progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
         };
         let cs =
             core_setup(&setup, &[Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4]);

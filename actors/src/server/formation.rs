@@ -278,6 +278,13 @@ impl FormationActor {
                     .robots
                     .iter()
                     .any(|r| matches!(r.safety, Some(SafetyState::EStop | SafetyState::Fault)));
+                if latched && state.arm_allowed {
+                    // A reset of the latch must not start the formation (ISO 13850): a re-arm
+                    // given before it lapses, and the operator gives a new one after the reset.
+                    tracing::warn!("formation: a robot is e-stopped or faulted; the re-arm lapses");
+                    state.arm_allowed = false;
+                    state.by_operator = false;
+                }
                 let may_arm = ready && !latched && (unverified.is_none() || may_reform) && state.arm_allowed;
                 if may_arm && !auto_may {
                     if !state.auto_refused {
@@ -924,7 +931,7 @@ mod tests {
     }
 
     #[tokio::test(start_paused = true)]
-    async fn no_arm_goes_out_while_a_robot_is_latched_and_one_does_once_it_is_reset() {
+    async fn no_arm_goes_out_while_a_robot_is_latched_nor_after_its_reset_without_a_new_rearm() {
         let (tree, f, mut queues, starts) = server().await;
         f.cast(safety("robot-a", SafetyState::EStop, 2)).unwrap();
         f.cast(safety("robot-b", SafetyState::Disarmed(DisarmReason::Startup), 1)).unwrap();
@@ -937,9 +944,19 @@ mod tests {
                 f.cast(safety("robot-a", SafetyState::Fault, 3)).unwrap();
             }
         }
-        // Reset on the robot: the operator's rearm stands, and the arm carries each robot's count.
+        // Reset on the robot: the rearm given before lapsed (a reset starts nothing).
         f.cast(safety("robot-a", SafetyState::Disarmed(DisarmReason::FaultReset), 4)).unwrap();
-        localised(&f, &starts, 41, 2.05);
+        for k in 41..=50u32 {
+            localised(&f, &starts, u64::from(k), f64::from(k) * 0.05);
+            let sent = period(&f, &mut queues).await;
+            assert!(
+                sent.iter().all(|(_, d)| !matches!(d, Downlink::Arm { .. })),
+                "armed on a reset: {sent:?}"
+            );
+        }
+        // A new rearm: the arm carries each robot's count.
+        f.cast(FormationMsg::Rearm).unwrap();
+        localised(&f, &starts, 51, 2.55);
         let sent = period(&f, &mut queues).await;
         let arms: Vec<(usize, u64)> = sent
             .iter()
