@@ -256,7 +256,12 @@ impl Amcl {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
             let d = self.params.update_min_d.get();
             let moved = dx.abs() > d || dy.abs() > d || da.abs() > self.params.update_min_a.get();
-            if !moved && !force {
+            // Standing still and lost: updated as if it had moved, so that it re-seeds from the
+            // scan. Its particles are not worth keeping, and a formation holds while a robot is
+            // lost: a filter that re-localised only on motion would keep a robot lost at rest
+            // (a restarted server's filters start where it last saw the formation) for good.
+            let lost = self.monitor.params().enabled && self.integrity_state() == IntegrityState::Lost;
+            if !moved && !force && !lost {
                 // Standing still and not tracking: the estimate is judged on each new scan, the
                 // particles left as they are (updating them on every scan of a robot standing
                 // still wears them down to a few: the middle robot of three 0.5 m apart, whose
