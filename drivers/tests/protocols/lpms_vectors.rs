@@ -1,5 +1,5 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code")]
-//! The LPBUS test vectors of `shared/data/lpms/`, read at test time. The README marks three frames of
+//! The LPBUS test vectors of `tests/data/lpms/`, read at test time. The README marks three frames of
 //! `02_b2_command_frames.txt` as suspect (LRC without the length): those are checked to be rejected.
 
 /// In a module named `lpms` so that `cargo test lpms` selects these tests.
@@ -11,7 +11,7 @@ mod lpms {
     use amr_drivers::lpms::frame::{Frame, FrameDecoder, FrameError, lrc};
 
     fn vectors_dir() -> PathBuf {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/lpms")
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/lpms")
     }
 
     /// Every run of at least 11 whitespace-separated two-digit hex tokens in the file, in order.

@@ -214,7 +214,7 @@ proptest! {
         edits in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..6),
         cut in any::<usize>(),
     ) {
-        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/sopas");
+        let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/sopas");
         let name = ["03_tim781s_colaB_sSN_LMDscandata.frame1.bin", "01_tim561_colaA_sRA_LMDscandata.framed.bin"][which];
         let mut bytes = std::fs::read(dir.join(name)).unwrap();
         for (at, v) in edits {

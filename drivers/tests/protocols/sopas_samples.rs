@@ -1,5 +1,5 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code")]
-//! The real captured telegrams in `shared/data/sopas/` decode, and every field matches the
+//! The real captured telegrams in `tests/data/sopas/` decode, and every field matches the
 //! independent oracle `expected_decoded.json`; command encodings match `04_command_vectors.txt`.
 
 use std::path::PathBuf;
@@ -11,7 +11,7 @@ use amr_drivers::sopas::{
 use serde_json::Value;
 
 fn data_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/sopas")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/sopas")
 }
 
 fn read(name: &str) -> Vec<u8> {
@@ -327,8 +327,8 @@ fn unescape(s: &str) -> Vec<u8> {
 }
 
 /// A TiM551 (1°, 271 points, 0x36, 8-bit RSSI1) telegram synthesised from the documented layout:
-/// the header is the TiM551 response image quoted in the notes §3.1 (no complete TiM551 capture
-/// exists, data/sopas/README.md "Caveats"); the values are ours.
+/// the header is that of a TiM551 reply quoted in a public mock (no complete TiM551 capture was
+/// found: tests/data/sopas/README.md, "Caveats"); the values are ours.
 #[test]
 fn sopas_synthesised_tim551_ascii_telegram_decodes_with_271_points() {
     let dist: Vec<String> = (0..271).map(|i| format!("{:X}", 500 + 10 * i)).collect();

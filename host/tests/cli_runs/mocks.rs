@@ -98,7 +98,7 @@ fn mock_imu_streams_lpbus_frames_on_its_tty() {
 
 #[test]
 fn sopas_decode_prints_every_field_as_json() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/sopas");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../drivers/tests/data/sopas");
     let out = Command::new(env!("CARGO_BIN_EXE_amr"))
         .args(["tools", "sopas-decode"])
         .arg(data.join("03_tim781s_colaB_sSN_LMDscandata.frame2.bin"))
