@@ -1,4 +1,4 @@
-//! The crate graph points one way (`../shared/ARCHITECTURE.md`): the configuration plumbing
+//! The crate graph points one way (`docs/architecture.md`, rules between crates): the configuration plumbing
 //! (settings) depends on nothing of ours, core and drivers only on it, the message vocabulary
 //! (msgs) only on core, actors on core, msgs and drivers, hil-mocks
 //! on core and drivers (never on the actors or their messages), the simulation on those, the

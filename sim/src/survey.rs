@@ -31,7 +31,8 @@ pub struct SurveyOptions {
 impl SurveyOptions {
     /// A careful survey: every 0.4 m, 25 cm clear of walls, 1 cm range noise, poses off by 2 cm
     /// and 0.3° (the residue `core/src/amcl/surveyed.rs` uses for its SLAM-style map); a cell is
-    /// occupied at a quarter of hits, the default of `../shared/tools/carmen/make_map.py`, which
+    /// occupied at a quarter of hits, the default of the tool that turned the public Radish CARMEN logs
+    /// (stored in the GitHub repository `acschaefer/ple`) into raw-odometry logs and references, and
     /// built the real-data maps.
     pub const TYPICAL: SurveyOptions = SurveyOptions {
         spacing_m: 0.4,

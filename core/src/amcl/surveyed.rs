@@ -273,7 +273,8 @@ fn tracks_a_surveyed_map_where_nav2_defaults_get_lost() {
     assert!(nav2_rmse > 0.25, "this world is kinder than the real logs: {nav2:?}");
 }
 
-/// The same world as a CARMEN log and a reference CSV, the files `../shared/tools/carmen/` makes
+/// The same world as a CARMEN log with raw odometry and a reference CSV of corrected poses: the files
+/// that are made, for the public Radish CARMEN logs stored in the GitHub repository `acschaefer/ple`,
 /// from real logs, through what `amr localize` and `amr bench localize` run: the log reader,
 /// `LogLocalizer` (start from the first reference pose) and `score`.
 #[test]

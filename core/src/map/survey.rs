@@ -1,4 +1,5 @@
-//! Maps built the way SLAM builds them (and the way `../shared/tools/carmen/make_map.py` builds the
+//! Maps built the way SLAM builds them (and the way the tool that turns the public Radish CARMEN logs,
+//! stored in the GitHub repository `acschaefer/ple`, into raw-odometry logs and references builds the
 //! real-data maps): every beam is traced from the sensor; the cells it passes through collect a
 //! *miss*, the cell its endpoint falls in collects a *hit*. A cell is occupied when
 //! `hits / (hits + misses) ≥ occ_ratio` (and it has at least `min_hits`), free when observed

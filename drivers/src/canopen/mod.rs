@@ -11,7 +11,7 @@
 //! - [`transport`]: the frame transport trait and its three implementations.
 //! - [`shell`]: the tokio task running the master over a transport.
 //!
-//! Protocol facts: `shared/spec/devices.md` §2 and `shared/research/lpms-and-canopen.md` Part B.
+//! Protocol facts, with their public sources: `docs/devices.md` §2.
 
 pub mod cia402;
 pub mod config;

@@ -6,7 +6,7 @@
 //! - [`session`]: the start-up sequence, watchdog and reopen backoff as a pure state machine.
 //! - [`serial`]: the tokio shell over tokio-serial (or any `AsyncRead + AsyncWrite`).
 //!
-//! Protocol facts: `shared/spec/devices.md` §3 and `shared/research/lpms-and-canopen.md` Part A.
+//! Protocol facts, with their public sources: `docs/devices.md` §3.
 //!
 //! ```no_run
 //! # async fn imu() -> Result<(), amr_settings::Violation> {

@@ -9,7 +9,7 @@
 //! - [`tcp`]: the tokio shell over `TcpStream`.
 //! - [`capture`]: decoding a captured telegram file.
 //!
-//! Protocol facts: `shared/spec/devices.md` §1 and `shared/research/sopas-tim5xx.md`.
+//! Protocol facts, with their public sources: `docs/devices.md` §1.
 
 mod args;
 pub mod capture;
