@@ -32,15 +32,16 @@ pub(crate) struct NetArgs {
     /// network.toml's `certs_dir`; make them with `amr fleet certs`).
     #[arg(long, value_name = "DIR")]
     pub certs: Option<PathBuf>,
-    /// Plain TCP with user/password instead of mutual TLS: nothing is encrypted and a robot
-    /// cannot tell the server from whoever answers at its address. For a closed test bench only.
+    /// Plain TCP instead of mutual TLS, each peer admitted by its line of a credentials file:
+    /// nothing is encrypted and a robot cannot tell the server from whoever answers at its
+    /// address. For a closed test bench only.
     #[arg(long, conflicts_with = "certs")]
     pub insecure: bool,
     /// With --insecure: the `user:password` file (default: network.toml's `credentials_file`).
     #[arg(long, requires = "insecure")]
     pub credentials: Option<PathBuf>,
-    /// Zenoh endpoints instead of network.toml's (`amr server`: to listen on; `amr robot`: to
-    /// connect to), e.g. tls/127.0.0.1:7447.
+    /// Zenoh endpoints instead of network.toml's (`amr server`: to listen on; `amr robot` and
+    /// `amr estop`: to connect to), e.g. tls/127.0.0.1:7447.
     #[arg(long, value_delimiter = ',')]
     pub endpoint: Vec<String>,
 }

@@ -32,8 +32,9 @@ const ZENOH_CONFIG_LOG: &str = "zenoh::api::session=info";
     about = "Actor-based hardware-in-the-loop controller for robots driving in close formation",
     long_about = "Actor-based hardware-in-the-loop controller for robots driving in close formation.\n\n\
         Each robot runs supervised actors for its LiDAR (SOPAS), wheel drives (CANopen CiA 402) and IMU \
-        (LPBUS); a fusion server builds one virtual scan from both robots (the Virtual-AMR method) and \
-        localises it with AMCL. Logs go to stderr, filtered by RUST_LOG (default: info for our crates)."
+        (LPBUS); a fusion server builds one virtual scan from the formation's robots (the Virtual-AMR \
+        method) and localises it with AMCL. Logs go to stderr, filtered by RUST_LOG (default: info for \
+        our crates)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -74,7 +75,8 @@ enum Command {
         /// localisation.
         #[arg(long, value_parser = localize::parse_pose, allow_hyphen_values = true)]
         initial: Option<amr_core::se2::Se2>,
-        /// AMCL parameters (an amcl.toml); default: the configuration's.
+        /// AMCL parameters (an amcl.toml); default: ./config/amcl.toml if present, else the
+        /// embedded one.
         #[arg(long)]
         params: Option<PathBuf>,
         /// Where to write the CSV; default: standard output.
@@ -126,18 +128,18 @@ enum Command {
         /// (OUT/<scenario>/budget.{md,json}).
         #[arg(long, conflicts_with = "sweep")]
         budget: bool,
-        /// Instead of T1–T4 on one scenario: the occlusion study (issue 18 §3), T1–T4 over spacing
-        /// 0.5–2.0 m and teams of 2, 3 and 4 on every scenario given with --study-scenario (default:
-        /// straight, turning, hall-straight, hall-turning, corridor, short-racks), written to
+        /// Instead of T1–T4 on one scenario: the occlusion study, T1–T4 over spacing 0.5–2.0 m and
+        /// teams of 2, 3 and 4 on every scenario given with --study-scenario (default: straight,
+        /// turning, hall-straight, hall-turning, corridor, short-racks), written to
         /// OUT/study-occlusion/study.{md,json} with a plot per scenario.
         #[arg(long, value_enum, conflicts_with_all = ["sweep", "budget"])]
         study: Option<eval_cmd::Study>,
         /// A scenario (name or file) for --study; repeat for several.
         #[arg(long = "study-scenario", value_name = "SCENARIO", requires = "study")]
         study_scenarios: Vec<String>,
-        /// For --study: a configuration whose --trials leave issue 18 §4's criterion open (its
-        /// margin within two standard errors of T4 − min(T1, T2, T3)) runs this many trials in all,
-        /// the same first ones and the next (0: none does).
+        /// For --study: a configuration whose --trials leave the study's criterion open (T4 at most
+        /// 0.5 cm worse than min(T1, T2, T3), that margin within two standard errors of the paired
+        /// difference) runs this many trials in all, the same first ones and the next (0: none does).
         #[arg(long, value_name = "N", default_value_t = 50, requires = "study")]
         confirm_trials: usize,
         /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
@@ -149,8 +151,7 @@ enum Command {
         #[arg(long, value_name = "ADDR")]
         foxglove: Option<std::net::SocketAddr>,
     },
-    /// Run a mock device standalone, serving its real protocol until Ctrl-C.
-    /// The whole system against the mock devices in real time: both robots' actor trees, the
+    /// The whole system against the mock devices in real time: every robot's actor tree, the
     /// fusion server and the simulated world, the devices reached through their real protocols and
     /// transports. Prints live status, then the localisation error against the true pose and the
     /// per-stage latency table.
@@ -233,6 +234,7 @@ enum Command {
     Drill {
         /// A drill name, or `all` (the list: `amr drill list`).
         name: String,
+        /// Seed of the simulated world's noise (and of the chaos soak's fault draws).
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Length of the chaos soak, seconds (default 600: ten minutes).
@@ -246,7 +248,8 @@ enum Command {
         config: Option<PathBuf>,
     },
     /// One robot's actor tree on its devices, linked to the fusion server over the network
-    /// (network.toml: Zenoh, user/password), until Ctrl-C or SIGTERM.
+    /// (network.toml: Zenoh with mutual TLS, certificates from `amr fleet certs`), until Ctrl-C or
+    /// SIGTERM (the drives quick-stop). SIGUSR1 e-stops the robot, SIGUSR2 resets its e-stop.
     Robot {
         /// The robot's file (robot-<id>.toml); the rest of the configuration is read from its
         /// directory.
@@ -268,7 +271,9 @@ enum Command {
         rec: record_cmd::RecordArgs,
     },
     /// The fusion server's actor tree on the network link (network.toml), until Ctrl-C or SIGTERM.
-    /// Operator commands on standard input: `rearm`, `stop`.
+    /// Operator commands on standard input, one per line: `rearm` (allow the formation to start
+    /// again), `stop` (stop the formation, robots disarmed), `estop` (e-stop every robot) and
+    /// `reset-estop` (clear every robot's e-stop; they stay disarmed until `rearm`).
     Server {
         /// server.toml; the rest of the configuration is read from its directory.
         #[arg(long)]
@@ -276,6 +281,7 @@ enum Command {
         /// The scenario whose plan the formation follows once armed.
         #[arg(long, default_value = "straight")]
         scenario: String,
+        /// Seed of AMCL's random draws.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Arm the formation once, as soon as every robot is healthy and localised (otherwise, and
@@ -323,9 +329,11 @@ enum Command {
     /// The fleet link's set-up.
     #[command(subcommand)]
     Fleet(FleetCommand),
+    /// Run a mock device standalone, serving its real protocol until Ctrl-C (for any client: ours,
+    /// the vendor's tools, a ROS driver).
     #[command(subcommand)]
     Mock(MockCommand),
-    /// Protocol tools.
+    /// Protocol tools: decode a SOPAS capture, check the robot on a kernel CAN interface.
     #[command(subcommand)]
     Tools(ToolsCommand),
 }
@@ -354,9 +362,10 @@ enum MockCommand {
         #[arg(long, value_parser = parse_dialect)]
         dialect: Option<amr_drivers::sopas::Dialect>,
     },
-    /// Two (or more) mock TECO servo drives, CANopen CiA 402 nodes in profile velocity mode, on a
-    /// simulated CAN bus behind a socketcand server (CAN over TCP): python-can's `socketcand`
-    /// interface or any CiA 402 master can drive them. Prints the address.
+    /// Mock TECO servo drives (by default two, nodes 1 and 2), CANopen CiA 402 nodes in profile
+    /// velocity mode, on a simulated CAN bus behind a socketcand server (CAN over TCP):
+    /// python-can's `socketcand` interface or any CiA 402 master can drive them. Prints the
+    /// address.
     Drives {
         /// Address of the socketcand server (port 0 picks a free one).
         #[arg(long, default_value = "127.0.0.1:29536")]
@@ -394,6 +403,7 @@ enum ToolsCommand {
         /// can-utils' cansend.
         #[arg(long, default_value = "cansend")]
         cansend: PathBuf,
+        /// Seed of the simulated world's noise.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Configuration directory (default: ./config if present, else the embedded defaults).
@@ -434,9 +444,10 @@ enum BenchCommand {
         #[arg(long)]
         no_large_map: bool,
     },
-    /// AMCL on recorded real logs (the files `../shared/tools/carmen/regen.sh` writes) against their
-    /// references: tracking from the first reference pose and global localisation, per log and seed,
-    /// beside the odometry alone and nav2's figures (from `--nav2 DIR/<name>.csv`).
+    /// AMCL on recorded real logs (public CARMEN logs turned into raw-odometry logs, SLAM-built
+    /// maps and reference trajectories; none ships with amr) against their references: tracking
+    /// from the first reference pose and global localisation, per log and seed, beside the
+    /// odometry alone and nav2's figures (from `--nav2 DIR/<name>.csv`).
     Localize {
         /// Directory holding `<name>-raw.log`, `<name>_map.yaml` and `<name>-gt.csv`.
         #[arg(long)]
