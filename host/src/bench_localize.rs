@@ -1,6 +1,6 @@
 //! `amr bench localize`: AMCL on recorded real logs against their references, per log: tracking from
 //! the first reference pose and global localisation, with the odometry alone and (when given) nav2's
-//! figures beside them. Reads what `../shared/tools/carmen/regen.sh` writes: `<name>-raw.log`,
+//! figures beside them. Reads Radish CARMEN logs (GitHub acschaefer/ple, data/carmen/) as `<name>-raw.log`,
 //! `<name>_map.yaml` (+ image), `<name>-gt.csv`. Measures; asserts nothing.
 
 use std::fmt::Write as _;
@@ -261,7 +261,7 @@ fn logs_in(dir: &Path) -> anyhow::Result<Vec<String>> {
     names.sort();
     anyhow::ensure!(
         !names.is_empty(),
-        "{}: no <name>-raw.log with <name>_map.yaml and <name>-gt.csv beside it (see ../shared/tools/carmen)",
+        "{}: no <name>-raw.log with <name>_map.yaml and <name>-gt.csv beside it (made from the Radish CARMEN logs of github.com/acschaefer/ple, data/carmen/: docs/guide.md)",
         dir.display()
     );
     Ok(names)
