@@ -68,6 +68,48 @@ pub fn member_command(
     (v + gains.k_x * e.x, w + lateral * gains.k_y * e.y + gains.k_theta * e.theta)
 }
 
+/// Within this distance of its slot, m, and this heading of V's, rad, a re-forming robot stands.
+pub const REFORM_TOLERANCE: (f64, f64) = (0.03, 0.035);
+
+/// A robot at `measured_in_v` (V's frame) driven to its slot `(0, slot_y_m, 0)` with V at rest: the
+/// unicycle's go-to-pose law in polar coordinates (distance ρ to the slot, bearing α of the slot
+/// from the robot's heading, β the slot's heading seen along that bearing): `v = k_ρ·ρ`,
+/// `ω = k_α·α + k_β·β`, which converges for `k_ρ > 0`, `k_β < 0`, `k_α > k_ρ` (Siegwart,
+/// Nourbakhsh and Scaramuzza, *Introduction to Autonomous Mobile Robots*, 2nd ed., §3.6.2.4). A slot
+/// behind the robot is reached in reverse (the bearing taken from the robot's rear), so a robot
+/// never turns round to back into its slot. [`member_command`] cannot do this: with V at rest its
+/// lateral term is off (a differential drive moves sideways only while it moves), so a robot
+/// beside its slot would stand there for good.
+#[must_use]
+pub fn reform_command(slot_y_m: f64, measured_in_v: &Se2) -> (f64, f64) {
+    const K_RHO: f64 = 0.5;
+    const K_ALPHA: f64 = 1.5;
+    const K_BETA: f64 = -0.4;
+    let (dx, dy) = (0.0 - measured_in_v.x, slot_y_m - measured_in_v.y);
+    let rho = dx.hypot(dy);
+    let heading_error = crate::se2::normalize_angle(-measured_in_v.theta);
+    if rho <= REFORM_TOLERANCE.0 {
+        // At the slot: turn on the spot to V's heading, then stand.
+        return if heading_error.abs() <= REFORM_TOLERANCE.1 {
+            (0.0, 0.0)
+        } else {
+            (0.0, K_ALPHA * heading_error)
+        };
+    }
+    let bearing = dy.atan2(dx);
+    let mut alpha = crate::se2::normalize_angle(bearing - measured_in_v.theta);
+    let mut direction = 1.0;
+    if alpha.abs() > std::f64::consts::FRAC_PI_2 {
+        // Behind: drive backwards, the bearing taken from the robot's rear.
+        alpha = crate::se2::normalize_angle(alpha + std::f64::consts::PI);
+        direction = -1.0;
+    }
+    let beta = crate::se2::normalize_angle(-measured_in_v.theta - alpha);
+    // Mostly facing the slot's direction first: little forward speed while the bearing is large.
+    let v = direction * K_RHO * rho * alpha.cos().max(0.0);
+    (v, K_ALPHA * alpha + K_BETA * beta)
+}
+
 /// Clamp a twist to the robot's limits: `|v| ≤ v_max`, `|ω| ≤ ω_max`, and the change from
 /// `previous` within `a_max·dt` (wheel-surface acceleration, shared by v and ω·b/2).
 #[must_use]
@@ -127,6 +169,48 @@ mod tests {
         }
         assert!((vpose.inverse() * a).approx_eq(&Se2::new(0.0, r, 0.0), 1e-9, 1e-9));
         assert!((vpose.inverse() * b).approx_eq(&Se2::new(0.0, -r, 0.0), 1e-9, 1e-9));
+    }
+
+    /// A robot beside, ahead of or behind its slot, at any heading within ±60° of V's, re-forms with
+    /// V at rest under the formation's limits (0.22 m/s, 0.2 rad/s, 0.05 m/s²): within the
+    /// tolerance in 90 s, standing there, and never more than 0.5 m farther from the slot than it
+    /// started. [`member_command`] leaves a robot beside its slot where it is.
+    #[test]
+    fn a_robot_beside_its_slot_reforms_with_v_at_rest() {
+        let (slot_y, dt) = (-0.45, 0.05);
+        let mut starts = Vec::new();
+        for dy in [-0.7, -0.3, 0.3, 0.65] {
+            for dx in [-0.5, 0.0, 0.4] {
+                for th in [-60f64, 0.0, 45.0] {
+                    starts.push(Se2::new(dx, slot_y + dy, th.to_radians()));
+                }
+            }
+        }
+        for start in starts {
+            let rho0 = start.x.hypot(start.y - slot_y);
+            let (mut p, mut last, mut worst) = (start, (0.0, 0.0), 0.0f64);
+            let mut at_rest = None;
+            for k in 0..(90.0 / dt) as usize {
+                let cmd = limit_twist(reform_command(slot_y, &p), last, dt, 0.22, 0.2, 0.05);
+                last = cmd;
+                p = p * arc(cmd.0 * dt, cmd.1 * dt);
+                worst = worst.max(p.x.hypot(p.y - slot_y));
+                if cmd == (0.0, 0.0) && at_rest.is_none() {
+                    at_rest = Some(k);
+                }
+            }
+            let rho = p.x.hypot(p.y - slot_y);
+            assert!(
+                rho <= REFORM_TOLERANCE.0 + 0.01 && p.theta.abs() <= REFORM_TOLERANCE.1 + 0.01,
+                "from {start:?}: ended at {p:?}"
+            );
+            assert_eq!(reform_command(slot_y, &p), (0.0, 0.0), "from {start:?}: at {p:?}");
+            assert!(worst <= rho0 + 0.5, "from {start:?}: went {worst:.2} m from the slot");
+            assert!(at_rest.is_some(), "from {start:?}");
+        }
+        // The tracking law's correction does not move it sideways with V at rest.
+        let beside = Se2::new(0.0, slot_y + 0.5, 0.0);
+        assert_eq!(member_command(0.0, 0.0, slot_y, &beside, &FormationGains::DEFAULT), (0.0, 0.0));
     }
 
     fn arc(ds: f64, dth: f64) -> Se2 {

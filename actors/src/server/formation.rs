@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use amr_core::config::{OnRobotLost, ScenarioLimits};
-use amr_core::formation::{FormationGains, limit_twist, member_command};
+use amr_core::formation::{FormationGains, limit_twist, member_command, reform_command};
 use amr_core::plan::Reference;
 use amr_core::se2::Se2;
 use amr_core::vamr::frame::virtual_frame;
@@ -28,6 +28,12 @@ use amr_msgs::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
 pub(crate) const ESTIMATE_FRESH_S: f64 = 0.5;
 /// Robots that do not confirm an arm within this long are asked again, s.
 const ARM_TIMEOUT_S: f64 = 2.0;
+/// A robot this far from its slot, as the first robot sees it (m, rad), stops the plan: the formation re-forms
+/// before it goes on. Its tracking law corrects small errors while V moves; from far off it can
+/// steer a robot the wrong way (in the chaos soak, one drove through the site's wall).
+const OUT_OF_SHAPE: (f64, f64) = (0.25, 0.26);
+/// Re-formed: every robot this close to its slot (m, rad), and the plan goes on.
+const BACK_IN_SHAPE: (f64, f64) = (0.06, 0.07);
 /// A formation that is first armed with V farther than this from the plan's start (a restarted
 /// server: the robots are where the last one left them) resumes the plan where V is, m and rad.
 const AWAY_FROM_START_M: f64 = 0.25;
@@ -163,6 +169,8 @@ pub(crate) struct FormationState {
     published: Option<FormationStatus>,
     /// When it was published, fleet-clock seconds.
     published_at_s: f64,
+    /// Re-forming: a robot was out of shape, and not every one is back in it yet.
+    reforming: bool,
 }
 
 impl RobotView {
@@ -361,6 +369,19 @@ impl FormationActor {
                         self.command_all_zero(state, now);
                     }
                     state.phase = Phase::Holding { reason };
+                } else if let Some(why) = self.out_of_shape(state, now) {
+                    // On a verified V, but a robot is far from its slot: the plan waits while
+                    // every robot drives to its slot around the plan's point.
+                    let (who, detail) = why;
+                    let reason = format!("re-forming: {who} is out of its slot");
+                    if state.phase != (Phase::Holding { reason: reason.clone() }) {
+                        tracing::warn!(%reason, %detail, "formation holding");
+                    }
+                    let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
+                    if !poses.is_some_and(|p| self.reform_around_plan(state, now, &p)) {
+                        self.command_all_zero(state, now);
+                    }
+                    state.phase = Phase::Holding { reason };
                 } else {
                     if matches!(state.phase, Phase::Holding { .. }) {
                         self.resync_plan(state, now);
@@ -397,14 +418,53 @@ impl FormationActor {
     fn reform(&self, state: &mut FormationState, now: f64) -> bool {
         let fused = state.robots.iter().any(|r| r.fused.is_some_and(|a| now - a.stamp_s <= ESTIMATE_FRESH_S));
         let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.own_verified_now(now)).collect();
+        match (fused, poses) {
+            (false, Some(poses)) => self.reform_around_plan(state, now, &poses),
+            _ => false,
+        }
+    }
+
+    /// Drive every robot, at `poses`, to its slot around the plan's current point, the plan
+    /// paused; whether there was a plan point. With V at rest the tracking law cannot move a robot
+    /// sideways (a differential drive moves sideways only while it moves): the go-to-pose law
+    /// does.
+    fn reform_around_plan(&self, state: &mut FormationState, now: f64, poses: &[Se2]) -> bool {
         let k = (state.plan_s / self.params.period_s).round() as usize;
-        let (false, Some(poses), Some(r)) = (fused, poses, self.params.plan.get(k).copied()) else {
-            return false;
-        };
+        let Some(r) = self.params.plan.get(k).copied() else { return false };
         for (i, pose) in poses.iter().enumerate() {
-            self.steer(state, i, &r, *pose, (0.0, 0.0), now);
+            let cmd = reform_command(self.params.slots[i], &(r.pose.inverse() * *pose));
+            self.send_limited(state, i, cmd, now);
         }
         true
+    }
+
+    /// The robot farthest from its slot as the first robot sees it, when the formation is out of
+    /// shape (past [`OUT_OF_SHAPE`], or still past [`BACK_IN_SHAPE`] while re-forming): its name,
+    /// and how far.
+    fn out_of_shape(&self, state: &mut FormationState, now: f64) -> Option<(String, String)> {
+        let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
+        let poses = poses?;
+        let (first, first_slot) = (*poses.first()?, *self.params.slots.first()?);
+        let (limit_m, limit_rad) = if state.reforming { BACK_IN_SHAPE } else { OUT_OF_SHAPE };
+        // Each robot where the first one sees it, against where its slot puts it: the shape,
+        // whatever V's own error.
+        let worst = poses
+            .iter()
+            .zip(&self.params.slots)
+            .enumerate()
+            .skip(1)
+            .map(|(i, (p, slot))| {
+                let seen = first.inverse() * *p;
+                (i, seen.x.hypot(seen.y - (slot - first_slot)), seen.theta.abs())
+            })
+            .filter(|(_, m, rad)| *m > limit_m || *rad > limit_rad)
+            .max_by(|a, b| {
+                (a.1 + HEADING_WEIGHT_M_PER_RAD * a.2).total_cmp(&(b.1 + HEADING_WEIGHT_M_PER_RAD * b.2))
+            });
+        state.reforming = worst.is_some();
+        let (i, m, rad) = worst?;
+        let who = self.ports.robots.get(i).map_or("a robot", String::as_str).to_owned();
+        Some((who, format!("{m:.2} m and {:.0}° from its slot", rad.to_degrees())))
     }
 
     /// Command robot `i`, at `pose`, V's twist `(v, w)` plus the correction towards its slot
@@ -420,6 +480,11 @@ impl FormationActor {
     ) {
         let in_v = r.pose.inverse() * pose;
         let cmd = member_command(v, w, self.params.slots[i], &in_v, &self.params.gains);
+        self.send_limited(state, i, cmd, now);
+    }
+
+    /// Command robot `i` the twist `cmd` within the limits.
+    fn send_limited(&self, state: &mut FormationState, i: usize, cmd: (f64, f64), now: f64) {
         // A pose far beyond any map can overflow the correction: then the robot is slowed to rest.
         let cmd = if cmd.0.is_finite() && cmd.1.is_finite() { cmd } else { (0.0, 0.0) };
         let lim = &self.params.limits;
@@ -612,6 +677,7 @@ impl Actor for FormationActor {
             record_s: self.params.progress.load(&self.params.plan_id),
             published: None,
             published_at_s: f64::NEG_INFINITY,
+            reforming: false,
         })
     }
 
@@ -820,7 +886,7 @@ mod tests {
 
     use super::super::progress::PlanProgress;
     use super::super::{ServerSetup, ServerTree, formation_robots, start_server};
-    use super::FormationMsg;
+    use super::{FormationMsg, Phase};
     use crate::clock::FleetClock;
     use crate::config::{ConfigSource, load};
     use crate::link::{DownlinkSender, ScanSlots, ServerEnd};
@@ -1004,6 +1070,54 @@ mod tests {
         }
         assert!(moving, "the formation never ran");
         assert!(stopped, "robot-a not localised: the formation stops (on_robot_lost = stop)");
+        tree.shutdown().await;
+    }
+
+    /// Running on a verified V, robot-b is put 0.5 m beside its slot: the plan waits (its time
+    /// does not advance), the status says who, and robot-b is driven towards its slot (with V at
+    /// rest the tracking law would leave it there); back in its slot, the plan goes on.
+    #[tokio::test(start_paused = true)]
+    async fn a_robot_out_of_its_slot_stops_the_plan_until_the_formation_has_re_formed() {
+        let (tree, f, mut queues, starts) = server().await;
+        for robot in ROBOTS {
+            f.cast(safety(robot, SafetyState::Disarmed(DisarmReason::Startup), 1)).unwrap();
+        }
+        f.cast(FormationMsg::Rearm).unwrap();
+        let beside = vec![starts[0], starts[1] * Se2::new(0.0, -0.5, 0.0)];
+        let status = || async { ractor::call!(f, FormationMsg::Status).unwrap() };
+        let (mut plan_at_push, mut turned) = (None, false);
+        for k in 1..=80u32 {
+            let now = f64::from(k) * 0.05;
+            let at = if (30..60).contains(&k) { &beside } else { &starts };
+            localised(&f, at, u64::from(k), now);
+            if k >= 3 {
+                for robot in ROBOTS {
+                    f.cast(safety(robot, SafetyState::Armed, 1)).unwrap();
+                }
+            }
+            let sent = period(&f, &mut queues).await;
+            let st = status().await;
+            if k == 30 {
+                plan_at_push = Some(st.plan_s);
+            }
+            if (32..60).contains(&k) {
+                match &st.phase {
+                    Phase::Holding { reason } => {
+                        assert!(reason.starts_with("re-forming: robot-b"), "{reason}")
+                    }
+                    p => panic!("at {k}: {p:?}"),
+                }
+                assert!(plan_at_push.is_some_and(|p| (st.plan_s - p).abs() < 0.11), "at {k}: {}", st.plan_s);
+                turned |= sent
+                    .iter()
+                    .any(|(i, d)| *i == 1 && matches!(d, Downlink::Command(c) if c.w_radps != 0.0));
+            }
+            if k == 79 {
+                assert_eq!(st.phase, Phase::Running);
+                assert!(plan_at_push.is_some_and(|p| st.plan_s > p + 0.5), "{}", st.plan_s);
+            }
+        }
+        assert!(turned, "robot-b was not driven towards its slot");
         tree.shutdown().await;
     }
 }

@@ -369,8 +369,7 @@ fn a_kidnapped_filter_reports_lost_and_relocalises_by_itself() {
 /// it re-seeds from the scan. A formation holds while a robot is lost, so this robot would stand
 /// still for good otherwise. On every seed: `Lost` within 3 scans, within 0.3 m / 10° and
 /// `Tracking` within 10 (measured, seeds 0–5: lost at the second scan, back from the fourth,
-/// tracking from the sixth). It stayed lost 6.6 m off for all 40 scans while a lost filter at
-/// rest was only judged.
+/// tracking from the sixth).
 #[test]
 fn a_lost_filter_relocalises_while_the_robot_stands_still() {
     let params = tuned_params();
