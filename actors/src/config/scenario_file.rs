@@ -1,6 +1,7 @@
 //! A scenario chosen by name (one of the configuration's `scenarios/`) or by path (a `.toml` file
-//! anywhere, whose `map` may be a path relative to it: `map = "../maps/hall.yaml"`), with its map
-//! (issue 18 §1). Errors name the file and the key.
+//! anywhere, whose `map` may be a path relative to it: `map = "../maps/hall.yaml"`), with its map,
+//! so that a site of one's own can be run without changing the shipped configuration. Errors
+//! name the file and the key.
 
 use std::path::{Path, PathBuf};
 

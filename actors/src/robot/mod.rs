@@ -1,4 +1,4 @@
-//! The robot's actor tree (ARCHITECTURE.md, issue 9 §1, §3):
+//! The robot's actor tree (docs/architecture.md, "The robot's actor tree" and "Supervision"):
 //!
 //! ```text
 //! robot-<id>            one-for-one

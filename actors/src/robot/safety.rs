@@ -1136,8 +1136,8 @@ mod tests {
                         if now - fresh_at > P.command_timeout_s + top_wheel / P.stop_decel_mps2 + 11.0 * P.period_s {
                             prop_assert!(v == 0.0 && w == 0.0, "still moving {v} {w} {} s after the last fresh command", now - fresh_at);
                         }
-                        // Issue 19 §6: no motion after a fault, e-stop, halt or restart without a
-                        // newer re-arm (a disarm or the watchdog only ramps down what was moving).
+                        // No motion after a fault, e-stop, halt or restart without a newer re-arm
+                        // (a disarm or the watchdog only ramps down what was moving).
                         if !armed_since_stop && core.state() != SafetyState::Armed {
                             for k in 0..2 {
                                 prop_assert!(b[k].abs() <= a[k].abs() + 1e-9, "wheel {k} sped up with no arm since the stop");

@@ -1,4 +1,4 @@
-//! The fusion server's actor tree (ARCHITECTURE.md, issue 9 §2):
+//! The fusion server's actor tree (docs/architecture.md, "The server's actor tree"):
 //!
 //! ```text
 //! server          one-for-one

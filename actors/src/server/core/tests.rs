@@ -193,7 +193,7 @@ fn scan_in_frame(robot: &str, stamp_s: f64, odom: Se2, frame: u64) -> Uplink {
     })
 }
 
-/// Issue 19 §7: a robot that restarts comes back with its odometry at the origin of a new frame.
+/// A robot that restarts comes back with its odometry at the origin of a new frame.
 /// Its AMCL must not read that as a jump of the robot (2 m back here): the pose holds.
 #[test]
 fn a_restarted_robots_odometry_is_not_read_as_motion() {
