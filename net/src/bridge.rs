@@ -2,7 +2,7 @@
 //! tree a [`RobotEnd`]; the server's bridge hands the server tree a [`ServerEnd`]: the same ends as
 //! the in-process link, so the trees do not know which link they are on.
 //!
-//! QoS (Zenoh priorities, congestion control and express; research/architecture-anchors.md §3):
+//! QoS (Zenoh priorities, congestion control and express):
 //! - scans (`DataLow`) and odometry (`Data`) may be dropped under congestion, and locally only the
 //!   latest waits to be sent (latest wins): a stale scan is worth less than none;
 //! - health and safety changes (`InteractiveLow`) queue and block their own pump only;

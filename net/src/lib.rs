@@ -1,4 +1,4 @@
-//! `amr-net`: the fleet over the network (issue 11). Robots and the fusion server run as separate
+//! `amr-net`: the fleet over the network. Robots and the fusion server run as separate
 //! processes and reach each other over Eclipse Zenoh; inside each process the actors stay on
 //! ractor. One bridge actor per process turns the link's channel ends ([`amr_actors::link`]) into
 //! Zenoh samples and back:

@@ -1,5 +1,5 @@
 //! `network.toml`: how the robots and the fusion server reach each other when they run as separate
-//! processes (Eclipse Zenoh, issue 11). The server listens; every robot connects to it. Discovery is
+//! processes (Eclipse Zenoh). The server listens; every robot connects to it. Discovery is
 //! by these endpoints only: multicast scouting and gossip stay off.
 //!
 //! Keys are not part of the configuration (it is embedded in the binary and kept in version
@@ -19,7 +19,7 @@ use amr_core::config::{ConfigFileType, RobotId, Violation, parse_file, rule};
 pub struct NetworkConfig {
     pub server: NetworkServer,
     /// A peer whose session is silent this long is gone: Zenoh's transport lease, which is also
-    /// when the server sees a robot's liveliness token vanish. At most 2 s (issue 11).
+    /// when the server sees a robot's liveliness token vanish. At most [`MAX_LEASE_MS`].
     pub lease_ms: Millis,
     /// Keep-alive messages per lease (Zenoh's `keep_alive`, default 4).
     pub keep_alive: u32,
@@ -48,7 +48,8 @@ pub struct NetworkServer {
     pub operators: Vec<RobotId>,
 }
 
-/// Longest lease the issue allows, ms.
+/// Longest lease allowed, ms: the server must see a robot gone within 2 s of its process or its
+/// link dying.
 pub const MAX_LEASE_MS: u32 = 2000;
 
 impl ConfigFileType for NetworkConfig {
