@@ -1,6 +1,6 @@
-//! Errors, in two layers kept apart (ARCHITECTURE.md "Errors"): the device answered with an error
-//! (`sFA` + code, [`DeviceError`]) versus the link or the protocol broke ([`LinkError`],
-//! [`ProtocolError`]).
+//! Errors, in two layers kept apart (docs/architecture.md, "Time, configuration, errors"): the
+//! device answered with an error (`sFA` + code, [`DeviceError`]) versus the link or the protocol
+//! broke ([`LinkError`], [`ProtocolError`]).
 
 use serde::Serialize;
 use thiserror::Error;

@@ -103,7 +103,8 @@ impl LidarConfig {
     }
 }
 
-/// Connection health (ARCHITECTURE.md: `Starting | Ok | Degraded | Lost`).
+/// Connection health, `Starting | Ok | Degraded | Lost` (docs/architecture.md, "The robot's actor
+/// tree").
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Health {
     /// Connected, start-up running.
