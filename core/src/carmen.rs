@@ -1,6 +1,6 @@
 //! CARMEN robot logs (`.log`, `.clf`): the format of many classic 2D LiDAR datasets (Intel Research
 //! Lab, MIT CSAIL, Freiburg). One message per line, each ending in
-//! `ipc_timestamp ipc_hostname logger_timestamp` (research/amcl.md §6.3). Pure: lines in, records out.
+//! `ipc_timestamp ipc_hostname logger_timestamp`. Pure: lines in, records out.
 //!
 //! Read: `ODOM x y θ tv rv accel`, `FLASER n r… x y θ odom_x odom_y odom_θ`,
 //! `RAWLASER1..4 type start fov res max acc remission n r… m rem…`, and

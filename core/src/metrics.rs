@@ -1,5 +1,5 @@
-//! The paper's error statistics (§5, Eq. 21–22; spec §10): per axis and in 2D, MAE, RMSE, median,
-//! P95 and max over all samples, and trial-level RMSE as mean ± sample standard deviation.
+//! The paper's error statistics (§5, Eq. 21–22; docs/method.md §10): per axis and in 2D, MAE, RMSE,
+//! median, P95 and max over all samples, and trial-level RMSE as mean ± sample standard deviation.
 
 use serde::Serialize;
 

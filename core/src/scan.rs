@@ -1,4 +1,5 @@
-//! Planar range scans: per-beam angles and validity, conversion to points (spec §2, Eq. 1–2).
+//! Planar range scans: per-beam angles and validity, conversion to points (paper Eq. 1–2;
+//! docs/method.md §2).
 
 use serde::{Deserialize, Serialize};
 

@@ -1,6 +1,6 @@
 //! SE(2): planar rigid transforms, the one pose type of the project.
 //!
-//! `T_B^A` (spec §1, paper Eq. 13) maps a point expressed in frame B into frame A:
+//! `T_B^A` (docs/method.md §1, paper Eq. 13) maps a point expressed in frame B into frame A:
 //! `p_A = R(θ)·p_B + t`. Composition follows the frame chain: `T_C^A = T_B^A * T_C^B`.
 //! Angles are radians and always normalised to (-π, π].
 

@@ -1,5 +1,5 @@
 //! Particle-set steps: KLD-sampling limit, systematic resampling with random injection, and the
-//! cluster estimate (nav2_amcl `pf.c`, `pf_kdtree.c`; research/amcl.md §1.4, §1.7).
+//! cluster estimate (nav2_amcl `pf.c`, `pf_kdtree.c`).
 
 use std::collections::{BTreeMap, BTreeSet};
 

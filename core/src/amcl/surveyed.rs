@@ -204,7 +204,7 @@ fn localise_log(
     score(&reference, &est)
 }
 
-/// nav2's defaults (research/amcl.md §1.1), what config/amcl.toml shipped before.
+/// nav2_amcl's defaults where the shipped `config/amcl.toml` departs from them (docs/method.md §7).
 fn nav2_defaults() -> AmclParams {
     use crate::config::value::{Fraction, NonNegative};
     let mut p = shipped_params();
@@ -221,9 +221,9 @@ fn nav2_defaults() -> AmclParams {
 /// The shipped parameters track the surveyed world within the real-data targets (translation RMSE
 /// ≤ 10 cm, heading RMSE ≤ 2°, no scan 0.5 m off) over three seeds; nav2's defaults do not (0.38 m
 /// RMSE, 1.2 m worst). Measured: 5.0–6.4 cm RMSE, worst 0.37 m, heading RMSE 0.7–1.3° (5.0–6.3,
-/// 0.30 m, 0.8–1.2° with the slip tail believed at its share, before December 2026). On the code
-/// before this test (field to cell faces, nav2's defaults shipped: commit 34693b8) it failed, at
-/// 0.36 m RMSE already without the two odometry faults.
+/// 0.30 m, 0.8–1.2° with the slip tail believed at its share, `odom_slip_probability = 0.1`). With
+/// the likelihood field's distances measured to cell faces and nav2's defaults it fails, at 0.36 m
+/// RMSE already without the two odometry faults.
 #[test]
 fn tracks_a_surveyed_map_where_nav2_defaults_get_lost() {
     let world = walls();

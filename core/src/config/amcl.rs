@@ -1,4 +1,4 @@
-//! `amcl.toml`: AMCL parameters, with nav2_amcl's names (research/amcl.md §1.1) so that a
+//! `amcl.toml`: AMCL parameters, with nav2_amcl's names (docs/method.md §7) so that a
 //! nav2 user can carry a parameter file over key by key. Keys we do not implement are rejected,
 //! not silently ignored.
 
@@ -9,7 +9,7 @@ use super::{ConfigFileType, Violation, rule};
 use crate::se2::Se2;
 
 /// The laser model (nav2 `laser_model_type`). The beam model is not offered: the virtual scan's
-/// points do not share one origin, so only endpoint models apply (spec §7).
+/// points do not share one origin, so only endpoint models apply (docs/method.md §6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 pub enum LaserModel {
     /// nav2's default: weight `1 + Σ pz³`.

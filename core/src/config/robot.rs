@@ -77,7 +77,7 @@ impl MountConfig {
     }
 }
 
-/// Motion limits every robot enforces on itself, whatever it is told (spec §8).
+/// Motion limits every robot enforces on itself, whatever it is told (docs/method.md §8).
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MotionLimits {

@@ -1,5 +1,6 @@
-//! `scenarios/<name>.toml`: an experiment of the paper (§5.1, §5.4; spec §11) — where the pair
-//! starts, how far apart, and the path of the virtual robot V as straight and turning segments.
+//! `scenarios/<name>.toml`: an experiment of the paper (§5.1, §5.4; docs/method.md §11) — where the
+//! pair starts, how far apart, and the path of the virtual robot V as straight and turning
+//! segments.
 
 use serde::Deserialize;
 

@@ -5,7 +5,7 @@ use serde::Deserialize;
 use super::value::{Millis, Positive};
 use super::{ConfigFileType, RobotId, Violation, rule};
 
-/// The four configurations of the paper's ablation (Table 12, spec §9).
+/// The four configurations of the paper's ablation (Table 12, docs/method.md §9).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Deserialize, serde::Serialize)]
 pub enum Configuration {
     /// Each robot's own AMCL; the centre is the midpoint of the two AMCL poses.

@@ -1,4 +1,4 @@
-//! `vamr.toml`: the Virtual-AMR pipeline parameters (paper Table 2, spec §2–6).
+//! `vamr.toml`: the Virtual-AMR pipeline parameters (paper Table 2, docs/method.md §2–6).
 
 use serde::Deserialize;
 
@@ -15,7 +15,8 @@ pub struct VamrParams {
     pub fusion: FusionParams,
 }
 
-/// Spec §2. Windows are in beams; the beam count and step come from each scan.
+/// Scan preprocessing (docs/method.md §2). Windows are in beams; the beam count and step come from
+/// each scan.
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PreprocessParams {
@@ -29,7 +30,7 @@ pub struct PreprocessParams {
     pub segment_jump_m: Positive,
 }
 
-/// Spec §3.
+/// Neighbour contour recognition (docs/method.md §3).
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ContourParams {
@@ -41,7 +42,7 @@ pub struct ContourParams {
     pub max_fit_rms_m: Positive,
 }
 
-/// Spec §4: the constant-velocity Kalman tracker (Eq. 8–10).
+/// The constant-velocity Kalman tracker (Eq. 8–10; docs/method.md §4).
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrackerParams {
@@ -63,7 +64,7 @@ pub struct TrackerParams {
     pub gate_probability: OpenFraction,
 }
 
-/// Spec §5: the relative-heading search (Eq. 11–12).
+/// The relative-heading search (Eq. 11–12; docs/method.md §5).
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HeadingParams {
@@ -124,7 +125,7 @@ impl HeadingParams {
     }
 }
 
-/// Spec §6: body masks and the virtual scan.
+/// Body masks and the virtual scan (docs/method.md §6).
 #[derive(Debug, Clone, Copy, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FusionParams {

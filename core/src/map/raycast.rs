@@ -1,5 +1,5 @@
 //! Ray casting through an occupancy grid whose occupied cells are solid squares: the simulated
-//! LiDAR on any map (issue 18). The ray walks the cells it crosses in order (Amanatides & Woo,
+//! LiDAR on any map. The ray walks the cells it crosses in order (Amanatides & Woo,
 //! "A fast voxel traversal algorithm for ray tracing", Eurographics 1987) and stops at the first
 //! occupied one; the range is where the ray enters that cell, so a wall's face is its cells' edge.
 //! Free and unknown cells let the ray through.

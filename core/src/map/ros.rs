@@ -1,5 +1,5 @@
 //! ROS map_server maps: the YAML metadata and the PGM/PNG image, loaded and saved with nav2's rules
-//! (nav2_map_server `map_io.cpp`, as summarised in research/amcl.md §1.9): grey = mean of the colour
+//! (nav2_map_server `map_io.cpp`): grey = mean of the colour
 //! channels (in trinary mode the PNG alpha joins the mean), `occ = 1 − grey/255` (or `grey/255` with
 //! `negate`), strict thresholds, image flipped so row 0 is the bottom.
 //!

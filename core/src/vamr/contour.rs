@@ -1,5 +1,5 @@
-//! Neighbour contour recognition (paper §4.2, Eq. 4–7; spec §3) against a configured chassis
-//! outline.
+//! Neighbour contour recognition (paper §4.2, Eq. 4–7; docs/method.md §3) against a configured
+//! chassis outline.
 //!
 //! The paper fits lines to N points on each side of a candidate corner, checks the corner against the
 //! chassis angle α, and walks from the corner to the centre by the known offset (β, d_c). Here the

@@ -1,4 +1,4 @@
-//! Synchronisation and the virtual frame (paper §4.4, Eq. 14–18; spec §6).
+//! Synchronisation and the virtual frame (paper §4.4, Eq. 14–18; docs/method.md §6).
 
 use crate::se2::Se2;
 

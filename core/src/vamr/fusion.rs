@@ -1,4 +1,4 @@
-//! Body masks and the virtual scan (paper §4.4, Eq. 19; spec §6).
+//! Body masks and the virtual scan (paper §4.4, Eq. 19; docs/method.md §6).
 
 use crate::geometry::Polygon;
 use crate::scan::Scan;

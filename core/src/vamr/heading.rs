@@ -1,4 +1,4 @@
-//! The relative-heading search (paper §4.3, Eq. 11–12; spec §5).
+//! The relative-heading search (paper §4.3, Eq. 11–12; docs/method.md §5).
 //!
 //! `s(δθ) = (1/N_p) Σ_k 1[min_{q ∈ S_j, |idx(q) − idx(R(δθ)p_k + t)| ≤ W} |R(δθ)·p_k + t − q| < ε_d]`,
 //! maximised over a grid of angles `Ω` (the full circle, or a window around the previous estimate).

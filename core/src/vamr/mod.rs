@@ -1,4 +1,4 @@
-//! The Virtual-AMR measurement-construction pipeline (paper §4, spec §2–6, §9).
+//! The Virtual-AMR measurement-construction pipeline (paper §4, docs/method.md §2–6, §9).
 
 pub mod contour;
 pub mod frame;

@@ -1,6 +1,6 @@
-//! Scan preprocessing (paper §4.1, spec §2): the 11-beam median filter and the 11-point smoothing
-//! of Eq. 3. Their output feeds contour recognition and heading matching only; the points fused into
-//! the virtual scan are the raw ones.
+//! Scan preprocessing (paper §4.1, docs/method.md §2): the 11-beam median filter and the 11-point
+//! smoothing of Eq. 3. Their output feeds contour recognition and heading matching only; the points
+//! fused into the virtual scan are the raw ones.
 
 use crate::config::PreprocessParams;
 use crate::scan::{BeamPoint, Scan};

@@ -637,9 +637,10 @@ fn fan_headings(
     (failures, worst)
 }
 
-/// Issue 18 §5: in the bench's open 10 m × 7 m hall at the TiM551's 1°, a team of up to four finds
-/// every relative heading against the target's surface; against its points alone (the paper's Eq.
-/// 11), the team of four finds none.
+/// Why the heading search matches the target's surface (docs/method.md §5): in the bench's open
+/// 10 m × 7 m hall at the TiM551's 1°, a team of up to four finds every relative heading against
+/// the target's surface; against its points alone (the paper's Eq. 11), the team of four finds
+/// none.
 #[test]
 fn against_the_surface_a_team_of_four_finds_its_headings_at_1_deg() {
     let params = shipped_params();

@@ -1,6 +1,6 @@
-//! The neighbour tracker (paper §4.2, Eq. 8–10; spec §4): a constant-velocity Kalman filter on the
-//! neighbour's centre in the observing robot's base frame, with a dynamic ROI, a Mahalanobis gate
-//! and the lost-track rule.
+//! The neighbour tracker (paper §4.2, Eq. 8–10; docs/method.md §4): a constant-velocity Kalman
+//! filter on the neighbour's centre in the observing robot's base frame, with a dynamic ROI, a
+//! Mahalanobis gate and the lost-track rule.
 
 use nalgebra::{Matrix2, Matrix2x4, Matrix4, Vector2, Vector4};
 
@@ -79,8 +79,9 @@ pub fn transition(dt: f64) -> Matrix4<f64> {
     f
 }
 
-/// Discrete white-noise-acceleration `Q(Δt)` (spec §4): σ²Δt⁴/4 on positions, σ²Δt³/2 across,
-/// σ²Δt² on velocities. At Δt = 0.1 s, σ = 0.05 m/s² this is Table 2's 6.25e-8, 1.25e-6, 2.5e-5.
+/// Discrete white-noise-acceleration `Q(Δt)` (docs/method.md §4): σ²Δt⁴/4 on positions,
+/// σ²Δt³/2 across, σ²Δt² on velocities. At Δt = 0.1 s, σ = 0.05 m/s² this is Table 2's 6.25e-8,
+/// 1.25e-6, 2.5e-5.
 #[must_use]
 pub fn process_noise(dt: f64, accel_sigma: f64) -> Matrix4<f64> {
     let s2 = accel_sigma * accel_sigma;
@@ -135,8 +136,8 @@ impl Tracker {
         })
     }
 
-    /// Eq. 10: the ROI at `t_s`, `h = h0 + |v|·Δt + γ·sqrt(P)` per axis around the predicted
-    /// centre (γ on the standard deviation, spec §4). `None` without a track: search everywhere.
+    /// Eq. 10: the ROI at `t_s`, `h = h0 + |v|·Δt + γ·sqrt(P)` per axis around the predicted centre
+    /// (γ on the standard deviation, docs/method.md §4). `None` without a track: search everywhere.
     #[must_use]
     pub fn roi(&self, t_s: f64) -> Option<Roi> {
         let s = self.state?;
