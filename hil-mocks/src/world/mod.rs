@@ -1,9 +1,8 @@
-//! The simulated world (issue 8 §1): a static site — polygon outlines, or any occupancy grid whose
-//! occupied cells are solid (issue 18) — N robot bodies with the
-//! configured chassis, differential-drive kinematics with acceleration limits, wheel slip and
-//! encoder resolution; a TiM551 model that ray-casts the map and every other robot; an IMU model
-//! (true yaw rate + bias + noise). Deterministic from a seed: all noise comes from one
-//! [`amr_core::rng::Rng`], forked per robot and per sensor.
+//! The simulated world: a static site — polygon outlines, or any occupancy grid whose occupied
+//! cells are solid — N robot bodies with the configured chassis, differential-drive kinematics with
+//! acceleration limits, wheel slip and encoder resolution; a TiM551 model that ray-casts the map
+//! and every other robot; an IMU model (true yaw rate + bias + noise). Deterministic from a seed:
+//! all noise comes from one [`amr_core::rng::Rng`], forked per robot and per sensor.
 //!
 //! Time is the caller's: [`World::step`] advances it, the sensor models read the state at the current
 //! time. The mock devices reach the world through [`WorldLidar`] and [`WorldImu`].
@@ -360,7 +359,7 @@ impl World {
 
     /// What robot `robot`'s LiDAR could see now on the beams of `beams`, noise-free: how many beams
     /// the other robots' bodies take, and how many of the site's returns it would have alone are
-    /// left (issue 18 §3: the occlusion study).
+    /// left (what `amr eval --study occlusion` reports).
     #[must_use]
     pub fn visibility(&self, robot: usize, beams: &Scan) -> Option<Visibility> {
         let me = self.robots.get(robot)?;

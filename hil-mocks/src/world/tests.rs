@@ -312,8 +312,8 @@ fn visibility_counts_the_beams_a_neighbour_takes() {
 
 /// `short-racks` is the blind-robot site: once the formation (along y = 2, up to 2 m either side)
 /// has passed the partition's end at x = −4, nothing but the racks and the partition behind it
-/// stands within the TiM551's 10 m. Until December 2026 the hall's +y wall ran on 6 m away, and
-/// the far robot kept its side and heading from it.
+/// stands within the TiM551's 10 m. A wall running on 6 m away would give the far robot its side
+/// and heading back.
 #[test]
 fn past_the_short_racks_nothing_else_is_in_range() {
     let site = short_racks().unwrap();
