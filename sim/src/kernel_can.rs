@@ -1,9 +1,9 @@
-//! A robot on a kernel CAN interface (issue 22): the robot tree's CAN link is the project's
-//! SocketCAN transport on `iface` (e.g. `vcan0`), and the mock drives sit on the same interface
-//! through a socket of their own ([`hil_mocks::teco_drive::bridge`]). Then, with `cansend`
-//! (can-utils) as a third-party peer writing to the interface: malformed frames, an
-//! error-passive report and a bus-off. `tests/vm/run` runs it inside a Linux VM (this machine's
-//! kernel has no CAN), and checks `candump`'s capture of the same exchange.
+//! A robot on a kernel CAN interface: the robot tree's CAN link is the project's SocketCAN
+//! transport on `iface` (e.g. `vcan0`), and the mock drives sit on the same interface through a
+//! socket of their own ([`hil_mocks::teco_drive::bridge`]). Then, with `cansend` (can-utils) as a
+//! third-party peer writing to the interface: malformed frames, an error-passive report and a
+//! bus-off. `tests/vm/run` runs it inside a Linux VM (this machine's kernel has no CAN), and checks
+//! `candump`'s capture of the same exchange.
 //!
 //! Each check is a line, passed or failed, with what was measured; nothing panics.
 

@@ -1,4 +1,4 @@
-//! `amr-sim`: the whole system in one process, in real time, against the mock devices (issue 9 §6).
+//! `amr-sim`: the whole system in one process, in real time, against the mock devices.
 //!
 //! The world (hil-mocks) moves the robots; each robot's mock TiM551 serves SOPAS on a loopback TCP
 //! port, its mock LPMS-B2 serves LPBUS on a pseudo-terminal, and its two mock TECO drives sit on a
@@ -514,8 +514,8 @@ fn observe_server(server: &ServerTree, observer: &ActorRef<ObserverMsg>) {
 }
 
 /// What the world ray-casts for a scenario on map `map_name`: a shipped site as its polygons (its
-/// map is their rendering, `hil_mocks::world::shipped_site`), any other map as its occupied cells
-/// (issue 18 §1).
+/// map is their rendering, `hil_mocks::world::shipped_site`), any other map (a site of one's own)
+/// as its occupied cells.
 ///
 /// A rendering marks both cells that touch a face, so its occupied cells reach a cell in front of
 /// every face. Ray-cast as a grid, each face stood a cell nearer the robots than on the map AMCL

@@ -1,4 +1,4 @@
-//! The simulated world served to separate robot processes (`amr sim --world-only`, issue 11 §6).
+//! The simulated world served to separate robot processes (`amr sim --world-only`).
 //!
 //! Choice: the world process owns the physics and every robot's mock devices, each behind its real
 //! transport on this machine (SOPAS on a loopback TCP port, CANopen behind a socketcand server on

@@ -1,6 +1,6 @@
-//! Maps as robots get them (issue 18 §2): AMCL's map built by a simulated survey of the site, the
-//! way SLAM builds maps, instead of the site itself. A robot with the TiM551's beams stands on a
-//! lattice over the site's free space, looks both ways, and its scans (with range noise) go into
+//! Maps as robots get them: AMCL's map built by a simulated survey of the site, the way SLAM builds
+//! maps, instead of the site itself. A robot with the TiM551's beams stands on a lattice over the
+//! site's free space, looks both ways, and its scans (with range noise) go into
 //! [`amr_core::map::Survey`] at poses that err a little (SLAM's residue): endpoint cells occupied,
 //! traversed cells free, never-seen space unknown. So the localiser never sees the world it is
 //! simulated in: walls are as thick as the endpoints' scatter and sit where the noisy survey put
@@ -156,11 +156,11 @@ mod tests {
     }
 
     /// A survey stands only where a robot could, never inside a rack: what lies inside a rack's
-    /// outline stays unknown to the map. Until December 2026 a position inside a rack's outline
-    /// counted as clear, the survey stood four positions inside each rack of the hall and mapped
-    /// the racks' inner faces behind their outer ones. Here a 10 m × 6 m room with two racks
-    /// 2 m × 1.2 m against a wall, deep enough to hold positions of the survey's 0.4 m lattice
-    /// (a survey of the 40 m × 20 m hall took a minute in a debug build).
+    /// outline stays unknown to the map. Were a position inside a rack's outline taken as clear,
+    /// the survey would stand four positions inside each rack of the hall and map the racks' inner
+    /// faces behind their outer ones. Here a 10 m × 6 m room with two racks 2 m × 1.2 m against a
+    /// wall, deep enough to hold positions of the survey's 0.4 m lattice (a survey of the
+    /// 40 m × 20 m hall took a minute in a debug build).
     #[test]
     fn no_surveyor_stands_inside_a_rack() {
         let rect = |x0: f64, y0: f64, x1: f64, y1: f64| {

@@ -1,4 +1,4 @@
-//! Drills on one robot and its devices (drills 1–7 and 11 of issue 10).
+//! Drills on one robot and its devices.
 
 use std::time::Duration;
 
@@ -424,10 +424,10 @@ pub(crate) async fn drive_reboot(config: &Config, seed: u64, c: &mut Check) {
     end_without_restarts(rig, c, n0).await;
 }
 
-/// A drive faults or reboots while the robot drives and the server goes on commanding (issue 19
-/// §1): the robot halts (disarmed, every target zero at once); the drive actor resets the drive
-/// and enables it again, at zero; nothing moves, however long the commands go on, until an explicit
-/// arm newer than the event; then the robot drives again.
+/// A drive faults or reboots while the robot drives and the server goes on commanding: the robot
+/// halts (disarmed, every target zero at once); the drive actor resets the drive and enables it
+/// again, at zero; nothing moves, however long the commands go on, until an explicit arm newer than
+/// the event; then the robot drives again.
 async fn drive_fault_while_moving(config: &Config, seed: u64, c: &mut Check, fault: DriveFault) {
     let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
     let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };
@@ -463,10 +463,10 @@ pub(crate) async fn drive_reboot_moving(config: &Config, seed: u64, c: &mut Chec
     drive_fault_while_moving(config, seed, c, DriveFault::Reboot).await;
 }
 
-/// An e-stop comes over the link while the safety actor is down (issue 19 §5): the robot's latch
-/// keeps it, the master's target hold zeroes the drives meanwhile, and the restarted safety actor
-/// comes back in `EStop`, quick-stopping; an arm does not clear it; a reset and then an arm newer
-/// than the reset do.
+/// An e-stop comes over the link while the safety actor is down: the robot's latch keeps it, the
+/// master's target hold zeroes the drives meanwhile, and the restarted safety actor comes back in
+/// `EStop`, quick-stopping; an arm does not clear it; a reset and then an arm newer than the reset
+/// do.
 pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Check) {
     let Some((rig, feed, n0)) = safety_killed_while_driving(config, seed, c).await else { return };
     let id = rig.tree.id.clone();
@@ -508,9 +508,9 @@ pub(crate) async fn estop_during_restart(config: &Config, seed: u64, c: &mut Che
     wrap_up(rig, c, n0).await;
 }
 
-/// The safety actor dies while the robot drives (issue 19 §1, §3): nothing sends targets, so the
-/// master's hold zeroes them; the restarted safety actor starts disarmed at zero; the commands that
-/// go on are refused; only a new arm moves the robot again.
+/// The safety actor dies while the robot drives: nothing sends targets, so the master's hold zeroes
+/// them; the restarted safety actor starts disarmed at zero; the commands that go on are refused;
+/// only a new arm moves the robot again.
 pub(crate) async fn safety_crash_moving(config: &Config, seed: u64, c: &mut Check) {
     let Some((rig, feed, n0)) = safety_killed_while_driving(config, seed, c).await else { return };
     let id = rig.tree.id.clone();
@@ -782,12 +782,12 @@ pub(crate) async fn estop(config: &Config, seed: u64, c: &mut Check) {
     c.events = lines;
 }
 
-/// A stalled transport flushes its backlog at once (issue 19 §4): a hundred fresh commands, a
-/// disarm, then twenty more arrive in one burst. Every one reaches the safety layer, in order: the
-/// disarm holds (the robot brakes at the stop deceleration), the twenty after it are refused, the
-/// inbox does not overflow, and a new arm drives again. Then the inbox's overflow policy: while the
-/// robot is frozen (its safety actor cannot take anything), more inputs than the inbox holds
-/// arrive; the robot halts, `Disarmed(QueueFull)`, every target zero.
+/// A stalled transport flushes its backlog at once: a hundred fresh commands, a disarm, then twenty
+/// more arrive in one burst. Every one reaches the safety layer, in order: the disarm holds (the
+/// robot brakes at the stop deceleration), the twenty after it are refused, the inbox does not
+/// overflow, and a new arm drives again. Then the inbox's overflow policy: while the robot is
+/// frozen (its safety actor cannot take anything), more inputs than the inbox holds arrive; the
+/// robot halts, `Disarmed(QueueFull)`, every target zero.
 pub(crate) async fn command_burst(config: &Config, seed: u64, c: &mut Check) {
     use amr_actors::robot::ports::{SAFETY_INBOX_CAPACITY, SafetyInput};
     let Some(rig) = rig_on(config, seed, SimCan::InProcess, true, c).await else { return };
@@ -872,12 +872,12 @@ pub(crate) async fn command_burst(config: &Config, seed: u64, c: &mut Check) {
     end_without_restarts(rig, c, n0).await;
 }
 
-/// The whole robot process freezes (issue 19 §3): none of its tasks runs (no SYNC, no heartbeat,
-/// no target), while its drives run on. Each drive's consumer of the master's heartbeat (0x1016,
-/// written at start-up) expires and its communication-loss reaction (0x6007 = quick stop) stops it:
-/// quick stop engaged within 2 × the consumer time, the wheels at rest within the consumer time
-/// plus the quick-stop ramp. Thawed, the robot finds its drives stopped and halts; it moves again
-/// only after a new arm.
+/// The whole robot process freezes: none of its tasks runs (no SYNC, no heartbeat, no target),
+/// while its drives run on. Each drive's consumer of the master's heartbeat (0x1016, written at
+/// start-up) expires and its communication-loss reaction (0x6007 = quick stop) stops it: quick stop
+/// engaged within 2 × the consumer time, the wheels at rest within the consumer time plus the
+/// quick-stop ramp. Thawed, the robot finds its drives stopped and halts; it moves again only after
+/// a new arm.
 pub(crate) async fn robot_freeze(config: &Config, seed: u64, c: &mut Check) {
     let Some(rig) = rig_on(config, seed, SimCan::InProcess, true, c).await else { return };
     let Some(apart) = rig.apart.as_ref() else {
@@ -929,11 +929,11 @@ pub(crate) async fn robot_freeze(config: &Config, seed: u64, c: &mut Check) {
     wrap_up(rig, c, n0).await;
 }
 
-/// The robot's e-stop chain opens (issue 19 §5): it is wired to a digital input of a drive
-/// (0x60FD bit 16, normally closed), which the master reads in TPDO2 every cycle. The drive actor
-/// latches the e-stop and quick-stops the drives at once. A local reset is refused while the chain
-/// is open; the latch holds when it closes again and refuses an arm; the server's reset over the
-/// network is refused (the stop was not initiated there); a local reset and a new arm drive again.
+/// The robot's e-stop chain opens: it is wired to a digital input of a drive (0x60FD bit 16,
+/// normally closed), which the master reads in TPDO2 every cycle. The drive actor latches the
+/// e-stop and quick-stops the drives at once. A local reset is refused while the chain is open; the
+/// latch holds when it closes again and refuses an arm; the server's reset over the network is
+/// refused (the stop was not initiated there); a local reset and a new arm drive again.
 pub(crate) async fn estop_input(config: &Config, seed: u64, c: &mut Check) {
     let Some(rig) = rig(config, seed, SimCan::InProcess, c).await else { return };
     let Some(feed) = drive_until_turning(&rig, 0.15, c).await else { return };

@@ -1,8 +1,8 @@
-//! Fault-recovery drills (issue 10): each injects a fault through a mock device's fault plan (or
-//! kills an actor) in a running system and checks, with deadlines, (a) detection, (b) the safe
-//! state where the fault is safety-relevant, (c) recovery, (d) the exact ordered event log and
-//! (e) the counters. Real sockets and ptys are involved, so drills run in real time with short
-//! timeouts and bounded waits.
+//! Fault-recovery drills: each injects a fault through a mock device's fault plan (or kills an
+//! actor) in a running system and checks, with deadlines, (a) detection, (b) the safe state where
+//! the fault is safety-relevant, (c) recovery, (d) the exact ordered event log and (e) the
+//! counters. Real sockets and ptys are involved, so drills run in real time with short timeouts and
+//! bounded waits.
 //!
 //! A drill never panics on a failed expectation: it records it, so `amr drill all` can print the
 //! whole table; the tests assert that each drill passed and print what failed.
@@ -34,7 +34,7 @@ pub struct Drill {
     pub about: &'static str,
 }
 
-/// Every drill, in the issue's order.
+/// Every drill, in the order `amr drill all` runs and lists them.
 pub const DRILLS: &[Drill] = &[
     Drill { name: "lidar-panic", about: "the LiDAR actor panics: restarted alone, drives and IMU untouched" },
     Drill {

@@ -1,5 +1,5 @@
-//! The paper's experiments in simulated time (issue 8): the world, the Virtual-AMR pipeline and AMCL,
-//! with T1–T4 run side by side on identical sensor streams.
+//! The paper's experiments in simulated time: the world, the Virtual-AMR pipeline and AMCL, with
+//! T1–T4 run side by side on identical sensor streams.
 //!
 //! The pair follows its plan with the Eq. 20 controller closed on each robot's true pose, never on
 //! the estimates, so every configuration sees exactly the same scans and the formation keeps the
@@ -161,7 +161,7 @@ pub struct Trial {
     pub visibility: Vec<View>,
 }
 
-/// One robot's view over a trial (issue 18 §3), shares in 0..=1.
+/// One robot's view over a trial (how much the others hide of the site), shares in 0..=1.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct View {
     /// Of its beams, the share whose first return is another robot's body.
@@ -500,7 +500,7 @@ pub struct ConfigSummary {
     pub paper_rmse_2d: Option<(f64, f64)>,
 }
 
-/// The paper's trial-level 2D RMSE (spec §10).
+/// The paper's trial-level 2D RMSE (Tables 15–16; docs/method.md §10).
 #[must_use]
 pub fn paper_rmse(scenario: &str, c: Configuration) -> Option<(f64, f64)> {
     let row = match scenario {
