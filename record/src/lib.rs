@@ -1,5 +1,5 @@
-//! Recording, replay and live view (issue 12): MCAP files and a Foxglove WebSocket server with
-//! Foxglove's schemas.
+//! Recording, replay and live view: MCAP files and a Foxglove WebSocket server with Foxglove's
+//! schemas.
 //!
 //! - [`Recorder`] subscribes to the server's ports ([`amr_actors::server::ports::ServerPorts`])
 //!   and/or robots' ports ([`amr_actors::robot::ports::RobotPorts`]) and writes every message to an
@@ -11,7 +11,7 @@
 //! - [`ros2`]: ROS 2 bags: `--record --ros2` writes one (CDR, rosbag2's MCAP profile), and
 //!   [`ros2::bag`] reads a bag's scans and odometry for `amr localize --bag`.
 //!
-//! # Build decisions (measured 2026-12-01 on this 2-core machine, shared with two other builds)
+//! # Build decisions (measured 2026-12-01 on a 2-core machine, shared with two other builds)
 //!
 //! **JSON schemas, not the `foxglove` SDK crate.** Foxglove opens MCAP channels with schema
 //! encoding `jsonschema` and message encoding `json` with no plugin, so the well-known schemas are

@@ -425,8 +425,8 @@ fn in_virtual_time_replay_is_exact_in_t1_t2_and_t3_too() {
     // There the fusion takes relative poses from the robots' own AMCL, which the server core
     // updates on each scan before fusing it, live and in the replay alike. 4 s: T2's heading
     // search needs the robots' AMCL poses within about 2 cm of each other, which the product model
-    // reaches about 1 s after the start's spread (measured in session 4: 46 of 60 fused in T2,
-    // all 60 in T1 and T3).
+    // reaches about 1 s after the start's spread (measured: 46 of 60 fused in T2, all 60 in T1 and
+    // T3).
     for c in [Configuration::T1, Configuration::T2, Configuration::T3] {
         let r = record(c, Clock::Virtual, 60);
         let report = replay(&r.path, None, &setup(c), None).unwrap();
