@@ -10,7 +10,7 @@ fn shipped_configuration_is_valid() {
     let config = load(&ConfigSource::Dir(config_dir())).unwrap();
     let ids: Vec<&str> = config.robots.iter().map(|r| r.id.as_str()).collect();
     assert_eq!(ids, ["robot-a", "robot-b"]);
-    // Spot-check the values the issue pins down.
+    // Spot-check values taken from the paper, nav2_amcl's defaults and the devices.
     let a = config.robot("robot-a").unwrap();
     assert_eq!(a.chassis.outline_m.bounds(), (-0.2, -0.2, 0.2, 0.2));
     assert_eq!(a.lidar_mount.to_se2(), amr_core::se2::Se2::new(0.175, 0.0, 0.0));

@@ -1,8 +1,7 @@
-//! Degradation instead of failure (issue 9 §4), in a real-time simulation: one robot's scans stop
-//! mid-run. The server declares it lost, keeps localising the other robot on its own AMCL and stops
-//! the formation (the shipped `on_robot_lost = "stop"`); when the scans return the track is
-//! re-acquired with a full heading search, and the formation resumes only after an explicit
-//! re-arm.
+//! Degradation instead of failure, in a real-time simulation: one robot's scans stop mid-run. The
+//! server declares it lost, keeps localising the other robot on its own AMCL and stops the
+//! formation (the shipped `on_robot_lost = "stop"`); when the scans return the track is re-acquired
+//! with a full heading search, and the formation resumes only after an explicit re-arm.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::time::Duration;

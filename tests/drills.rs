@@ -1,4 +1,4 @@
-//! The fault-recovery drills (issue 10) as tests: each runs against real mock devices in real time
+//! The fault-recovery drills as tests: each runs against real mock devices in real time
 //! and must pass every expectation; the soak runs shortened. `amr drill all` runs the same drills
 //! and prints the table.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]

@@ -1,4 +1,4 @@
-//! A short hardware-in-the-loop run (issue 9): both robot trees, the server tree and the world,
+//! A short hardware-in-the-loop run: both robot trees, the server tree and the world,
 //! the devices reached over TCP (SOPAS), socketcand (CANopen) and a pty (LPBUS), in real time.
 //! About 22 s of motion: 2 m forward, then a 45° turn of the whole formation on the spot.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]

@@ -1,5 +1,5 @@
-//! Issue 12: record a short simulation (the whole system against the mocks, in virtual time), read
-//! it back, replay it: the estimates are identical.
+//! Record a short simulation (the whole system against the mocks, in virtual time), read it back,
+//! replay it: the estimates are identical.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
 use amr_actors::config::{ConfigSource, load};

@@ -1,6 +1,6 @@
-//! Supervision of a real robot tree (issue 9 §3): one robot with its mock devices behind their
-//! real transports, real time, bounded waits. Exact ordered event logs; the safe stop on
-//! escalation is checked on the mock drives themselves.
+//! Supervision of a real robot tree (docs/architecture.md, "Supervision"): one robot with its mock
+//! devices behind their real transports, real time, bounded waits. Exact ordered event logs; the
+//! safe stop on escalation is checked on the mock drives themselves.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::time::Duration;
