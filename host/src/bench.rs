@@ -1,6 +1,6 @@
 //! `amr bench vamr`: per-stage times of the Virtual-AMR pipeline in the layout of the paper's
 //! Table 4, with the paper-faithful KD-tree heading search measured in the same run as the baseline,
-//! and the time per fused update for teams of 2, 3, 4 and 8 robots (issue 18 §5).
+//! and the time per fused update for teams of 2, 3, 4 and 8 robots.
 //! Medians (and P95) over repeated runs on fixed synthetic scenes; this measures, it asserts nothing.
 
 use std::fmt::Write as _;

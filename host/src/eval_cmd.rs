@@ -43,7 +43,7 @@ pub(crate) fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
-/// AMCL's map in an evaluation (issue 18 §2).
+/// AMCL's map in an evaluation (`--map`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub(crate) enum MapSource {
@@ -270,7 +270,7 @@ pub(crate) fn run(
     Ok(dir)
 }
 
-/// A study over many configurations (issue 18).
+/// A study over many configurations (`--study`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Study {
     /// T1–T4 over robot spacing, team size and sites, with the occlusion each robot suffers.

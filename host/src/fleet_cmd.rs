@@ -1,4 +1,4 @@
-//! The fleet as separate processes over the network link (issue 11): `amr robot`, `amr server` and
+//! The fleet as separate processes over the network link: `amr robot`, `amr server` and
 //! `amr sim --world-only`, the world whose mock devices `amr robot --mock` drives.
 
 use std::collections::BTreeSet;

@@ -1,5 +1,5 @@
 //! `--record FILE.mcap` and `--foxglove ADDR` on `amr sim`, `amr robot` and `amr server`, and
-//! `amr replay` (issue 12): wiring around amr-record.
+//! `amr replay`: wiring around amr-record.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};

@@ -1,4 +1,4 @@
-//! `amr eval --budget` and `amr eval --study occlusion` (issue 18 §3–§4): where the Virtual-AMR
+//! `amr eval --budget` and `amr eval --study occlusion`: where the Virtual-AMR
 //! fusion's error comes from, and where fusion wins over each robot localising alone.
 
 use std::fmt::Write as _;
@@ -107,14 +107,15 @@ fn standard_error(d: &MeanSd) -> f64 {
     d.sd / (d.n.max(1) as f64).sqrt()
 }
 
-/// The criterion of issue 18 §4 (T4 ≤ min(T1, T2, T3) + 0.5 cm) as the study judges it: missed
-/// when the mean difference is above the margin, and missed beyond the trials' noise when it is
-/// above it by more than two standard errors of the paired differences.
+/// The never-worse criterion (T4 ≤ min(T1, T2, T3) + 0.5 cm: the complete method localises at most
+/// the margin worse than the best of the configurations it builds on) as the study judges it:
+/// missed when the mean difference is above the margin, and missed beyond the trials' noise when it
+/// is above it by more than two standard errors of the paired differences.
 fn over_margin(d: &MeanSd) -> (bool, bool) {
     (d.mean > MARGIN_CM, d.mean - 2.0 * standard_error(d) > MARGIN_CM)
 }
 
-/// Issue 18 §4's margin: how much worse than the best of T1–T3 T4 may be, cm.
+/// The never-worse criterion's margin: how much worse than the best of T1–T3 T4 may be, cm.
 const MARGIN_CM: f64 = 0.5;
 
 /// Whether the trials leave the criterion open: the margin lies within two standard errors of the
@@ -361,7 +362,7 @@ fn pct(v: &[f64]) -> String {
     v.iter().map(|x| format!("{:.0}", 100.0 * x)).collect::<Vec<_>>().join("/")
 }
 
-/// `amr eval --study occlusion`: T1–T4 over robot spacing, team size and sites (issue 18 §3).
+/// `amr eval --study occlusion`: T1–T4 over robot spacing, team size and sites.
 pub(crate) fn occlusion(
     config: &Config,
     scenarios: &[String],

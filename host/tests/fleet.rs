@@ -1,13 +1,13 @@
-//! The fleet as separate processes on one machine (issue 11): `amr sim --world-only` serves the
-//! world and the mock devices, `amr server` runs the fusion server, two `amr robot --mock`
-//! processes run the robots, all linked over Zenoh on loopback with user/password authentication.
-//! The test watches through its own Zenoh session (an observer user) and checks: the formation
-//! runs; killing the server stops the robots by their own command watchdogs, and a new server
-//! re-arms them and resumes the plan; killing a robot process is seen within the liveliness lease
-//! and stops the formation (the other robot is disarmed); the restarted robot rejoins; a frozen
-//! robot is seen gone when its lease runs out and rejoins when it resumes; after the
-//! operator's re-arm the short scenario completes. Every wait is bounded; the processes are killed
-//! when the test ends.
+//! The fleet as separate processes on one machine: `amr sim --world-only` serves the world and the
+//! mock devices, `amr server` runs the fusion server, two `amr robot --mock` processes run the
+//! robots, all linked over Zenoh on loopback with mutual TLS (the fleet's certificates made by
+//! `amr fleet certs`). The test watches through its own Zenoh session (an observer, whose
+//! certificate the server's access control lets only read) and checks: the formation runs; killing
+//! the server stops the robots by their own command watchdogs, and a new server re-arms them and
+//! resumes the plan; killing a robot process is seen within the liveliness lease and stops the
+//! formation (the other robot is disarmed); the restarted robot rejoins; a frozen robot is seen
+//! gone when its lease runs out and rejoins when it resumes; after the operator's re-arm the short
+//! scenario completes. Every wait is bounded; the processes are killed when the test ends.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::io::Write as _;
@@ -300,8 +300,8 @@ fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish()
     wait_for(&seen, "formation running again", Duration::from_secs(60), |s| phase(s, "Running"));
     wait_for(&seen, "scenario finished", Duration::from_secs(90), |s| phase(s, "Finished"));
 
-    // The e-stops of the deployed system (issue 19 §5): `estop` on the server's stdin reaches
-    // every robot over the network, SIGUSR1 is the robot's local one; each latches until reset.
+    // The e-stops of the deployed system: `estop` on the server's stdin reaches every robot over
+    // the network, SIGUSR1 is the robot's local one; each latches until reset.
     let latched = |since: Instant, want: SafetyState| {
         move |s: &Seen| s.safety_a.iter().any(|(t, st)| *t >= since && *st == want)
     };

@@ -113,8 +113,8 @@ fn the_sensitivity_study_reports_every_setting_beside_the_paper() {
     assert_eq!(rows[1]["paper"], serde_json::json!([2.0, 3.5, 0.16, 150.0]));
 }
 
-/// A hall of our own, 8 m × 4 m, with three boxes along its +y wall only (issue 18 §1): a map_server
-/// YAML + PGM beside a scenario file that names it by path.
+/// A hall of our own, 8 m × 4 m, with three boxes along its +y wall only: a map_server YAML + PGM
+/// beside a scenario file that names it by path.
 fn hall(dir: &Path, straight_m: f64) -> std::path::PathBuf {
     use amr_core::geometry::Polygon;
     use amr_core::map::{MapMode, rasterize_outlines, save_map};
@@ -182,7 +182,7 @@ fn a_scenario_file_runs_on_any_map_and_a_path_through_a_wall_is_refused() {
     );
 }
 
-/// The occlusion study on a map of one's own (issue 18 §3): every team and spacing is tried, the
+/// The occlusion study on a map of one's own: every team and spacing is tried, the
 /// ones that do not fit the site are listed with the reason, the others carry T1–T4 and what each
 /// robot's neighbours hid from it; a plot per scenario.
 #[test]

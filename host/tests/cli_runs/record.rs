@@ -1,4 +1,4 @@
-//! Recording through the binary (issue 12): `amr sim --virtual-time --record` then `amr replay`
+//! Recording through the binary: `amr sim --virtual-time --record` then `amr replay`
 //! gives back every estimate bit for bit; `amr eval --record` writes the true poses and T1–T4's
 //! estimates side by side; the files read back with Foxglove's schemas.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]

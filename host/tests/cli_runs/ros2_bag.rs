@@ -283,11 +283,11 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
     let csv = std::fs::read_to_string(&out).unwrap();
     let (rows, last, worst, heading) = errors(&csv, &run.truth);
     assert_eq!(rows, SCANS, "one pose per scan, the damaged ones skipped");
-    // Measured (2026-12-03, seed 3): final 5.8 cm, worst 13.6 cm after the first 10 scans,
-    // heading 0.090 rad, both bags alike (the error peaks where AMCL has not updated for 0.25 m of
-    // 1%-long odometry; the heading's worst is one scan in the turn on the spot). Over seeds 1–10:
-    // final 3.7–5.8 cm, worst 11.3–13.6 cm, heading 0.061–0.128 rad. With the slip tail believed
-    // at its share (before December 2026), whose backward drift offset the odometry's 1 %: final
+    // Measured (2026-12-03, seed 3): final 5.8 cm, worst 13.6 cm after the first 10 scans, heading
+    // 0.090 rad, both bags alike (the error peaks where AMCL has not updated for 0.25 m of 1%-long
+    // odometry; the heading's worst is one scan in the turn on the spot). Over seeds 1–10: final
+    // 3.7–5.8 cm, worst 11.3–13.6 cm, heading 0.061–0.128 rad. With the slip tail believed at its
+    // share (`odom_slip_probability = 0.1`), whose backward drift offset the odometry's 1 %: final
     // 2.6–4.5 cm, worst 10.3–15.1 cm, heading 0.037–0.130 rad (seed 3 the lowest). Broken readers,
     // measured by breaking ours: the beam increment taken as 1° → 7.9 m off; odometry x and y
     // swapped → worst 0.47 m; the /tf_static mounting dropped → worst 0.86 m, heading 1.0 rad; big
