@@ -1,4 +1,4 @@
-//! Rigid formation control (paper §4.5, Eq. 20; spec §8) and differential-drive odometry.
+//! Rigid formation control (paper §4.5, Eq. 20; docs/method.md §8) and differential-drive odometry.
 
 use crate::se2::Se2;
 
@@ -32,8 +32,8 @@ pub fn member_twist(v_mps: f64, w_radps: f64, lateral_offset_m: f64) -> (f64, f6
     (v_mps - w_radps * lateral_offset_m, w_radps)
 }
 
-/// A formation correction on top of Eq. 20 (the paper's controller has none; spec §8 asks for a
-/// small documented one): a member whose measured pose in V's frame drifts from its slot
+/// A formation correction on top of Eq. 20 (the paper's controller has none; docs/method.md §8
+/// documents this one): a member whose measured pose in V's frame drifts from its slot
 /// `(0, y_i, 0)` gets `Δv = k_x·e_x` along track and `Δω = k_y·e_y + k_θ·e_θ`, with `e` the slot
 /// minus the measured pose expressed in the member's frame. Gains small enough that the correction
 /// stays well inside the robots' limits at the formation's speeds.

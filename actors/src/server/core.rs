@@ -33,7 +33,7 @@ const BUFFER: usize = 3;
 /// What the server accepts of a scan: limits wide enough for any 2D LiDAR a robot of ours could
 /// carry (the TiM551: 271 beams 1° apart over 270°, 0.05–10 m; the densest common scanners
 /// step about 0.1°), narrow enough that no scan can make the pipeline allocate without bound or
-/// divide by nothing (issue 19 §7). At most [`MAX_BEAMS`] beams.
+/// divide by nothing. At most [`MAX_BEAMS`] beams.
 /// Smallest and largest angle between beams, rad (0.03° and 11.5°).
 pub const MIN_ANGLE_STEP_RAD: f64 = 5e-4;
 pub const MAX_ANGLE_STEP_RAD: f64 = 0.2;
@@ -407,7 +407,7 @@ impl ServerCore {
     }
 
     /// Robot `i`'s odometry started again at the origin of a new frame (the robot or its odometry
-    /// restarted; issue 19 §7). Nothing of the old frame may meet the new: its AMCL keeps its
+    /// restarted). Nothing of the old frame may meet the new: its AMCL keeps its
     /// particles but takes the next odometry pose as the new reference (no motion step across the
     /// frames), its held scans and its map ← odometry correction go, and the pipelines track it
     /// afresh; when it is the first robot, V's odometry (composed from its frame) restarts too.
@@ -659,8 +659,8 @@ impl ServerCore {
 /// AMCL's parameters for a virtual scan fused from `robots` robots: each robot's beams keep their
 /// budget, `max_beams` × `robots` in all. With one robot's budget the fused scan would be thinned
 /// to the information of one scan, and T4 would localise on half the beams that T1's two filters
-/// use together (issue 18 §4: the error budget found this, not the relative pose, to be why T4 was
-/// worse than T1). The cost of its sensor update is then that of T1's filters together.
+/// use together (`amr eval --budget` found this, not the relative pose, to be why T4 localised
+/// worse than T1; docs/method.md §7). The cost of its sensor update is then that of T1's filters together.
 #[must_use]
 pub fn virtual_params(amcl: &AmclParams, robots: usize) -> AmclParams {
     let mut p = amcl.clone();
@@ -671,7 +671,7 @@ pub fn virtual_params(amcl: &AmclParams, robots: usize) -> AmclParams {
     p
 }
 
-/// The robot that observes robot `i` of a line formation (issue 18 §5): the nearest robot before
+/// The robot that observes robot `i` of a line formation (docs/method.md §6): the nearest robot before
 /// it on its side of robot 0, between robot 0 and it, so that nothing stands between them; robot
 /// 0 when none is.
 fn observer(members: &[Member], i: usize) -> usize {

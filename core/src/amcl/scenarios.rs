@@ -446,10 +446,10 @@ fn kidnapped_robot_recovers_with_recovery_alphas() {
 /// The same kidnapping with other seeds (filter, odometry and range noise): every seed recovers
 /// before the end, and three in four within 30 updates. Measured (seeded, so exact), seeds 1–8:
 /// from update 2, 16, 3, 47, 6, 2, 3, 24; over seeds 1–40 the median is 7 and 4 of 40 take more
-/// than 30 updates (31–49). With the far side of the rendered walls counted as surface (before
-/// December 2026; `likelihood.rs`) it was median 6 and 1 of 40 (32). What changed for this map is
-/// only the outer walls' outer layer, which borders unknown cells; why that delays recovery in a
-/// few seeds was not looked into.
+/// than 30 updates (31–49). With the far side of the rendered walls counted as surface (the choice
+/// `likelihood.rs` rejects) the median is 6 and 1 of 40 takes more than 30 (32); the two differ
+/// here only in the outer walls' outer layer, which borders unknown cells; why that delays
+/// recovery in a few seeds was not looked into.
 #[test]
 fn kidnapping_recovery_over_seeds() {
     let params = recovery_params();

@@ -1,5 +1,5 @@
 //! One fused update: sync gate → preprocessing → relative poses (by the configured T1–T4 sources)
-//! → virtual frame → body masks → virtual scan (spec §6, §9).
+//! → virtual frame → body masks → virtual scan (docs/method.md §6, §9).
 //!
 //! Robot 0 is the reference. Every other robot has an *observer*, a robot before it that tracks its
 //! centre in its own scan and against whose scan its heading is searched; by default robot 0
@@ -7,7 +7,7 @@
 //! hidden from robot 0 behind its neighbours, so each is observed by its neighbour nearer to robot 0
 //! ([`Pipeline::set_observer`]) and its pose relative to robot 0 is composed along the chain.
 //!
-//! For error budgets (issue 18 §4) an [`Oracle`] replaces the tracker's position or the heading
+//! For error budgets (`amr eval --budget`; docs/method.md §9) an [`Oracle`] replaces the tracker's position or the heading
 //! search's heading by the truth carried in the packets: evaluation only, never on a robot.
 
 use crate::config::{Configuration, VamrParams};
@@ -340,7 +340,7 @@ impl Pipeline {
         let t_s = packets[0].times.stamp_s;
         let times: Vec<PacketTimes> = packets.iter().map(|p| p.times).collect();
         if let Err(e) = sync_gate(&times, self.max_spread_s, self.max_age_s) {
-            // Not fused, and a miss for every track (spec §6).
+            // Not fused, and a miss for every track (docs/method.md §4, §6).
             for (tracker, reacquire) in self.trackers.iter_mut().zip(&mut self.reacquire) {
                 if matches!(tracker.update(t_s, None), TrackOutcome::Lost) {
                     *reacquire = true;
