@@ -32,7 +32,9 @@ const ARM_TIMEOUT_S: f64 = 2.0;
 /// before it goes on. Its tracking law corrects small errors while V moves; from far off it can
 /// steer a robot the wrong way (in the chaos soak, one drove through the site's wall).
 const OUT_OF_SHAPE: (f64, f64) = (0.25, 0.26);
-/// Re-formed: every robot this close to its slot (m, rad), and the plan goes on.
+/// Re-formed: the shape this close to the slots (m, rad), or every robot standing in its slot by
+/// the go-to-pose law (which lets a robot stand up to `REFORM_NEAR_M` beside it), and the plan
+/// goes on.
 const BACK_IN_SHAPE: (f64, f64) = (0.06, 0.07);
 /// A formation that is first armed with V farther than this from the plan's start (a restarted
 /// server: the robots are where the last one left them) resumes the plan where V is, m and rad.
@@ -438,17 +440,17 @@ impl FormationActor {
         true
     }
 
-    /// The robot farthest from its slot as the first robot sees it, when the formation is out of
-    /// shape (past [`OUT_OF_SHAPE`], or still past [`BACK_IN_SHAPE`] while re-forming): its name,
-    /// and how far.
+    /// The robot farthest from its slot as the first robot sees it, while the formation is out of
+    /// shape: its name, and how far. Out of shape from [`OUT_OF_SHAPE`] on, and until every robot
+    /// stands in its slot around the plan's point (the go-to-pose law at rest) or the shape is
+    /// within [`BACK_IN_SHAPE`].
     fn out_of_shape(&self, state: &mut FormationState, now: f64) -> Option<(String, String)> {
         let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
         let poses = poses?;
         let (first, first_slot) = (*poses.first()?, *self.params.slots.first()?);
-        let (limit_m, limit_rad) = if state.reforming { BACK_IN_SHAPE } else { OUT_OF_SHAPE };
         // Each robot where the first one sees it, against where its slot puts it: the shape,
         // whatever V's own error.
-        let worst = poses
+        let (i, m, rad) = poses
             .iter()
             .zip(&self.params.slots)
             .enumerate()
@@ -457,12 +459,24 @@ impl FormationActor {
                 let seen = first.inverse() * *p;
                 (i, seen.x.hypot(seen.y - (slot - first_slot)), seen.theta.abs())
             })
-            .filter(|(_, m, rad)| *m > limit_m || *rad > limit_rad)
             .max_by(|a, b| {
                 (a.1 + HEADING_WEIGHT_M_PER_RAD * a.2).total_cmp(&(b.1 + HEADING_WEIGHT_M_PER_RAD * b.2))
+            })?;
+        state.reforming = if state.reforming {
+            let k = (state.plan_s / self.params.period_s).round() as usize;
+            let at_rest = self.params.plan.get(k).is_some_and(|r| {
+                poses
+                    .iter()
+                    .zip(&self.params.slots)
+                    .all(|(p, slot)| reform_command(*slot, &(r.pose.inverse() * *p)) == (0.0, 0.0))
             });
-        state.reforming = worst.is_some();
-        let (i, m, rad) = worst?;
+            !at_rest && (m > BACK_IN_SHAPE.0 || rad > BACK_IN_SHAPE.1)
+        } else {
+            m > OUT_OF_SHAPE.0 || rad > OUT_OF_SHAPE.1
+        };
+        if !state.reforming {
+            return None;
+        }
         let who = self.ports.robots.get(i).map_or("a robot", String::as_str).to_owned();
         Some((who, format!("{m:.2} m and {:.0}° from its slot", rad.to_degrees())))
     }
