@@ -13,7 +13,7 @@ use crate::se2::Se2;
 /// `d` is the distance from the endpoint to the nearest *surface cell*'s centre: an occupied cell
 /// with a free cell among its 8 neighbours, a face a beam can reach. A wall that the mapping saw
 /// from one side is a band of occupied cells with unknown ones behind it; the band's far side is no
-/// surface (counting it, as this field once did, put a second optimum behind every such wall).
+/// surface (counting it puts a second optimum behind every such wall).
 /// Measured on four public CARMEN logs (`amr bench localize`, seeds 1–5, tracking RMSE): aces
 /// 8.1–9.2 → 8.2–9.2 cm, freiburg-079 7.0–7.3 → 6.2–6.4, freiburg-101 6.1–6.5 → 5.9–6.5, intel
 /// 6.8–6.9 → 6.5–6.6; freiburg-079's global run with seed 4, lost before (9.4 m), 7.3 cm.

@@ -1,4 +1,4 @@
-//! Adaptive Monte Carlo localisation (spec §7; nav2_amcl's behaviour and defaults, Beluga's shape):
+//! Adaptive Monte Carlo localisation (docs/method.md §7; nav2_amcl's behaviour and defaults, Beluga's shape):
 //! a short chain of named steps — update thresholds → motion (`motion`) → likelihood-field weighting
 //! (`likelihood`) → normalise and track `w_slow`/`w_fast` → resample with KLD limit and random
 //! injection (`particles`) → cluster estimate.
