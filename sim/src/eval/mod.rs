@@ -124,6 +124,9 @@ pub struct Series {
     /// Scans for which the configuration produced no estimate (e.g. a failed heading search before
     /// any success).
     pub missing: usize,
+    /// Estimates the server would not drive on: V not `Tracking`, or disagreeing with a robot's
+    /// own estimate (they count in the errors all the same).
+    pub unverified: usize,
     /// Pipeline updates (T2–T4) and, of those, the ones whose heading search failed (the paper's
     /// failure rate, Tables 6–7).
     pub updates: usize,
@@ -193,14 +196,15 @@ fn error(est: &Se2, truth: &Se2) -> Sample {
 fn record(
     series: &mut [(Configuration, Series)],
     c: Configuration,
-    est: Option<Se2>,
+    est: Option<(Se2, bool)>,
     v_true: &Se2,
     v_ref: &Se2,
 ) {
     if let Some(s) = series.iter_mut().find(|(k, _)| *k == c).map(|(_, s)| s) {
-        s.estimates.push(est.map(|e| [e.x, e.y, e.theta]));
+        s.estimates.push(est.map(|(e, _)| [e.x, e.y, e.theta]));
         match est {
-            Some(e) => {
+            Some((e, verified)) => {
+                s.unverified += usize::from(!verified);
                 s.truth.push(error(&e, v_true));
                 s.reference.push(error(&e, v_ref));
             }
@@ -381,7 +385,9 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             track.push([p.x, p.y]);
         }
         let true_heading = truth.get(1).map(|b| (truth[0].inverse() * *b).theta);
-        let mut estimates: Vec<(Configuration, Option<Se2>)> = CONFIGS.iter().map(|c| (*c, None)).collect();
+        // V and whether it was verified, per configuration.
+        let mut estimates: Vec<(Configuration, Option<(Se2, bool)>)> =
+            CONFIGS.iter().map(|c| (*c, None)).collect();
         let mut placed: Vec<Vec<Option<Se2>>> = vec![vec![None; robots.len()]; CONFIGS.len()];
         let mut virtual_scans: Vec<(Configuration, Option<Points>)> =
             CONFIGS[1..].iter().map(|c| (*c, None)).collect();
@@ -429,7 +435,7 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             }
             for e in &out.estimates {
                 if let (EstimateSource::Fused(c), Some(v)) = (e.source, e.v) {
-                    estimates[config_index(c)].1 = Some(v);
+                    estimates[config_index(c)].1 = Some((v, e.integrity.verified()));
                     for (slot, a) in placed[config_index(c)].iter_mut().zip(&e.robots) {
                         if let Some(a) = a {
                             *slot = Some(a.map);
@@ -454,12 +460,14 @@ pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&Tri
             .iter()
             .filter_map(|c| core.filter(EstimateSource::Fused(*c)).map(|f| (*c, f)))
             .collect();
+        let frame_estimates: Vec<(Configuration, Option<Se2>)> =
+            estimates.iter().map(|(c, e)| (*c, e.map(|(v, _)| v))).collect();
         observe(&TrialFrame {
             t_s: t,
             scans: &scan_list,
             truth: &truth,
             odom: &odom,
-            estimates: &estimates,
+            estimates: &frame_estimates,
             virtual_scans: &virtual_scans,
             filters: &filters,
             uplink: &offered,
@@ -496,6 +504,8 @@ pub struct ConfigSummary {
     pub robot_rmse_2d: Vec<Option<MeanSd>>,
     pub worst_robot_rmse_2d: Option<MeanSd>,
     pub missing: usize,
+    /// Estimates not verified (V not tracking, or disagreeing with a robot), over all trials.
+    pub unverified: usize,
     /// The paper's trial-level 2D RMSE, mean and SD (Tables 15–16), when it gives one.
     pub paper_rmse_2d: Option<(f64, f64)>,
 }
@@ -542,6 +552,7 @@ pub fn summarise(scenario: &str, trials: &[Trial]) -> Vec<ConfigSummary> {
                 robot_rmse_2d,
                 worst_robot_rmse_2d: MeanSd::of(&worst),
                 missing: all.iter().map(|s| s.missing).sum(),
+                unverified: all.iter().map(|s| s.unverified).sum(),
                 paper_rmse_2d: paper_rmse(scenario, *c),
             }
         })

@@ -166,6 +166,15 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
         let rmse = AxisStats::of(&s.truth).unwrap().d2.rmse;
         assert!(rmse < 0.3, "{c:?}: 2D RMSE {rmse:.3} m");
         assert_robots_placed(*c, s, 2);
+        // Every filter given a pose is unverified until it has judged a few scans, and then
+        // verified for the rest of this quiet run.
+        eprintln!("{c:?}: {} of {} estimates not verified", s.unverified, s.truth.len());
+        assert!(
+            s.unverified >= 1 && s.unverified * 10 < s.truth.len(),
+            "{c:?}: {} of {}",
+            s.unverified,
+            s.truth.len()
+        );
     }
     // The summary's statistics are those of the raw errors.
     let summary = summarise("straight", std::slice::from_ref(&trial));
@@ -173,6 +182,7 @@ fn a_short_trial_runs_all_four_configurations_on_the_same_scans() {
         let raw = AxisStats::of(&s.truth).unwrap();
         assert_eq!(sum.pooled_truth.unwrap(), raw);
         assert_eq!(sum.trial_rmse_2d.unwrap().mean, raw.d2.rmse);
+        assert_eq!(sum.unverified, s.unverified);
         assert_eq!(sum.trial_rmse_2d.unwrap().n, 1);
         let robots: Vec<f64> = s.robots.iter().map(|r| AxisStats::of(r).unwrap().d2.rmse).collect();
         assert_eq!(sum.robot_rmse_2d.iter().map(|m| m.unwrap().mean).collect::<Vec<_>>(), robots);
