@@ -63,6 +63,8 @@ pub struct Amcl {
     monitor: integrity::Monitor,
     /// Updates that re-seeded particles from the scan because the filter was lost.
     reseeds: u64,
+    /// Scans on which the estimate was matched to the map since the robot came to rest.
+    rest_polishes: u32,
     /// The sensor's position in the tracked frame (`set_sensor_origin`).
     sensor_origin: Option<[f64; 2]>,
 }
@@ -112,6 +114,7 @@ impl Amcl {
             scratch: Vec::new(),
             monitor: integrity::Monitor::new(params_integrity),
             reseeds: 0,
+            rest_polishes: 0,
             sensor_origin: None,
         }
     }
@@ -209,6 +212,7 @@ impl Amcl {
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
         self.estimate = particles::cluster_estimate(&self.particles);
+        self.rest_polishes = 0;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -262,6 +266,14 @@ impl Amcl {
             // (a restarted server's filters start where it last saw the formation) for good.
             let lost = self.monitor.params().enabled && self.integrity_state() == IntegrityState::Lost;
             if !moved && !force && !lost {
+                // At rest, the estimate is matched to the map on the first scans: a filter
+                // started a little off (a restarted server starts where it last saw the robots)
+                // has no motion to converge with, and would judge itself on where it started.
+                let at_rest = dx.abs().max(dy.abs()) < REST_M && da.abs() < REST_RAD;
+                if self.monitor.params().enabled && at_rest && self.rest_polishes < REST_POLISHES {
+                    self.rest_polishes += 1;
+                    self.polish(points);
+                }
                 // Standing still and not tracking: the estimate is judged on each new scan, the
                 // particles left as they are (updating them on every scan of a robot standing
                 // still wears them down to a few: the middle robot of three 0.5 m apart, whose
@@ -274,6 +286,7 @@ impl Amcl {
             }
             self.predict(&last, &odom);
         }
+        self.rest_polishes = 0;
         self.last_odom = Some(odom);
         self.weigh(points);
         self.updates += 1;
@@ -321,6 +334,30 @@ impl Amcl {
             }
             None => false,
         }
+    }
+
+    /// Match the estimate to the map on this scan (a climb of the likelihood from it) and, if the
+    /// map explains the scan clearly better there, move every particle by the correction: the
+    /// cloud keeps its shape and weights.
+    fn polish(&mut self, points: &[[f64; 2]]) {
+        let p = *self.monitor.params();
+        let Some(e) = self.estimate.as_ref().map(|e| e.pose).filter(|_| points.len() >= p.min_points) else {
+            return;
+        };
+        let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
+        let matched = refine(&self.field, &beams, e);
+        let judged = subsample(points, p.max_points);
+        let share = |at: &Se2| {
+            integrity::explained_share(&self.field, at, &judged, self.sensor_origin, &p).unwrap_or(0.0)
+        };
+        if share(&matched) < share(&e) + POLISH_GAIN {
+            return;
+        }
+        let correction = matched * e.inverse();
+        for q in &mut self.particles {
+            q.pose = correction * q.pose;
+        }
+        self.estimate = particles::cluster_estimate(&self.particles);
     }
 
     /// Where the sensor whose points the filter is given stands in the tracked frame, for the
@@ -672,6 +709,16 @@ fn refine(field: &LikelihoodField, beams: &FixedPoints, pose: Se2) -> Se2 {
 }
 
 /// A pose uniform over the free cells (uniform within the cell) and all headings.
+/// Odometry this close to the last update's is at rest (below the update thresholds the particles
+/// stay where the last update left them, so only at rest does a scan see them where they are), m
+/// and rad.
+const REST_M: f64 = 0.002;
+const REST_RAD: f64 = 0.002;
+/// Scans at rest on which the estimate is matched to the map ([`Amcl::polish`]).
+const REST_POLISHES: u32 = 3;
+/// The match is taken when the map explains this much more of the scan there, share.
+const POLISH_GAIN: f64 = 0.02;
+
 fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
     let n = field.free_count();
     if n == 0 {
