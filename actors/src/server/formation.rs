@@ -272,13 +272,15 @@ impl FormationActor {
         });
         match state.phase.clone() {
             Phase::Waiting => {
-                // A formation that has run before may arm on its robots' own verified estimates
-                // alone: it then holds, closing up on its slots (the plan paused) until V is
-                // verified. After faults the robots may stand where the fusion cannot find one of
-                // them again, and disarmed they would never move back: the chaos soak ended so.
-                // A fresh formation, placed in its slots, waits for V.
+                // A formation that has run before (this one, or an earlier one on this plan, as
+                // the progress record says: a restarted server) may arm on its robots' own
+                // verified estimates alone: it then holds, closing up on its slots (the plan
+                // paused) until V is verified. After faults the robots may stand where the fusion
+                // cannot find one of them again, and disarmed they would never move back. A fresh
+                // job, its robots placed in their slots, waits for V.
                 let own_verified = state.robots.iter().all(|r| r.own_verified_now(now).is_some());
-                let may_reform = state.plan_s > 0.0 && own_verified;
+                let has_run = state.plan_s > 0.0 || state.record_s.is_some();
+                let may_reform = has_run && own_verified;
                 // `--auto-arm` moves only robots that say they drive mock devices.
                 let mock: Vec<bool> = state.robots.iter().map(|r| r.mock).collect();
                 let auto_may = arm_authorised(self.params.auto_arm, state.by_operator, &mock);
