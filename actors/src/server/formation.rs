@@ -32,6 +32,9 @@ const ARM_TIMEOUT_S: f64 = 2.0;
 /// before it goes on. Its tracking law corrects small errors while V moves; from far off it can
 /// steer a robot the wrong way (in the chaos soak, one drove through the site's wall).
 const OUT_OF_SHAPE: (f64, f64) = (0.25, 0.26);
+/// A robot farther than this from its slot around the plan's point, m, is not re-formed: the
+/// formation holds at rest (an operator brings it back).
+const REFORM_MAX_M: f64 = 2.0;
 /// Re-formed: the shape this close to the slots (m, rad), or every robot standing in its slot by
 /// the go-to-pose law (which lets a robot stand up to `REFORM_NEAR_M` beside it), and the plan
 /// goes on.
@@ -429,12 +432,21 @@ impl FormationActor {
     }
 
     /// Drive every robot, at `poses`, to its slot around the plan's current point, the plan
-    /// paused; whether there was a plan point. With V at rest the tracking law cannot move a robot
+    /// paused; whether it did (not past the plan's end, nor with a robot farther than
+    /// [`REFORM_MAX_M`] from its slot). With V at rest the tracking law cannot move a robot
     /// sideways (a differential drive moves sideways only while it moves): the go-to-pose law
     /// does.
     fn reform_around_plan(&self, state: &mut FormationState, now: f64, poses: &[Se2]) -> bool {
         let k = (state.plan_s / self.params.period_s).round() as usize;
         let Some(r) = self.params.plan.get(k).copied() else { return false };
+        // Farther than this, a robot is not driven back on its own: the way may not be clear.
+        let far = poses.iter().zip(&self.params.slots).any(|(p, slot)| {
+            let in_v = r.pose.inverse() * *p;
+            in_v.x.hypot(in_v.y - slot) > REFORM_MAX_M
+        });
+        if far {
+            return false;
+        }
         for (i, pose) in poses.iter().enumerate() {
             let cmd = reform_command(self.params.slots[i], &(r.pose.inverse() * *pose));
             self.send_limited(state, i, cmd, now);
