@@ -623,20 +623,7 @@ impl FormationActor {
         let v = poses[0] * virtual_frame(&rel);
         let dt = self.params.period_s;
         let k0 = (state.plan_s / dt).round() as usize;
-        let best = self
-            .params
-            .plan
-            .iter()
-            .enumerate()
-            .skip(k0)
-            .take((30.0 / dt) as usize)
-            .min_by(|(_, a), (_, b)| {
-                let da = (a.pose.inverse() * v).translation_norm();
-                let db = (b.pose.inverse() * v).translation_norm();
-                da.total_cmp(&db)
-            })
-            .map(|(k, _)| k);
-        if let Some(k) = best {
+        if let Some(k) = nearest_ahead(&self.params.plan, k0, (30.0 / dt) as usize, v) {
             tracing::info!(from_s = state.plan_s, to_s = k as f64 * dt, "formation: plan resumed where V is");
             state.plan_s = k as f64 * dt;
         }
@@ -793,6 +780,22 @@ impl Actor for FormationActor {
     }
 }
 
+/// The point of `plan` from `k0` on, within `window` points, that best matches `v` (position, and
+/// heading at [`HEADING_WEIGHT_M_PER_RAD`]): on a plan that turns on the spot every point of the
+/// turn stands at the same position, and the position alone resumed a turn 90° further on.
+fn nearest_ahead(plan: &[Reference], k0: usize, window: usize, v: Se2) -> Option<usize> {
+    let cost = |r: &Reference| {
+        let d = r.pose.inverse() * v;
+        d.translation_norm() + HEADING_WEIGHT_M_PER_RAD * d.theta.abs()
+    };
+    plan.iter()
+        .enumerate()
+        .skip(k0)
+        .take(window)
+        .min_by(|(_, a), (_, b)| cost(a).total_cmp(&cost(b)))
+        .map(|(k, _)| k)
+}
+
 /// Whether an allowed arm may be sent: the operator's `rearm` always; `--auto-arm` only if every
 /// robot reports mock devices (`mock`), unless the operator allowed it on hardware too.
 fn arm_authorised(auto_arm: super::AutoArm, by_operator: bool, mock: &[bool]) -> bool {
@@ -888,6 +891,24 @@ impl FormationHarness {
 mod tests {
     use super::super::AutoArm;
     use super::arm_authorised;
+
+    /// Stopped 10° into a turn on the spot, the plan resumes there, not at the turn's end (every
+    /// point of the turn stands at the same position).
+    #[test]
+    fn a_plan_resumes_mid_turn_where_v_heads() {
+        use amr_core::plan::Reference;
+        use amr_core::se2::Se2;
+        let plan: Vec<Reference> = (0..=90)
+            .map(|d| Reference {
+                pose: Se2::new(1.0, 2.0, f64::from(d).to_radians()),
+                v_mps: 0.0,
+                w_radps: 0.1,
+            })
+            .collect();
+        let v = Se2::new(1.0, 2.0, 10f64.to_radians());
+        assert_eq!(super::nearest_ahead(&plan, 0, 200, v), Some(10));
+        assert_eq!(super::nearest_ahead(&plan, 20, 200, v), Some(20), "never back");
+    }
 
     #[test]
     fn auto_arm_moves_only_mock_robots_unless_the_operator_says() {
