@@ -1,6 +1,7 @@
 //! The robot's configuration: a set of files from a directory or from the copy embedded at build
-//! time ([`load`]), each parsed into the types of the crate that owns it ([`set`]); the robot file
-//! ([`robot`]) puts a body from amr-core and devices from amr-drivers together.
+//! time ([`load`]), each parsed into the types of the crate that owns it ([`Config`],
+//! [`ConfigFile`]); the robot file ([`RobotConfig`]) puts a body from amr-core and devices from
+//! amr-drivers together.
 
 use std::fmt;
 use std::path::{Path, PathBuf};

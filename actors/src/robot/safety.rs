@@ -24,7 +24,7 @@
 //! - A supervisor escalation latches `Fault`, cleared only by a reset on the robot; a lost drive
 //!   halts.
 //!
-//! The decisions live in [`SafetyCore`] (no IO, time passed in); the actor ticks it every cycle and
+//! The decisions live in `SafetyCore` (no IO, time passed in); the actor ticks it every cycle and
 //! publishes the wheel command.
 
 use std::sync::Arc;

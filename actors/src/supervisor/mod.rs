@@ -2,13 +2,13 @@
 //!
 //! # The policy (Erlang/OTP `supervisor`, trimmed to what the robot needs)
 //!
-//! * A [`Supervisor`] owns an ordered list of [`ChildSpec`]s. At start-up it starts them in list
+//! * A `Supervisor` owns an ordered list of `ChildSpec`s. At start-up it starts them in list
 //!   order, inside its own `pre_start`, so that spawning a supervisor returns once its children have
 //!   been started (or their first start has failed and a retry is scheduled), as OTP's
 //!   `start_link` does. Nested supervisors therefore log their children before themselves.
 //! * Every child is *permanent*: any termination we did not ask for is a failure, whether the
 //!   child returned an error, panicked, was killed or stopped on its own.
-//! * [`Strategy::OneForOne`] restarts only the failed child. [`Strategy::RestForOne`] first stops
+//! * `Strategy::OneForOne` restarts only the failed child. `Strategy::RestForOne` first stops
 //!   every running child listed after the failed one (reverse order, each awaited), then, after the
 //!   backoff, restarts the failed child and the later ones in list order. Under rest-for-one the
 //!   running children are always a prefix of the list: a child is never started while an earlier
@@ -29,7 +29,7 @@
 //!   restart (a shutdown, an escalation, or under rest-for-one an earlier child failing) bumps the
 //!   generation, so a timer that already fired does nothing.
 //! * Orderly shutdown: when the supervisor is stopped, it stops its children in reverse list
-//!   order, each awaited with [`STOP_TIMEOUT`] (then killed), so that e.g. the drives actor gets
+//!   order, each awaited with `STOP_TIMEOUT` (2 s, then killed), so that e.g. the drives actor gets
 //!   to command a quick stop in its `post_stop` before the CAN bus below it goes away.
 //! * Every decision is recorded in a shared [`EventLog`] (for tests and drills: exact ordered
 //!   logs) and with `tracing` (info for starts, stops and scheduled restarts, warn for failures,
@@ -41,7 +41,7 @@
 //! # ractor pitfalls this module handles
 //!
 //! * ractor's default `handle_supervisor_evt` stops the parent when any child terminates or fails.
-//!   [`Supervisor`] overrides it; an actor that spawns linked children without a supervisor of its
+//!   `Supervisor` overrides it; an actor that spawns linked children without a supervisor of its
 //!   own still gets the default.
 //! * A failure (error or panic) in a child's `pre_start` is **not** a supervision event: ractor
 //!   returns it as a [`SpawnErr`] from `spawn_linked`. We treat it as a failure of that child
@@ -57,7 +57,7 @@
 //! * Supervision events are matched to children by [`ActorId`]: a restarted child has a new id.
 //!   The termination events of children we stopped on purpose arrive after we logged them as
 //!   [`EventKind::Stopped`] and are ignored, as are events of ids we no longer know.
-//! * Stopping a child is awaited inside the supervisor's handler, bounded by [`STOP_TIMEOUT`]
+//! * Stopping a child is awaited inside the supervisor's handler, bounded by `STOP_TIMEOUT`
 //!   (then the child is killed, bounded again): a child whose `post_stop` calls back into its
 //!   supervisor delays it by at most that, it cannot deadlock it.
 
@@ -200,7 +200,7 @@ pub(crate) struct SupervisorSpec {
 #[derive(Debug)]
 pub(crate) struct Supervisor;
 
-/// Messages to a [`Supervisor`].
+/// Messages to a `Supervisor`.
 #[derive(Debug)]
 pub enum SupervisorMsg {
     /// A restart timer fired (sent by the supervisor to itself; cannot be built outside).

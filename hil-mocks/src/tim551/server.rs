@@ -1,5 +1,5 @@
 //! The mock's TCP server: one task accepting, one task per connection. Each connection detects its
-//! dialect from its first frame, answers commands through the pure [`Device`] model and streams
+//! dialect from its first frame, answers commands through the pure `Device` model and streams
 //! `sSN LMDscandata` on the device's 15 Hz scan clock once subscribed. Faults come in through the
 //! [`MockHandle`].
 

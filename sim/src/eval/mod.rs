@@ -256,7 +256,7 @@ const STANDSTILL_S: f64 = 2.0;
 /// The localisation is the server's own [`ServerCore`], running T1–T4 side by side on the same
 /// scans (each configuration's estimates are what the server would give in that configuration
 /// alone): robot `i`'s scans reach it as the uplink of `robot<i>`, with the odometry pose at the
-/// scan, received [`RX_DELAY_S`] after they were taken.
+/// scan, received 10 ms (`RX_DELAY_S`) after they were taken.
 pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&TrialFrame<'_>)) -> Trial {
     let sc = &setup.scenario;
     let slots = slots(setup.robots, sc.spacing_m.get());
