@@ -1,4 +1,7 @@
-//! Helpers for the integration tests: the shipped configuration and the bad-config fixtures.
+//! `hil-tests`: the integration tests across the crates, one test target each: configuration
+//! fixtures, HIL runs against the mocks, supervision, degradation and fault-recovery drills,
+//! determinism, recording, one server core on every path, the crate graph. This library holds what
+//! they share: the shipped configuration and the bad-config fixtures.
 //!
 //! A fixture in `fixtures/bad-config/NAME.toml` breaks one rule. Its header says how:
 //!

@@ -1,8 +1,9 @@
-//! `amr-actors`: the runtime. Supervised actors that own the drivers and the algorithms, the robot
-//! and server actor trees, and what the runtime needs to start: loading the configuration.
-//!
-//! The actor trees arrive with their issue; this crate depends on `amr-core` and `amr-drivers` and is
-//! used by `host` (see `docs/architecture.md`: the crates, the actor trees, the rules between crates).
+//! `amr-actors`: the runtime. The robot's and the fusion server's actor trees ([`robot`],
+//! [`server`]) own the drivers and the algorithms under an OTP-style [`supervisor`], talk through
+//! the [`link`] (in process here, over Zenoh in `amr-net`) on the fleet [`clock`], and start from a
+//! loaded configuration ([`config`]); the server's localisation is one sans-IO core
+//! ([`server::core`]) that `amr replay` and `amr eval` drive too. The trees, the data flow and
+//! supervision are described in `docs/architecture.md`.
 
 pub mod clock;
 pub mod config;

@@ -1,12 +1,10 @@
-//! `amr-drivers`: the robot's device protocols.
-//!
-//! One module per protocol, each a sans-IO codec and state machine (bytes or frames in, events out,
-//! `now` passed in) plus a thin tokio shell generic over its transport. The mock devices in
-//! `hil-mocks` use the same pure pieces from the other side. This crate depends on nothing else of
-//! ours but `amr-settings` (see `docs/architecture.md`, "Rules between crates").
-//!
-//! The protocol modules arrive with their issues: `sopas` (SICK TiM551), `canopen` + `cia402`
-//! (TECO drives), `lpms` (LPMS-B2).
+//! `amr-drivers`: the robot's device protocols, with their configuration sections: SOPAS for the
+//! SICK TiM551 ([`sopas`]), CANopen and CiA 402 for the TECO wheel drives ([`canopen`]), LPBUS
+//! for the LPMS-B2 IMU ([`lpms`]). Each is a sans-IO codec and state machine (bytes or frames in,
+//! events out, `now` passed in) plus a thin tokio shell generic over its transport; the mock devices
+//! in `hil-mocks` use the same pure pieces from the device's side. The crate uses nothing of ours
+//! but `amr-settings` (`docs/architecture.md`, "Rules between crates"; `docs/devices.md` for the
+//! protocols).
 
 pub mod canopen;
 pub mod lpms;

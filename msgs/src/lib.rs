@@ -1,13 +1,9 @@
-//! `amr-msgs`: the one vocabulary of the fleet. Every message that crosses an actor, network or
-//! recording boundary is defined here once, with serde: the robot's uplink (scans with their
-//! odometry, odometry, health, safety state), the server's downlink (commands, arm, disarm), and
-//! what the server makes of them (fused frames, estimates, fusion status, particle clouds, its
-//! status for operators). The network link (`amr-net`, postcard) and the recordings (`amr-record`,
-//! JSON) encode these types directly; there are no mirrors to keep in step.
-//!
-//! [`SCHEMA_VERSION`] names the encoding of these types. Any change to a type here that changes
-//! its encoding must bump it (a test pins the encoding of a sample of every message: it fails on
-//! such a change and says so).
+//! `amr-msgs`: the fleet's one message vocabulary. Every message that crosses an actor, network or
+//! recording boundary is defined here once, with serde: the robot's uplink ([`Uplink`]), the
+//! server's downlink ([`Downlink`]) and what the server makes of them (fused frames, estimates,
+//! fusion status, particle clouds, its status for operators). The network link (`amr-net`,
+//! postcard) and the recordings (`amr-record`, JSON) encode these very types, under
+//! [`SCHEMA_VERSION`]; there are no mirrors to keep in step.
 //!
 //! Stamps are seconds on the fleet clock: one process shares one epoch; across processes it is the
 //! hosts' synchronised wall clock.
@@ -21,7 +17,9 @@ use amr_core::scan::Scan;
 use amr_core::se2::Se2;
 use serde::{Deserialize, Serialize};
 
-/// The version of these types' encoding, on the network and in recordings.
+/// The version of these types' encoding, on the network and in recordings. Any change to a type
+/// here that changes its encoding must bump it (a test pins the encoding of a sample of every
+/// message: it fails on such a change and says so).
 pub const SCHEMA_VERSION: u16 = 6;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR

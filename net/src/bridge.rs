@@ -2,6 +2,16 @@
 //! tree a [`RobotEnd`]; the server's bridge hands the server tree a [`ServerEnd`]: the same ends as
 //! the in-process link, so the trees do not know which link they are on.
 //!
+//! | key | from → to | what |
+//! |---|---|---|
+//! | `fleet/<robot>/scan` | robot → server | scans with the odometry pose at their stamp |
+//! | `fleet/<robot>/odom` | robot → server | odometry |
+//! | `fleet/<robot>/health` | robot → server | health and safety-state changes |
+//! | `fleet/<robot>/cmd` | server → robot | velocity commands, arm, disarm |
+//! | `fleet/<robot>/estop/<sender>` | server or operator → robot | e-stop and its reset (highest priority) |
+//! | `fleet/<robot>/alive` | robot (liveliness token) | the server sees a robot join and leave |
+//! | `fleet/server/status` | server → observers | the formation's phase and the robots alive |
+//!
 //! QoS (Zenoh priorities, congestion control and express):
 //! - scans (`DataLow`) and odometry (`Data`) may be dropped under congestion, and locally only the
 //!   latest waits to be sent (latest wins): a stale scan is worth less than none;

@@ -1,19 +1,13 @@
-//! `amr-net`: the fleet over the network. Robots and the fusion server run as separate
-//! processes and reach each other over Eclipse Zenoh; inside each process the actors stay on
-//! ractor. One bridge actor per process turns the link's channel ends ([`amr_actors::link`]) into
-//! Zenoh samples and back:
+//! `amr-net`: the fleet over the network. Robots and the fusion server run as separate processes
+//! and reach each other over Eclipse Zenoh: one bridge actor per process ([`bridge`], which lists
+//! the keys) turns the link's channel ends ([`amr_actors::link`]) into Zenoh samples and back, so
+//! the actor trees do not know which link they are on. [`network`] and [`settings`] turn
+//! `network.toml` into Zenoh's configurations, and [`certs`] makes the fleet's certificates for
+//! its mutual TLS (`amr fleet certs`).
 //!
-//! | key | from → to | what |
-//! |---|---|---|
-//! | `fleet/<robot>/scan` | robot → server | scans with the odometry pose at their stamp |
-//! | `fleet/<robot>/odom` | robot → server | odometry |
-//! | `fleet/<robot>/health` | robot → server | health and safety-state changes |
-//! | `fleet/<robot>/cmd` | server → robot | velocity commands, arm, disarm |
-//! | `fleet/<robot>/estop` | server or operator → robot | e-stop and its reset (highest priority) |
-//! | `fleet/<robot>/alive` | robot (liveliness token) | the server sees a robot join and leave |
-//! | `fleet/server/status` | server → observers | the formation's phase and the robots alive |
+//! # Security
 //!
-//! Security: mutual TLS ([`settings::Security::Tls`]): every peer presents a certificate of the
+//! Mutual TLS ([`settings::Security::Tls`]): every peer presents a certificate of the
 //! fleet's CA ([`certs`], `amr fleet certs`) and checks the other's, and a robot checks that the
 //! server's certificate is valid for the address it dialled. The server's access control, an allow
 //! list keyed on the certificate's name, lets no one but the server publish commands, only the
@@ -24,7 +18,9 @@
 //! commands stop. `--insecure` ([`settings::Security::Insecure`]) runs plain TCP with Zenoh's
 //! user/password instead: authenticated, not encrypted, and the server unauthenticated to a robot.
 //!
-//! Logging: Zenoh 1.10 prints its whole configuration, the password included, at debug level on the
+//! # Logging
+//!
+//! Zenoh 1.10 prints its whole configuration, the password included, at debug level on the
 //! `zenoh::api::session` target when a session opens. A program using these bridges must keep that
 //! target at info or above (the `amr` binary forces it, whatever `RUST_LOG` says, and a test checks
 //! it at trace level). This crate itself never logs a password ([`Credential`]'s `Debug` hides it).

@@ -15,8 +15,8 @@ use crate::certs::TlsFiles;
 use crate::network::NetworkConfig;
 use serde_json::json;
 
-/// The key space: `fleet/<robot>/{scan,odom,health,cmd}`, liveliness `fleet/<robot>/alive`, the
-/// server's status `fleet/server/status`.
+/// The key space: `fleet/<robot>/{scan,odom,health,cmd}`, e-stops `fleet/<robot>/estop/<sender>`,
+/// liveliness `fleet/<robot>/alive`, the server's status `fleet/server/status`.
 pub const PREFIX: &str = "fleet";
 
 /// Why the link could not be set up.

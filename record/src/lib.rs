@@ -1,15 +1,10 @@
-//! Recording, replay and live view: MCAP files and a Foxglove WebSocket server with Foxglove's
-//! schemas.
-//!
-//! - [`Recorder`] subscribes to the server's ports ([`amr_actors::server::ports::ServerPorts`])
-//!   and/or robots' ports ([`amr_actors::robot::ports::RobotPorts`]) and writes every message to an
-//!   MCAP file and/or the live view; topics and schemas are listed in [`encode`].
-//! - [`LogLayer`] records `tracing` log lines as `foxglove.Log`.
-//! - [`replay::run`] re-runs fusion + AMCL on a recording's exact uplink channel and compares.
-//! - [`live::serve`] is the Foxglove WebSocket server (`foxglove.websocket.v1`).
-//! - [`read`] reads a recording back, complete or cut short by a crash.
-//! - [`ros2`]: ROS 2 bags: `--record --ros2` writes one (CDR, rosbag2's MCAP profile), and
-//!   [`ros2::bag`] reads a bag's scans and odometry for `amr localize --bag`.
+//! `amr-record`: recording, replay and live view of a running fleet. The [`Recorder`] writes every
+//! message on the server's and/or the robots' ports ([`amr_actors::server::ports::ServerPorts`],
+//! [`amr_actors::robot::ports::RobotPorts`]), and through [`LogLayer`] the log lines, to an MCAP
+//! file with Foxglove's schemas (topics in [`encode`]) or a ROS 2 bag ([`ros2`]), and/or to a
+//! Foxglove WebSocket live view ([`live::serve`]). [`read`] reads a recording back, complete or cut
+//! short by a crash, [`replay::run`] re-runs the server's localisation on its exact uplink and
+//! compares, and [`ros2::bag`] reads a bag's scans and odometry for `amr localize --bag`.
 //!
 //! # Build decisions (measured 2026-12-01 on a 2-core machine, shared with two other builds)
 //!

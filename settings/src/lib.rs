@@ -1,17 +1,10 @@
-//! Configuration plumbing for every crate that owns a configuration type.
-//!
-//! The robot's configuration is TOML. Each crate deserialises its own part straight into its own
-//! types: the drivers their `[devices.*]` sections, core the algorithm parameters, the network
-//! link `network.toml`. What they share lives here, below all of them:
-//!
-//! - validated scalars ([`value`]): a bad value is refused while the file is deserialised, so the
-//!   error carries the key path and line (`kinematics.wheel_radius_m: must be > 0 (got -0.05)`);
-//! - [`ConfigFileType`] and [`parse_file`]: deserialise a whole file, then check the rules that
-//!   relate several fields ([`Section`] for a part of a file), and report the first
-//!   broken rule as a [`ConfigError`] naming file, line, key and rule;
-//! - [`DeviceSource`], the one key every device section has.
-//!
-//! No IO: callers read the files and hand over their text.
+//! `amr-settings`: the configuration plumbing shared by every crate that owns a configuration type,
+//! below all of them. Each crate deserialises its own part of the TOML configuration into its own
+//! types, built from the validated scalars of [`value`] (a bad value is refused with its key path
+//! and line) and read with [`parse_file`] ([`ConfigFileType`], [`Section`]), which then checks the
+//! rules that relate several fields and reports the first broken one as a [`ConfigError`] naming
+//! file, line, key and rule; [`DeviceSource`] is the one key every device section has. No IO:
+//! callers read the files and hand over their text.
 
 pub mod value;
 

@@ -1,13 +1,10 @@
-//! `amr-sim`: the whole system in one process, in real time, against the mock devices.
-//!
-//! The world (hil-mocks) moves the robots; each robot's mock TiM551 serves SOPAS on a loopback TCP
-//! port, its mock LPMS-B2 serves LPBUS on a pseudo-terminal, and its two mock TECO drives sit on a
-//! CAN bus (in-process, or behind a socketcand server on loopback). The robot trees reach them
-//! through their real drivers and transports. The drives' shaft speeds drive the world's wheels;
-//! the world's true poses score the server's estimates.
-//!
-//! The world's noise is seeded, but a real-time run depends on the scheduler, so two runs are close,
-//! not identical; `amr eval` is the bit-reproducible one.
+//! `amr-sim`: the whole system in one process against the mock devices: the world (hil-mocks) moves
+//! the robots, the mocks serve it through the drivers' real transports, and the real robot and
+//! server trees run on it, for `amr sim`, the HIL tests and the fault-recovery drills (module
+//! `drills`, feature `drills`). A run is in real time (two runs of one seed are close, not
+//! identical) or, with every device on in-memory pipes and tokio's clock paused, reproducible from
+//! its seed ([`SimCan::VirtualTime`]); [`eval`] is the simulated-time evaluation of T1–T4
+//! (`amr eval`), and [`served`] serves the world to separate robot processes.
 
 #[cfg(feature = "drills")]
 pub mod drills;
