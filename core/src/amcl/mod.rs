@@ -653,7 +653,7 @@ const COARSE: f64 = 3.0;
 /// The spread below which the particles count as converged (nav2 `pf->dist_threshold`).
 pub const CONVERGED_M: f64 = 0.5;
 
-/// Uniform candidates per injected particle (see [`Amcl::resample`]).
+/// Uniform candidates per injected particle (see `Amcl::resample`).
 pub const INJECTION_CANDIDATES: usize = 20;
 
 /// Uniform candidates per particle when global localisation places its particles on the first scan.

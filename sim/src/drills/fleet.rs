@@ -294,6 +294,77 @@ async fn rearm_and_run(sim: &Sim, c: &mut Check) {
         .map(|t| t.saturating_sub(rearm));
 }
 
+/// How late robot-b's scans reach the server in [`late_scans`]: past the fusion's sync gate (its
+/// scans pair with nothing of robot-a's) and its age gate.
+const LATE_BY: Duration = Duration::from_millis(300);
+/// How long they come late, from the start of the job.
+const LATE_FOR: Duration = Duration::from_secs(8);
+
+/// One robot's LiDAR scans reach the server late from the start of the job (a loaded host or
+/// network between that LiDAR and the server), its odometry and health on time: nothing can be
+/// fused, so V has no verified estimate, and the formation must not start on the scenario's
+/// start pose alone. Once the scans come on time, V is started where the robots' own estimates
+/// put it, verified, and the formation starts by itself; every verified estimate of V is within
+/// 10 cm of the truth.
+pub(crate) async fn late_scans(config: &Config, seed: u64, c: &mut Check) {
+    let Some(scenario) = one_leg(config) else { return c.fail("no straight scenario") };
+    let options = SimOptions {
+        scenario_name: "drill".into(),
+        scenario,
+        seed,
+        noise: Noise::TYPICAL,
+        can: SimCan::InProcess,
+        configuration: None,
+        max_duration: None,
+        map: None,
+        surveyed_map: false,
+    };
+    let sim = match Sim::start(config, options).await {
+        Ok(s) => s,
+        Err(e) => return c.fail(format!("setup: {e}")),
+    };
+    let Some(late) = sim.robots.get(1).map(|r| r.id.clone()) else {
+        sim.shutdown().await;
+        return c.fail("the drill needs two robots");
+    };
+    sim.link.set_scan_delay(&late, LATE_BY);
+    c.inject();
+    c.throughout(
+        &format!(
+            "{late}'s scans {} ms late: the formation does not start, every target zero",
+            LATE_BY.as_millis()
+        ),
+        LATE_FOR,
+        || {
+            !matches!(phase(&sim), Some(Phase::Arming { .. } | Phase::Running | Phase::Holding { .. }))
+                && all_targets_zero(&sim)
+        },
+    )
+    .await;
+    let verified_while_late = sim.report().samples.iter().filter(|s| s.verified).count();
+    c.eq("verified estimates of V while the scans came late", verified_while_late, 0);
+    sim.link.set_scan_delay(&late, Duration::ZERO);
+    let on_time = c.since_injection();
+    c.recovery = c
+        .within(
+            "scans on time: V verified, the formation running, the wheels turning",
+            Duration::from_secs(20),
+            || phase(&sim) == Some(Phase::Running) && all_turning(&sim),
+        )
+        .await
+        .map(|t| t.saturating_sub(on_time));
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let report = sim.report();
+    let verified = report.samples.iter().filter(|s| s.verified).count();
+    c.that(verified > 20, format!("{verified} verified estimates of V after the scans came on time (> 20)"));
+    for f in report.failures(0.10, false) {
+        c.fail(f);
+    }
+    c.counters.insert("verified_estimates".into(), verified as u64);
+    keep_counters(&sim, c);
+    sim.shutdown().await;
+}
+
 /// Drill 8: the link between the robots and the server is lost — held, as a stalled transport
 /// would: nothing passes, and the backlog (the commands the server sent meanwhile) is delivered
 /// late when it returns, the worst case for stale commands.

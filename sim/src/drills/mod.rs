@@ -133,6 +133,10 @@ pub const DRILLS: &[Drill] = &[
         about: "e-stop, kill -9 the robot, restart it, re-arm: still EStop, no wheel moves until reset and arm; the same for a fault",
     },
     Drill {
+        name: "late-scans",
+        about: "one LiDAR's scans reach the server late at the start: the formation waits for a verified V, then starts",
+    },
+    Drill {
         name: "scan-flood",
         about: "one robot sends scans at 10x its rate for 60 s: server memory bounded, the other's reports on time",
     },
@@ -312,6 +316,7 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
         "estop" => devices::estop(config, seed, &mut c).await,
         "estop-input" => devices::estop_input(config, seed, &mut c).await,
         "estop-restart" => devices::estop_restart(config, seed, &mut c).await,
+        "late-scans" => fleet::late_scans(config, seed, &mut c).await,
         "scan-flood" => fleet::scan_flood(config, seed, fleet::FLOOD_FULL, &mut c).await,
         "soak" => soak::soak(config, seed, soak::SOAK_FULL, &mut c).await,
         _ => return None,
