@@ -412,7 +412,9 @@ fn a_filter_started_a_little_off_verifies_itself_while_the_robot_stands_still() 
     let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
     let truth = Se2::new(2.0, 4.0, 0.0);
     let odom = Se2::new(0.4, -0.3, 0.2);
-    for (seed, off) in [(0, Se2::new(0.25, 0.1, 0.08)), (1, Se2::new(-0.2, -0.15, -0.1)), (2, Se2::new(0.0, 0.3, 0.05))] {
+    for (seed, off) in
+        [(0, Se2::new(0.25, 0.1, 0.08)), (1, Se2::new(-0.2, -0.15, -0.1)), (2, Se2::new(0.0, 0.3, 0.05))]
+    {
         let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 41 + seed);
         amcl.init_pose(truth * off, 0.05, 0.02);
         let mut rng = Rng::seed(43 + seed);
