@@ -7,6 +7,11 @@
 //! `ROBOTLASER1 type start fov res max acc remission n r… m rem… laser_x laser_y laser_θ robot_x
 //! robot_y robot_θ tv rv fwd side turn`. Other messages (PARAM, SYNC, TRUEPOS, NEFF, RLASER…) and
 //! comments are skipped.
+//!
+//! [`prepare`] turns a Radish "corrected" log into a raw-odometry log, its reference trajectory and
+//! its map.
+
+pub mod prepare;
 
 use crate::scan::Scan;
 use crate::se2::Se2;
@@ -82,6 +87,18 @@ impl Fields<'_> {
     }
 }
 
+/// The angle between the beams of a FLASER line of `n` readings, which start at −90°: 180° ahead,
+/// 181/361/721 readings include both ends, other counts split 180° evenly (180 and 360: the SICK's
+/// last beam dropped).
+#[must_use]
+pub fn flaser_beam_step(n: usize) -> f64 {
+    if matches!(n, 181 | 361 | 721) {
+        std::f64::consts::PI / (n - 1) as f64
+    } else {
+        std::f64::consts::PI / n.max(1) as f64
+    }
+}
+
 /// Parse one line. `Ok(None)` for comments, blank lines and messages this reader does not use.
 pub fn parse_line(line: &str) -> Result<Option<Record>, CarmenError> {
     let mut it = line.split_ascii_whitespace();
@@ -99,13 +116,13 @@ pub fn parse_line(line: &str) -> Result<Option<Record>, CarmenError> {
             let logged = f.pose("laser pose")?;
             let odom = f.pose("odometry")?;
             let timestamp_s = f.timestamp()?;
-            // 180° ahead; 181/361/721 readings include both ends, other counts split 180° evenly.
-            let step = if matches!(n, 181 | 361 | 721) {
-                std::f64::consts::PI / (n - 1) as f64
-            } else {
-                std::f64::consts::PI / n.max(1) as f64
-            };
-            let scan = Scan::new(-std::f64::consts::FRAC_PI_2, step, 0.0, FLASER_MAX_RANGE_M - 1e-9, ranges);
+            let scan = Scan::new(
+                -std::f64::consts::FRAC_PI_2,
+                flaser_beam_step(n),
+                0.0,
+                FLASER_MAX_RANGE_M - 1e-9,
+                ranges,
+            );
             Ok(Some(Record::Laser(Box::new(LaserRecord {
                 scan,
                 odometry: Some(odom),
