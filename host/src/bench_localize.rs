@@ -261,7 +261,7 @@ fn logs_in(dir: &Path) -> anyhow::Result<Vec<String>> {
     names.sort();
     anyhow::ensure!(
         !names.is_empty(),
-        "{}: no <name>-raw.log with <name>_map.yaml and <name>-gt.csv beside it (made from the Radish CARMEN logs of github.com/acschaefer/ple, data/carmen/: docs/guide.md)",
+        "{}: no <name>-raw.log with <name>_map.yaml and <name>-gt.csv beside it (make them from a Radish corrected CARMEN log, e.g. of github.com/acschaefer/ple, data/carmen/, with `amr tools carmen-prepare LOG --out DIR`)",
         dir.display()
     );
     Ok(names)

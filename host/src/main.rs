@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_localize;
+mod carmen_cmd;
 mod config_cmd;
 mod eval_cmd;
 mod fleet_cmd;
@@ -333,7 +334,8 @@ enum Command {
     /// the vendor's tools, a ROS driver).
     #[command(subcommand)]
     Mock(MockCommand),
-    /// Protocol tools: decode a SOPAS capture, check the robot on a kernel CAN interface.
+    /// Protocol and data tools: decode a SOPAS capture, check the robot on a kernel CAN interface,
+    /// prepare a public CARMEN log for `amr bench localize`.
     #[command(subcommand)]
     Tools(ToolsCommand),
 }
@@ -390,6 +392,24 @@ enum ToolsCommand {
     SopasDecode {
         /// The captured bytes.
         file: PathBuf,
+    },
+    /// Prepare a Radish "corrected" CARMEN log (e.g. from github.com/acschaefer/ple, data/carmen/) for
+    /// `amr bench localize`: writes NAME-raw.log (the log with its raw odometry only, rebuilt from
+    /// the corrected log's odometry increments), NAME-gt.csv (the corrected pose of every scan:
+    /// scan,timestamp,x,y,theta) and NAME_map.yaml + NAME_map.pgm (a 0.05 m map built from every
+    /// scan at its corrected pose) into DIR.
+    ///
+    /// The log is read as plain text: decompress a .log.gz first (`gunzip -k`), or pipe it in as `-`
+    /// with --name.
+    CarmenPrepare {
+        /// The corrected log (`-`: standard input).
+        log: PathBuf,
+        /// Directory to write into (created if missing).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// The files' prefix (default: the log's file name without `-corrected.log`).
+        #[arg(long)]
+        name: Option<String>,
     },
     /// The robot on a kernel CAN interface (SocketCAN, e.g. a vcan): mock drives and the robot's
     /// CANopen master on sockets of their own, a velocity move, a quick stop, then malformed and
@@ -567,6 +587,9 @@ fn main() -> ExitCode {
             }
         }
         Command::Tools(ToolsCommand::SopasDecode { file }) => mock_cmd::sopas_decode(&file),
+        Command::Tools(ToolsCommand::CarmenPrepare { log, out, name }) => {
+            carmen_cmd::prepare_log(&log, &out, name)
+        }
         #[cfg(feature = "drills")]
         Command::Tools(ToolsCommand::CanCheck { iface, cansend, seed, config }) => {
             sim_cmd::can_check(&iface, &cansend, seed, config)

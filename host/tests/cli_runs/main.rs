@@ -4,6 +4,7 @@
 //! The fleet test (`fleet.rs`) stays on its own: its processes keep real-time deadlines, and
 //! `amr eval` beside it would take the cores they need.
 
+mod carmen_prepare;
 mod cli;
 mod eval;
 mod help;

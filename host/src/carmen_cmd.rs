@@ -1,0 +1,85 @@
+//! `amr tools carmen-prepare`: a Radish "corrected" CARMEN log made into the files `amr bench
+//! localize` reads (amr_core::carmen::prepare does the work; this reads and writes the files).
+
+use std::io::Read as _;
+use std::path::Path;
+
+use amr_core::carmen::prepare::{MapOptions, prepare};
+use amr_core::map::{MapMode, save_map};
+use anyhow::Context as _;
+
+/// The name a log's files get: its file name without `.gz`, `.log` and `-corrected`.
+fn default_name(log: &Path) -> Option<String> {
+    let file = log.file_name()?.to_str()?;
+    let file = file.strip_suffix(".gz").unwrap_or(file);
+    let file = file.strip_suffix(".log").unwrap_or(file);
+    let file = file.strip_suffix("-corrected").unwrap_or(file);
+    (!file.is_empty()).then(|| file.to_owned())
+}
+
+/// Write `NAME-raw.log`, `NAME-gt.csv`, `NAME_map.yaml` and `NAME_map.pgm` into `out`.
+pub(crate) fn prepare_log(log: &Path, out: &Path, name: Option<String>) -> anyhow::Result<()> {
+    let stdin = log == Path::new("-");
+    let name = match name {
+        Some(n) => n,
+        None if stdin => anyhow::bail!("give --name when the log comes on standard input"),
+        None => default_name(log).with_context(|| format!("{}: give --name", log.display()))?,
+    };
+    anyhow::ensure!(
+        !name.is_empty() && !name.contains(['/', '\\']) && name != "." && name != "..",
+        "--name `{name}`: a file name, without a directory"
+    );
+    let bytes = if stdin {
+        let mut b = Vec::new();
+        std::io::stdin().read_to_end(&mut b).context("cannot read standard input")?;
+        b
+    } else {
+        std::fs::read(log).with_context(|| format!("cannot read {}", log.display()))?
+    };
+    anyhow::ensure!(
+        !bytes.starts_with(&[0x1f, 0x8b]),
+        "{}: gzip-compressed; decompress it first (`gunzip -k FILE`, or `gunzip -c FILE | amr tools carmen-prepare - --name NAME --out DIR`)",
+        log.display()
+    );
+    let text = String::from_utf8(bytes).with_context(|| format!("{}: not a text file", log.display()))?;
+    let p = prepare(&text, &MapOptions::default()).with_context(|| log.display().to_string())?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let image = format!("{name}_map.pgm");
+    let (yaml, pgm) = save_map(&p.map, MapMode::Trinary, 0.65, 0.196, &image)?;
+    for (file, bytes) in [
+        (format!("{name}-raw.log"), p.raw_log.as_bytes()),
+        (format!("{name}-gt.csv"), p.reference_csv.as_bytes()),
+        (format!("{name}_map.yaml"), yaml.as_bytes()),
+        (image, pgm.as_slice()),
+    ] {
+        let path = out.join(file);
+        std::fs::write(&path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    let count = |v: i8| p.map.cells.iter().filter(|c| **c == v).count();
+    tracing::info!(
+        log = %name,
+        scans = p.scans,
+        odometry_lines = p.odometry_lines,
+        anchors_dropped = p.anchors,
+        map = %format!("{} × {} cells at {} m", p.map.width, p.map.height, p.map.resolution_m),
+        occupied = count(amr_core::map::OCCUPIED),
+        free = count(amr_core::map::FREE),
+        unknown = count(amr_core::map::UNKNOWN),
+        "wrote {name}-raw.log, {name}-gt.csv, {name}_map.yaml and {name}_map.pgm to {}",
+        out.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_from_file_names() {
+        assert_eq!(default_name(Path::new("/x/aces-corrected.log.gz")).as_deref(), Some("aces"));
+        assert_eq!(default_name(Path::new("freiburg-079-corrected.log")).as_deref(), Some("freiburg-079"));
+        assert_eq!(default_name(Path::new("run.log")).as_deref(), Some("run"));
+        assert_eq!(default_name(Path::new("/")), None);
+    }
+}
