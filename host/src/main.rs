@@ -96,9 +96,9 @@ enum Command {
     Bench(BenchCommand),
     /// The paper's experiments in simulation: world + Virtual-AMR pipeline + AMCL in simulated time,
     /// T1–T4 side by side on identical sensor streams. Writes report.md, report.json and
-    /// trials.json (the raw errors) to OUT/<scenario>/.
+    /// trials.json (the raw errors) to `OUT/<scenario>/`.
     Eval {
-        /// A scenario of the configuration (config/scenarios/<name>.toml), or a scenario file's
+        /// A scenario of the configuration (`config/scenarios/<name>.toml`), or a scenario file's
         /// path (its `map` may be a map YAML's path relative to it: any ROS map).
         #[arg(long, default_value = "straight")]
         scenario: String,
@@ -122,11 +122,11 @@ enum Command {
         #[arg(long, default_value_t = 2)]
         robots: usize,
         /// Instead of T1–T4: the sensitivity study of ε_d (Table 6) or Δθ (Table 7) for T4,
-        /// written to OUT/<scenario>/sweep-<eps|step>.{md,json}.
+        /// written to `OUT/<scenario>/sweep-<eps|step>.{md,json}`.
         #[arg(long, value_enum)]
         sweep: Option<eval_cmd::Sweep>,
         /// Instead of T1–T4: T4's error budget, each of its sources replaced by the truth in turn
-        /// (OUT/<scenario>/budget.{md,json}).
+        /// (`OUT/<scenario>/budget.{md,json}`).
         #[arg(long, conflicts_with = "sweep")]
         budget: bool,
         /// Instead of T1–T4 on one scenario: the occlusion study, T1–T4 over spacing 0.5–2.0 m and
@@ -144,7 +144,7 @@ enum Command {
         #[arg(long, value_name = "N", default_value_t = 50, requires = "study")]
         confirm_trials: usize,
         /// Record each trial as MCAP (scans, odometry, true poses, T1–T4's estimates side by side):
-        /// this file for one trial, FILE-<seed>.mcap for several.
+        /// this file for one trial, `FILE-<seed>.mcap` for several.
         #[arg(long, value_name = "FILE.mcap")]
         record: Option<PathBuf>,
         /// Serve the trials live to Foxglove (WebSocket) here, e.g. 127.0.0.1:8765; they run in
@@ -252,7 +252,7 @@ enum Command {
     /// (network.toml: Zenoh with mutual TLS, certificates from `amr fleet certs`), until Ctrl-C or
     /// SIGTERM (the drives quick-stop). SIGUSR1 e-stops the robot, SIGUSR2 resets its e-stop.
     Robot {
-        /// The robot's file (robot-<id>.toml); the rest of the configuration is read from its
+        /// The robot's file (`robot-<id>.toml`); the rest of the configuration is read from its
         /// directory.
         #[arg(long)]
         config: PathBuf,
@@ -261,7 +261,7 @@ enum Command {
         #[arg(long, num_args = 0..=1, value_name = "MANIFEST")]
         mock: Option<Option<PathBuf>>,
         /// Where the robot keeps its latched e-stop, fault and stop counter across restarts
-        /// (default: <id>.safety in $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else
+        /// (default: `<id>.safety` in $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else
         /// ~/.local/state/amr). A latch in it holds until reset: SIGUSR2 on the robot, or the
         /// network reset for a network e-stop.
         #[arg(long, value_name = "FILE")]
@@ -293,7 +293,7 @@ enum Command {
         #[arg(long)]
         auto_arm_hardware: bool,
         /// Where the formation keeps its progress in the plan, so that a restarted server resumes
-        /// the job where it was, never later (default: server-<scenario>.progress in
+        /// the job where it was, never later (default: `server-<scenario>.progress` in
         /// $STATE_DIRECTORY, else $XDG_STATE_HOME/amr, else ~/.local/state/amr). Removed when the
         /// plan finishes.
         #[arg(long, value_name = "FILE")]
@@ -517,7 +517,7 @@ enum ConfigCommand {
     /// Without DIR: ./config if it exists, else the defaults embedded in this binary. Exits 1 with
     /// the first broken rule (file, line, key and rule) if the configuration is invalid.
     Check {
-        /// A directory laid out like config/ (robot-<id>.toml, server.toml, vamr.toml, amcl.toml).
+        /// A directory laid out like config/ (`robot-<id>.toml`, server.toml, vamr.toml, amcl.toml).
         dir: Option<PathBuf>,
     },
 }
