@@ -47,14 +47,9 @@ fn one_leg(config: &Config) -> Option<ScenarioConfig> {
     Some(sc)
 }
 
-/// The simulation, running its plan with the robots moving.
-pub(super) async fn moving_sim(
-    config: &Config,
-    seed: u64,
-    scenario: ScenarioConfig,
-    c: &mut Check,
-) -> Option<Sim> {
-    let options = SimOptions {
+/// A drill's simulation of `scenario`: typical noise, CAN in process, no time limit.
+fn drill_options(scenario: ScenarioConfig, seed: u64) -> SimOptions {
+    SimOptions {
         scenario_name: "drill".into(),
         scenario,
         seed,
@@ -64,7 +59,17 @@ pub(super) async fn moving_sim(
         max_duration: None,
         map: None,
         surveyed_map: false,
-    };
+    }
+}
+
+/// The simulation, running its plan with the robots moving.
+pub(super) async fn moving_sim(
+    config: &Config,
+    seed: u64,
+    scenario: ScenarioConfig,
+    c: &mut Check,
+) -> Option<Sim> {
+    let options = drill_options(scenario, seed);
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,
         Err(e) => {
@@ -308,17 +313,7 @@ const LATE_FOR: Duration = Duration::from_secs(8);
 /// 10 cm of the truth.
 pub(crate) async fn late_scans(config: &Config, seed: u64, c: &mut Check) {
     let Some(scenario) = one_leg(config) else { return c.fail("no straight scenario") };
-    let options = SimOptions {
-        scenario_name: "drill".into(),
-        scenario,
-        seed,
-        noise: Noise::TYPICAL,
-        can: SimCan::InProcess,
-        configuration: None,
-        max_duration: None,
-        map: None,
-        surveyed_map: false,
-    };
+    let options = drill_options(scenario, seed);
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,
         Err(e) => return c.fail(format!("setup: {e}")),
