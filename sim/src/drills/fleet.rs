@@ -945,8 +945,10 @@ pub(crate) async fn scan_flood(config: &Config, seed: u64, length: Duration, c: 
     );
     let stopped = phases.iter().find(|p| matches!(p, Phase::Stopped { .. } | Phase::Waiting));
     c.that(stopped.is_none(), format!("the formation kept going or held (no stop): {stopped:?}"));
+    // Within 40 s: a formation that went out of shape while robot-b's estimates lagged may be
+    // re-forming when the flood ends (9–15 s a time, measured on the full drill), then re-arms.
     c.recovery = c
-        .within("the formation running after the flood", Duration::from_secs(20), || {
+        .within("the formation running after the flood", Duration::from_secs(40), || {
             sim.formation().is_some_and(|f| f.phase == Phase::Running)
         })
         .await;
