@@ -350,10 +350,11 @@ impl Amcl {
         let share = |at: &Se2| {
             integrity::explained_share(&self.field, at, &judged, self.sensor_origin, &p).unwrap_or(0.0)
         };
-        if share(&matched) < share(&e) + POLISH_GAIN {
+        let correction = matched * e.inverse();
+        // A polish, not a relocalisation: a larger move is the re-seeding's to make, judged as such.
+        if correction.translation_norm() > POLISH_MAX_M || share(&matched) < share(&e) + POLISH_GAIN {
             return;
         }
-        let correction = matched * e.inverse();
         for q in &mut self.particles {
             q.pose = correction * q.pose;
         }
@@ -716,6 +717,8 @@ const REST_M: f64 = 0.002;
 const REST_RAD: f64 = 0.002;
 /// Scans at rest on which the estimate is matched to the map ([`Amcl::polish`]).
 const REST_POLISHES: u32 = 3;
+/// The match moves the estimate at most this far, m.
+const POLISH_MAX_M: f64 = 0.5;
 /// The match is taken when the map explains this much more of the scan there, share.
 const POLISH_GAIN: f64 = 0.02;
 
