@@ -17,6 +17,19 @@ fn default_name(log: &Path) -> Option<String> {
     (!file.is_empty()).then(|| file.to_owned())
 }
 
+/// The bytes as they are, or decompressed when they begin with gzip's magic number (the public
+/// logs are published as `.log.gz`). Concatenated gzip members are read as one stream.
+fn gunzip_if_gzip(bytes: Vec<u8>) -> anyhow::Result<Vec<u8>> {
+    if !bytes.starts_with(&[0x1f, 0x8b]) {
+        return Ok(bytes);
+    }
+    let mut out = Vec::with_capacity(bytes.len() * 4);
+    flate2::read::MultiGzDecoder::new(bytes.as_slice())
+        .read_to_end(&mut out)
+        .context("gzip-compressed but not whole (the download may have been cut short)")?;
+    Ok(out)
+}
+
 /// Write `NAME-raw.log`, `NAME-gt.csv`, `NAME_map.yaml` and `NAME_map.pgm` into `out`.
 pub(crate) fn prepare_log(log: &Path, out: &Path, name: Option<String>) -> anyhow::Result<()> {
     let stdin = log == Path::new("-");
@@ -36,11 +49,7 @@ pub(crate) fn prepare_log(log: &Path, out: &Path, name: Option<String>) -> anyho
     } else {
         std::fs::read(log).with_context(|| format!("cannot read {}", log.display()))?
     };
-    anyhow::ensure!(
-        !bytes.starts_with(&[0x1f, 0x8b]),
-        "{}: gzip-compressed; decompress it first (`gunzip -k FILE`, or `gunzip -c FILE | amr tools carmen-prepare - --name NAME --out DIR`)",
-        log.display()
-    );
+    let bytes = gunzip_if_gzip(bytes).with_context(|| log.display().to_string())?;
     let text = String::from_utf8(bytes).with_context(|| format!("{}: not a text file", log.display()))?;
     let p = prepare(&text, &MapOptions::default()).with_context(|| log.display().to_string())?;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
@@ -81,5 +90,31 @@ mod tests {
         assert_eq!(default_name(Path::new("freiburg-079-corrected.log")).as_deref(), Some("freiburg-079"));
         assert_eq!(default_name(Path::new("run.log")).as_deref(), Some("run"));
         assert_eq!(default_name(Path::new("/")), None);
+    }
+
+    fn gzip(bytes: &[u8]) -> Vec<u8> {
+        use std::io::Write as _;
+        let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(bytes).unwrap();
+        e.finish().unwrap()
+    }
+
+    #[test]
+    fn gzip_input_is_decompressed_and_plain_input_passes_through() {
+        let text = b"ODOM 0 0 0 0 0 0 1.0 host 1.0\n".repeat(50);
+        assert_eq!(gunzip_if_gzip(text.clone()).unwrap(), text);
+        assert_eq!(gunzip_if_gzip(gzip(&text)).unwrap(), text);
+        // Two members, as `cat a.gz b.gz` makes them.
+        let mut two = gzip(&text[..100]);
+        two.extend(gzip(&text[100..]));
+        assert_eq!(gunzip_if_gzip(two).unwrap(), text);
+    }
+
+    #[test]
+    fn a_cut_gzip_file_is_an_error() {
+        let text = b"ODOM 0 0 0 0 0 0 1.0 host 1.0\n".repeat(500);
+        let z = gzip(&text);
+        let err = gunzip_if_gzip(z[..z.len() / 2].to_vec()).unwrap_err();
+        assert!(format!("{err:#}").contains("not whole"), "{err:#}");
     }
 }

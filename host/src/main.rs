@@ -399,8 +399,8 @@ enum ToolsCommand {
     /// scan,timestamp,x,y,theta) and NAME_map.yaml + NAME_map.pgm (a 0.05 m map built from every
     /// scan at its corrected pose) into DIR.
     ///
-    /// The log is read as plain text: decompress a .log.gz first (`gunzip -k`), or pipe it in as `-`
-    /// with --name.
+    /// The log may be gzip-compressed (the public logs are published as .log.gz), or piped in as
+    /// `-` with --name.
     CarmenPrepare {
         /// The corrected log (`-`: standard input).
         log: PathBuf,

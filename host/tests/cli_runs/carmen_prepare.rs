@@ -192,6 +192,27 @@ fn a_corrected_log_is_prepared_and_benchmarked() {
     );
 }
 
+/// The public logs are published gzip-compressed: the `.log.gz` gives the same files as the log.
+#[test]
+fn a_gzip_compressed_log_gives_the_same_files() {
+    use std::io::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    let (text, _, _) = corrected_log();
+    std::fs::write(dir.path().join("room-corrected.log"), &text).unwrap();
+    let mut z = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+    z.write_all(text.as_bytes()).unwrap();
+    std::fs::write(dir.path().join("room-corrected.log.gz"), z.finish().unwrap()).unwrap();
+    for (log, out) in [("room-corrected.log", "plain"), ("room-corrected.log.gz", "gz")] {
+        let run = amr(&["tools", "carmen-prepare", log, "--out", out], dir.path());
+        assert!(run.status.success(), "{log}: {}", String::from_utf8_lossy(&run.stderr));
+    }
+    for file in ["room-gt.csv", "room-raw.log", "room_map.pgm", "room_map.yaml"] {
+        let plain = std::fs::read(dir.path().join("plain").join(file)).unwrap();
+        assert!(!plain.is_empty(), "{file}");
+        assert_eq!(plain, std::fs::read(dir.path().join("gz").join(file)).unwrap(), "{file}");
+    }
+}
+
 #[test]
 fn standard_input_names_and_refusals() {
     let dir = tempfile::tempdir().unwrap();
@@ -217,7 +238,7 @@ fn standard_input_names_and_refusals() {
     };
     refused(&["tools", "carmen-prepare", "-", "--out", "x"], "give --name");
     std::fs::write(dir.path().join("z-corrected.log.gz"), [0x1f, 0x8b, 8, 0, 0, 0]).unwrap();
-    refused(&["tools", "carmen-prepare", "z-corrected.log.gz", "--out", "x"], "gzip-compressed");
+    refused(&["tools", "carmen-prepare", "z-corrected.log.gz", "--out", "x"], "not whole");
     // A raw log (the FLASER's odometry is not its laser pose) is not a corrected one.
     std::fs::write(
         dir.path().join("raw.log"),
