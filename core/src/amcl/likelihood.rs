@@ -14,9 +14,10 @@ use crate::se2::Se2;
 /// with a free cell among its 8 neighbours, a face a beam can reach. A wall that the mapping saw
 /// from one side is a band of occupied cells with unknown ones behind it; the band's far side is no
 /// surface (counting it puts a second optimum behind every such wall).
-/// Measured on four public CARMEN logs (`amr bench localize`, seeds 1–5, tracking RMSE): aces
-/// 8.1–9.2 → 8.2–9.2 cm, freiburg-079 7.0–7.3 → 6.2–6.4, freiburg-101 6.1–6.5 → 5.9–6.5, intel
-/// 6.8–6.9 → 6.5–6.6; freiburg-079's global run with seed 4, lost before (9.4 m), 7.3 cm.
+/// Measured on four public CARMEN logs (`amr bench localize`, seeds 1–5, tracking RMSE, to the
+/// boundary / to surface cells): aces 8.1–9.2 / 8.2–9.2 cm, freiburg-079 7.0–7.3 / 6.2–6.4,
+/// freiburg-101 6.1–6.5 / 5.9–6.5, intel 6.8–6.9 / 6.5–6.6; freiburg-079's global run with seed 4
+/// 9.4 m (lost) / 7.3 cm.
 /// Why the surface and not either of the two obvious choices:
 ///
 /// - nav2 (and a plain distance transform) measures to the nearest occupied centre, so `d` is 0
@@ -24,7 +25,7 @@ use crate::se2::Se2;
 ///   (a corridor looking ahead) and the obstacle is thick, the likelihood is flat over the thickness
 ///   and the estimate slides into the wall (measured on our polygon corridor: up to +9.5 cm).
 ///   Measuring to surface cells keeps `d` growing inside thick obstacles.
-/// - The distance to the occupied/free *boundary* (what this field used before) is right only for a
+/// - The distance to the occupied/free *boundary* is right only for a
 ///   map whose walls are drawn exactly on cell faces. A map built the way SLAM builds maps marks the
 ///   cell an endpoint falls in, so the surface lies, on average, at that cell's centre, not on its
 ///   face: the boundary distance is res/2 off on every beam and has two optima per one-cell wall.

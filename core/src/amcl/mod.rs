@@ -277,7 +277,7 @@ impl Amcl {
                 // Standing still and not tracking: the estimate is judged on each new scan, the
                 // particles left as they are (updating them on every scan of a robot standing
                 // still wears them down to a few: the middle robot of three 0.5 m apart, whose
-                // neighbours hide its scans, went 0.7 -> 8.8 cm). A formation holding for a
+                // neighbours hide its scans, is 8.8 cm off where it is 0.7 cm without). A formation holding for a
                 // verified V stands still; without this, V could verify itself only by moving.
                 if self.monitor.params().enabled && self.integrity_state() != IntegrityState::Tracking {
                     self.judge(points);
