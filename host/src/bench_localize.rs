@@ -35,8 +35,12 @@ pub(crate) struct KidnapOutcome {
     pub scan: usize,
     pub jump_m: f64,
     pub jump_deg: f64,
-    /// Whether the estimate went more than 0.5 m off at all (a filter can absorb a small jump).
+    /// Whether the estimate was carried off: more than 0.5 m off for at least [`DETECT_WITHIN`]
+    /// scans in a row, a loss as [`IntegrityCounts`] counts them (a filter can absorb a jump, or
+    /// come back from a short excursion by itself).
     pub carried_off: bool,
+    /// More than 0.5 m off on some scan, but never for [`DETECT_WITHIN`] in a row.
+    pub brief: bool,
     pub lost_after: Option<usize>,
     pub tracked_after: Option<usize>,
 }
@@ -60,10 +64,12 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
                         && lost_after.is_some_and(|l| *i >= k.scan + l)
                 })
                 .map(|(i, _, _)| i - k.scan);
-            let carried_off =
-                window().any(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M));
+            let off: Vec<bool> =
+                window().map(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M)).collect();
+            let carried_off = off.windows(DETECT_WITHIN).any(|w| w.iter().all(|o| *o));
             KidnapOutcome {
                 carried_off,
+                brief: !carried_off && off.iter().any(|o| *o),
                 scan: k.scan,
                 jump_m: k.jump.translation_norm(),
                 jump_deg: k.jump.theta.to_degrees(),
@@ -510,11 +516,13 @@ pub(crate) fn markdown(r: &Report) -> String {
         let lost3 = off.iter().filter(|k| k.lost_after.is_some_and(|a| a < DETECT_WITHIN)).count();
         let back10 = off.iter().filter(|k| k.tracked_after.is_some_and(|a| a < 10)).count();
         let back = off.iter().filter(|k| k.tracked_after.is_some()).count();
+        let brief = kidnaps.iter().filter(|(_, _, k)| k.brief).count();
         let _ = writeln!(
             out,
             "\nKidnappings (odometry teleported 1-5 m, any heading): {n} in all, {} of which carried the \
-             estimate more than 0.5 m off (the others the filter absorbed); of those, reported lost \
-             within {DETECT_WITHIN} scans: {lost3}; tracking again within 10 scans: {back10}; at all: \
+             estimate off (more than 0.5 m for at least {DETECT_WITHIN} scans in a row; {brief} more went \
+             0.5 m off for fewer scans, the others the filter absorbed); of those carried off, reported \
+             lost within {DETECT_WITHIN} scans: {lost3}; tracking again within 10 scans: {back10}; at all: \
              {back}. Scans counted from the kidnapping's (0).\n",
             off.len()
         );
@@ -529,7 +537,13 @@ pub(crate) fn markdown(r: &Report) -> String {
                 k.scan,
                 k.jump_m,
                 k.jump_deg,
-                if k.carried_off { "yes" } else { "no" },
+                if k.carried_off {
+                    "yes"
+                } else if k.brief {
+                    "briefly"
+                } else {
+                    "no"
+                },
                 show(k.lost_after),
                 show(k.tracked_after)
             );

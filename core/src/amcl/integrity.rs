@@ -17,10 +17,13 @@
 //!   a few metres off, explains most of the scan, but persistently less than where it is right;
 //!   a scan or two full of people do not move the median);
 //! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
-//!   `tracking_ratio` × level.
+//!   `tracking_ratio` × level;
+//! - `Lost` also when the filter found a place that explains the scan far better than the
+//!   estimate ([`Monitor::declare_lost`]).
 //!
-//! The filter acts on the state ([`super::Amcl`]): while `Uncertain` or `Lost` it re-seeds part of
-//! its particles from the scan.
+//! (An "update" here is one judged scan: the filter judges every scan, between its own updates
+//! too.) The filter acts on the state ([`super::Amcl`]): while `Uncertain` or `Lost` it re-seeds
+//! part of its particles from the scan.
 
 use serde::{Deserialize, Serialize};
 
@@ -103,7 +106,7 @@ pub struct IntegrityParams {
     pub recover: u32,
     /// While `Lost`, the share of the particles re-seeded at each update from the scan.
     pub reseed_share: f64,
-    /// While `Uncertain`, the same.
+    /// While `Uncertain`, the same; a particle placed means the estimate is wrong (`Lost`).
     pub uncertain_reseed_share: f64,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
@@ -132,7 +135,7 @@ impl Default for IntegrityParams {
             confirm: 2,
             recover: 3,
             reseed_share: 0.5,
-            uncertain_reseed_share: 0.0,
+            uncertain_reseed_share: 0.5,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,
@@ -281,6 +284,23 @@ impl Monitor {
         self.above_tracking = 0;
     }
 
+    /// The last judgement was below the lost ratio: one more confirms a loss.
+    #[must_use]
+    pub fn loss_pending(&self) -> bool {
+        self.below_lost > 0 && self.state != IntegrityState::Lost
+    }
+
+    /// The estimate is known to be wrong by other evidence than its share (a place that explains
+    /// the scan far better): `Lost` now, and `recover` good updates in a row to track again.
+    pub fn declare_lost(&mut self) {
+        self.state = IntegrityState::Lost;
+        self.below_lost = self.params.confirm;
+        self.above_tracking = 0;
+        if let Some(last) = &mut self.last {
+            last.state = IntegrityState::Lost;
+        }
+    }
+
     /// Judge one update whose estimate explains `explained` of the scan.
     pub fn observe(&mut self, explained: f64) -> Integrity {
         let p = self.params;
@@ -365,6 +385,27 @@ mod tests {
         for _ in 0..20 {
             assert_eq!(m.observe(mid).state, IntegrityState::Uncertain);
         }
+    }
+
+    #[test]
+    fn a_loss_declared_on_other_evidence_holds_until_a_run_of_good_updates() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..10 {
+            m.observe(0.9);
+        }
+        // Uncertain on a persistent middling fit, then declared lost (a far better place exists).
+        let mid = m.last().unwrap().level * 0.75;
+        while m.observe(mid).state != IntegrityState::Uncertain {}
+        m.declare_lost();
+        assert_eq!(m.state(), IntegrityState::Lost);
+        assert_eq!(m.last().map(|i| i.state), Some(IntegrityState::Lost));
+        // The middling fit does not bring it back; `recover` good updates in a row do.
+        assert_eq!(m.observe(mid).state, IntegrityState::Lost);
+        for _ in 1..p.recover {
+            assert_eq!(m.observe(0.9).state, IntegrityState::Lost);
+        }
+        assert_eq!(m.observe(0.9).state, IntegrityState::Tracking);
     }
 
     #[test]
