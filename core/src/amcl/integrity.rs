@@ -106,8 +106,10 @@ pub struct IntegrityParams {
     pub recover: u32,
     /// While `Lost`, the share of the particles re-seeded at each update from the scan.
     pub reseed_share: f64,
-    /// While `Uncertain`, the same; a particle placed means the estimate is wrong (`Lost`).
-    pub uncertain_reseed_share: f64,
+    /// While `Uncertain`, with no alternative pending: draws per filter update (each the best of
+    /// `reseed_candidates`) looking for a place that explains the scan far better than the
+    /// estimate (an alternative, checked on the next scans). 0: no search.
+    pub alternative_draws: usize,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
     /// At most this many particles are re-seeded in one update: bounds what an update costs
@@ -135,7 +137,7 @@ impl Default for IntegrityParams {
             confirm: 2,
             recover: 3,
             reseed_share: 0.5,
-            uncertain_reseed_share: 0.5,
+            alternative_draws: 100,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,
@@ -164,7 +166,6 @@ impl IntegrityParams {
             ("initial_level", self.initial_level),
             ("level_alpha", self.level_alpha),
             ("reseed_share", self.reseed_share),
-            ("uncertain_reseed_share", self.uncertain_reseed_share),
             ("switch_margin", self.switch_margin),
         ] {
             if !share(v) {

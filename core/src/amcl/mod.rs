@@ -498,14 +498,15 @@ impl Amcl {
     }
 
     /// Uncertain, and no alternative pending: look for a place that explains this scan far better
-    /// than the estimate (as `reseed` does, `uncertain_reseed_share` of the particles' worth of
-    /// draws); the best found is checked on the next scans ([`Self::check_alternative`]). Placing
-    /// particles there at once pulled a filter that was right, its scan full of unmapped people, to
-    /// a place 27 m off that fitted that one scan better (the surveyed world).
+    /// than the estimate (as `reseed` does, `alternative_draws` draws); the best found is checked
+    /// on the next scans ([`Self::check_alternative`]). Placing particles there at once pulled a
+    /// filter that was right, its scan full of unmapped people, to a place 27 m off that fitted
+    /// that one scan better (the surveyed world). The draws are few and repeated on each update
+    /// while uncertain: a cluttered site is uncertain for a third of its scans (acapulco), and 1 000
+    /// draws an update put its update time's P95 at 60–80 ms, against 0.8 ms.
     fn search_alternative(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let p = *self.monitor.params();
-        let n = self.particles.len();
-        let k = (((n as f64) * p.uncertain_reseed_share).round() as usize).min(n).min(p.reseed_max_particles);
+        let k = p.alternative_draws;
         if k == 0 || self.replace_need().is_none() {
             return;
         }

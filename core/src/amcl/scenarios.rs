@@ -578,13 +578,16 @@ fn global_localisation_places_particles_on_the_first_scan() {
 /// says `Uncertain` and nothing more. The uncertain filter looks for a place that explains the scan
 /// far better, checks it on the next scans, and then reports `Lost` and re-localises there.
 /// Measured, seeds 0–5: uncertain from the third update, lost at the 9th or 10th, within 0.3 m from
-/// the 10th or 11th, tracking from the 12th or 13th; without the search (`uncertain_reseed_share`
+/// the 10th or 11th, tracking from the 12th or 13th; without the search (`alternative_draws`
 /// 0) uncertain until the 27th, when the share happened to dip below the lost ratio.
+/// Not on every seed: this building is its own twin turned by 180° (but for two small obstacles),
+/// and on seed 6 of 0–11 the place found and confirmed was the twin, 6.6 m off, which the filter
+/// then reported `Tracking` (as a lost filter's re-seeding can; docs/integrity.md).
 #[test]
 fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lost() {
     let to = Se2::new(9.0, 4.0, 0.0);
     let mut without = tuned_params();
-    without.integrity.uncertain_reseed_share = 0.0;
+    without.integrity.alternative_draws = 0;
     for seed in 0..6 {
         let r = kidnapping(&tuned_params(), seed, to);
         let lost = r.states_after.iter().position(|s| *s == IntegrityState::Lost);
