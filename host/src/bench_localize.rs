@@ -256,6 +256,20 @@ fn by_index(records: &mut [Record], reference: &mut [RefPose]) -> bool {
     true
 }
 
+/// Another localiser's poses for a log matched to its reference by order ([`by_index`]): one row
+/// per scan, re-stamped with the scan's index.
+fn by_order(poses: &mut [(f64, Se2)], scans: usize) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        poses.len() == scans,
+        "{} rows for {scans} scans: the log's stamps are not distinct, so its rows are matched to the scans by their order, one row per scan",
+        poses.len()
+    );
+    for (k, p) in poses.iter_mut().enumerate() {
+        p.0 = k as f64;
+    }
+    Ok(())
+}
+
 /// The log names in `dir`: every `<name>-raw.log` with its map and reference beside it.
 fn logs_in(dir: &Path) -> anyhow::Result<Vec<String>> {
     let mut names: Vec<String> = std::fs::read_dir(dir)
@@ -390,7 +404,8 @@ pub(crate) fn run(
             continue;
         }
         let mut reference = reference;
-        if by_index(&mut records, &mut reference) {
+        let indexed = by_index(&mut records, &mut reference);
+        if indexed {
             tracing::warn!(log = %name, "the log's stamps are not distinct: scans matched to the reference by their order");
         }
         tracing::info!(log = %name, scans, "localising");
@@ -416,7 +431,15 @@ pub(crate) fn run(
         let nav2 = match nav2_dir {
             Some(d) => {
                 let p: PathBuf = d.join(format!("{name}.csv"));
-                if p.exists() { Some(score(&reference, &read_poses(&p)?)) } else { None }
+                if p.exists() {
+                    let mut poses = read_poses(&p)?;
+                    if indexed {
+                        by_order(&mut poses, reference.len()).with_context(|| p.display().to_string())?;
+                    }
+                    Some(score(&reference, &poses))
+                } else {
+                    None
+                }
             }
             None => None,
         };

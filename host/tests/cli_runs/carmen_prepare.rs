@@ -192,6 +192,50 @@ fn a_corrected_log_is_prepared_and_benchmarked() {
     );
 }
 
+/// A log whose stamps are not distinct (some public logs stamp every scan alike) is matched to its
+/// reference by scan order, and so is another localiser's CSV given with `--nav2`.
+#[test]
+fn a_log_stamped_alike_is_matched_by_order_nav2_rows_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let (text, _, _) = corrected_log();
+    std::fs::write(dir.path().join("room-corrected.log"), &text).unwrap();
+    let run = amr(&["tools", "carmen-prepare", "room-corrected.log", "--out", "p"], dir.path());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let out = dir.path().join("p");
+    // Every reference row stamped 0; a "nav2" estimate that is the reference itself, stamped 0.
+    let gt = std::fs::read_to_string(out.join("room-gt.csv")).unwrap();
+    let mut same = String::from("scan,timestamp,x,y,theta\n");
+    let mut nav2 = String::from("timestamp,x,y,theta\n");
+    for line in gt.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        same += &format!("{},0,{},{},{}\n", f[0], f[2], f[3], f[4]);
+        nav2 += &format!("0,{},{},{}\n", f[2], f[3], f[4]);
+    }
+    std::fs::write(out.join("room-gt.csv"), same).unwrap();
+    let nav2_dir = dir.path().join("nav2");
+    std::fs::create_dir(&nav2_dir).unwrap();
+    std::fs::write(nav2_dir.join("room.csv"), &nav2).unwrap();
+    let bench = amr(
+        &["bench", "localize", "--logs", "p", "--seeds", "1", "--nav2", nav2_dir.to_str().unwrap(), "--json"],
+        dir.path(),
+    );
+    assert!(bench.status.success(), "{}", String::from_utf8_lossy(&bench.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&bench.stdout).unwrap();
+    let n = &report["logs"][0]["nav2"];
+    assert_eq!(n["matched"], 50, "{n}");
+    assert!(n["translation"]["rmse"].as_f64().is_some_and(|e| e < 1e-9), "{n}");
+    // A CSV with a row missing cannot be matched by order: an error that names it.
+    let short: String = nav2.lines().take(40).map(|l| format!("{l}\n")).collect();
+    std::fs::write(nav2_dir.join("room.csv"), short).unwrap();
+    let bench = amr(
+        &["bench", "localize", "--logs", "p", "--seeds", "1", "--nav2", nav2_dir.to_str().unwrap()],
+        dir.path(),
+    );
+    let stderr = String::from_utf8_lossy(&bench.stderr);
+    assert_eq!(bench.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("room.csv") && stderr.contains("39 rows for 50 scans"), "{stderr}");
+}
+
 /// The public logs are published gzip-compressed: the `.log.gz` gives the same files as the log.
 #[test]
 fn a_gzip_compressed_log_gives_the_same_files() {
