@@ -239,6 +239,11 @@ pub struct OccupancyGrid {
 pub trait Ros2Message: Sized {
     /// The full type name, `pkg/msg/Type` (the MCAP schema name rosbag2 writes).
     const TYPE: &'static str;
+    /// The type's hash, `RIHS01_` and 64 hex digits: REP 2011's hash of the type description
+    /// (the fields and nested types, names and kinds; no comments or defaults), as ROS 2 from Iron
+    /// on names a type by in rmw_zenoh's key expressions and rosbag2's metadata. The same for
+    /// Iron, Jazzy and later; Humble has none.
+    const TYPE_HASH: &'static str;
     fn write(&self, w: &mut CdrWriter);
     fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError>;
 
@@ -257,6 +262,7 @@ pub trait Ros2Message: Sized {
 
 impl Ros2Message for LaserScan {
     const TYPE: &'static str = "sensor_msgs/msg/LaserScan";
+    const TYPE_HASH: &'static str = "RIHS01_64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828";
 
     fn write(&self, w: &mut CdrWriter) {
         self.header.write(w);
@@ -293,6 +299,7 @@ impl Ros2Message for LaserScan {
 
 impl Ros2Message for PoseWithCovarianceStamped {
     const TYPE: &'static str = "geometry_msgs/msg/PoseWithCovarianceStamped";
+    const TYPE_HASH: &'static str = "RIHS01_26432f9803e43727d3c8f668d1fdb3c630f548af631e2f4e31382371bfea3b6e";
 
     fn write(&self, w: &mut CdrWriter) {
         self.header.write(w);
@@ -306,6 +313,7 @@ impl Ros2Message for PoseWithCovarianceStamped {
 
 impl Ros2Message for Odometry {
     const TYPE: &'static str = "nav_msgs/msg/Odometry";
+    const TYPE_HASH: &'static str = "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0";
 
     fn write(&self, w: &mut CdrWriter) {
         self.header.write(w);
@@ -354,6 +362,7 @@ const MIN_TRANSFORM_BYTES: usize = 8 + 5 + 5 + 7 * 8;
 
 impl Ros2Message for TfMessage {
     const TYPE: &'static str = "tf2_msgs/msg/TFMessage";
+    const TYPE_HASH: &'static str = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087";
 
     fn write(&self, w: &mut CdrWriter) {
         w.len(self.transforms.len());
@@ -371,6 +380,7 @@ impl Ros2Message for TfMessage {
 
 impl Ros2Message for OccupancyGrid {
     const TYPE: &'static str = "nav_msgs/msg/OccupancyGrid";
+    const TYPE_HASH: &'static str = "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7";
 
     fn write(&self, w: &mut CdrWriter) {
         self.header.write(w);

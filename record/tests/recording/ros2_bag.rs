@@ -380,3 +380,34 @@ fn a_bag_written_by_rosbags_reads_back_exactly() {
         assert!(close(l.laser_in_robot, Se2::new(0.25, -0.125, 0.5)), "{:?}", l.laser_in_robot);
     }
 }
+
+/// Our type hashes against `rosbags`' own computation of REP 2011's hash from its definitions of
+/// the types (Jazzy's store).
+#[test]
+fn type_hashes_match_an_independent_computation() {
+    use amr_record::ros2::msg::{
+        LaserScan, OccupancyGrid, Odometry, PoseWithCovarianceStamped, Ros2Message, TfMessage,
+    };
+    fn entry<M: Ros2Message>() -> (&'static str, &'static str) {
+        (M::TYPE, M::TYPE_HASH)
+    }
+    let ours = [
+        entry::<LaserScan>(),
+        entry::<PoseWithCovarianceStamped>(),
+        entry::<Odometry>(),
+        entry::<TfMessage>(),
+        entry::<OccupancyGrid>(),
+    ];
+    let script = "import sys\nfrom rosbags.typesys import Stores, get_typestore\n\
+                  ts = get_typestore(Stores.ROS2_JAZZY)\n\
+                  for name in sys.argv[1:]:\n    print(name, ts.hash_rihs01(name))\n";
+    let out = std::process::Command::new("python3")
+        .args(["-c", script])
+        .args(ours.iter().map(|(t, _)| *t))
+        .output()
+        .expect("python3 (the CI installs `rosbags`)");
+    assert!(out.status.success(), "rosbags failed: {}", String::from_utf8_lossy(&out.stderr));
+    let theirs = String::from_utf8(out.stdout).unwrap();
+    let theirs: Vec<(&str, &str)> = theirs.lines().filter_map(|l| l.split_once(' ')).collect();
+    assert_eq!(theirs, ours);
+}
