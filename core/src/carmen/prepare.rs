@@ -536,16 +536,20 @@ mod tests {
         assert_eq!(g.cells, expected);
         // At 5 cm with the default margin the endpoints are still the only occupied cells.
         let g = build_map(&[&a, &b], &MapOptions::default()).unwrap();
-        let occupied: Vec<[f64; 2]> = (0..g.height)
-            .flat_map(|j| (0..g.width).map(move |i| (i, j)))
-            .filter(|&(i, j)| g.is_occupied(i, j))
-            .map(|(i, j)| g.cell_center(i, j))
-            .collect();
+        let occupied = occupied_centres(&g);
         assert_eq!(occupied.len(), 2, "{occupied:?}");
         for (c, want) in occupied.iter().zip([[0.5, 0.5], [3.5, 2.5]]) {
             assert!((c[0] - want[0]).abs() <= 0.05 && (c[1] - want[1]).abs() <= 0.05, "{c:?} vs {want:?}");
         }
         assert_eq!(build_map(&[], &options), Err(PrepareError::NoScans));
+    }
+
+    fn occupied_centres(g: &crate::map::OccupancyGrid) -> Vec<[f64; 2]> {
+        (0..g.height)
+            .flat_map(|j| (0..g.width).map(move |i| (i, j)))
+            .filter(|&(i, j)| g.is_occupied(i, j))
+            .map(|(i, j)| g.cell_center(i, j))
+            .collect()
     }
 
     /// A corrected log by hand: raw odometry (0,0,0) → (1,0,0) → scan → (2,0,0), corrected to
@@ -594,11 +598,7 @@ ODOM 5 6 1.5707963267948966 0.3 0 0 3.0 h 3.0
         // Both beams used (81.9 is the log's largest reading: no return), at the corrected pose.
         // Heading 90°, beams at -90° and -30°: east 1.5 m, and 2.5 m at 60°.
         let g = &p.map;
-        let occupied: Vec<[f64; 2]> = (0..g.height)
-            .flat_map(|j| (0..g.width).map(move |i| (i, j)))
-            .filter(|&(i, j)| g.is_occupied(i, j))
-            .map(|(i, j)| g.cell_center(i, j))
-            .collect();
+        let occupied = occupied_centres(g);
         assert_eq!(occupied.len(), 2, "{occupied:?}");
         let want = [[6.5, 5.0], [5.0 + 2.5 * 0.5, 5.0 + 2.5 * 0.75f64.sqrt()]];
         for (c, w) in occupied.iter().zip(want) {
