@@ -92,6 +92,8 @@ pub(crate) struct IntegrityCounts {
     pub false_lost: usize,
     /// Scans within 0.5 m reported `Uncertain`.
     pub uncertain_on: usize,
+    /// Scans more than 0.5 m off reported `Tracking`: what a server would drive on.
+    pub tracking_off: usize,
     /// Runs of off scans shorter than a loss.
     pub excursions: usize,
     /// Losses, those reported lost within [`DETECT_WITHIN`] scans of their start, and those the
@@ -127,6 +129,7 @@ pub(crate) fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], resee
         }
         let start = k;
         while k < scored.len() && off(k) {
+            c.tracking_off += usize::from(scored[k].1 == IntegrityState::Tracking);
             k += 1;
         }
         if k - start < DETECT_WITHIN {
@@ -465,10 +468,10 @@ fn cm(s: &Score) -> (f64, f64, f64) {
 fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
     let (rmse, p95, max) = cm(s);
     let t = run.map_or("–".to_owned(), |r| format!("{:.2} / {:.2}", r.update_median_ms, r.update_p95_ms));
-    let i = run.map_or("– | – | – | – | – | –".to_owned(), |r| {
+    let i = run.map_or("– | – | – | – | – | – | –".to_owned(), |r| {
         let c = &r.integrity;
         format!(
-            "{}/{} | {}/{} | {} | {} | {} / {} | {}",
+            "{}/{} | {}/{} | {} | {} | {} / {} | {} | {}",
             c.detected,
             c.losses,
             c.recovered,
@@ -477,6 +480,7 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
             c.false_lost,
             c.uncertain_on,
             c.on,
+            c.tracking_off,
             c.reseeds
         )
     });
@@ -499,14 +503,15 @@ pub(crate) fn markdown(r: &Report) -> String {
          (runs of at least {DETECT_WITHIN} off scans) reported lost within {DETECT_WITHIN} scans, \
          losses recovered, brief excursions (shorter runs), false alarms (turned lost with the \
          estimate within 0.5 m for {DETECT_WITHIN} scans), scans within 0.5 m reported uncertain / \
-         all scans within 0.5 m, updates that re-seeded particles.\n",
+         all scans within 0.5 m, scans more than 0.5 m off reported tracking (what a server would \
+         drive on), updates that re-seeded particles.\n",
         r.seeds
     );
     let _ = writeln!(
         out,
-        "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms | detected | recovered | brief | false lost | uncertain / on | re-seeds |"
+        "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms | detected | recovered | brief | false lost | uncertain / on | tracking while off | re-seeds |"
     );
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for l in &r.logs {
         row(&mut out, &l.name, "odometry alone", &l.odometry_only, None);
         if let Some(n) = &l.nav2 {
@@ -601,4 +606,43 @@ pub(crate) fn markdown(r: &Report) -> String {
         let _ = writeln!(out, "\n{name}: not run, {why}.");
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use IntegrityState::{Lost, Tracking, Uncertain};
+
+    #[test]
+    fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
+        let (on, off) = (Some(0.1), Some(2.0));
+        let scans = [
+            (on, Tracking),
+            (on, Tracking),
+            (on, Tracking),
+            // A loss of four scans, reported lost at its second: detected; two of its scans
+            // reported tracking (a server would drive on them).
+            (off, Tracking),
+            (off, Lost),
+            (off, Lost),
+            (off, Tracking),
+            (on, Uncertain),
+            // A brief excursion reported tracking throughout.
+            (off, Tracking),
+            (on, Tracking),
+            (on, Tracking),
+            (on, Tracking),
+            // Lost while on, after three on scans: a false alarm.
+            (on, Lost),
+            (None, Lost),
+        ];
+        let c = integrity_counts(&scans, 7);
+        assert_eq!((c.losses, c.detected, c.recovered), (1, 1, 1));
+        assert_eq!(c.excursions, 1);
+        assert_eq!(c.false_lost, 1);
+        assert_eq!(c.uncertain_on, 1);
+        assert_eq!(c.on, 8);
+        assert_eq!(c.tracking_off, 3);
+        assert_eq!(c.reseeds, 7);
+    }
 }
