@@ -2,14 +2,15 @@
 //! (settings) depends on nothing of ours, core and drivers only on it, the message vocabulary
 //! (msgs) only on core, actors on core, msgs and drivers, hil-mocks
 //! on core and drivers (never on the actors or their messages), the simulation on those, the
-//! network link and the recorder on core, msgs and actors, the tests on everything but host, and
-//! nothing at all depends on host.
+//! network link on core, msgs and actors, the ROS 2 layer (ros2) on nothing of ours, the recorder
+//! on core, msgs, actors and ros2, the tests on everything but host, and nothing at all depends on
+//! host.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 11] = [
+const OURS: [&str; 12] = [
     "amr-settings",
     "amr-core",
     "amr-msgs",
@@ -18,6 +19,7 @@ const OURS: [&str; 11] = [
     "hil-mocks",
     "amr-sim",
     "amr-net",
+    "amr-ros2",
     "amr-record",
     "host",
     "hil-tests",
@@ -61,7 +63,10 @@ fn dependencies_point_one_way() {
             // core; `amr sim`, `amr eval` and the HIL tests share it.
             "amr-sim" => &["amr-core", "amr-msgs", "amr-drivers", "amr-actors", "hil-mocks"],
             // The network link and the recorder carry the fleet's messages and the actors' ports.
-            "amr-net" | "amr-record" => &["amr-core", "amr-msgs", "amr-actors"],
+            "amr-net" => &["amr-core", "amr-msgs", "amr-actors"],
+            // ROS 2's encoding, message types and wire conventions know nothing of the fleet.
+            "amr-ros2" => &[],
+            "amr-record" => &["amr-core", "amr-msgs", "amr-actors", "amr-ros2"],
             "hil-tests" => &libraries,
             // host is the wiring: it may use every library, and its tests use the fixtures crate.
             "host" => &not_host,

@@ -1,7 +1,7 @@
 //! ROS 2 data in and out: rosbag2's MCAP files with CDR-encoded messages.
 //!
-//! - [`cdr`]: the CDR encoding, one implementation for the writer and the reader;
-//! - [`msg`]: the message types (`sensor_msgs/LaserScan`, `nav_msgs/Odometry`,
+//! - [`cdr`]: the CDR encoding, one implementation for the writer and the reader (from `amr-ros2`);
+//! - [`msg`]: the message types (from `amr-ros2`) (`sensor_msgs/LaserScan`, `nav_msgs/Odometry`,
 //!   `geometry_msgs/PoseWithCovarianceStamped`, `tf2_msgs/TFMessage`, `nav_msgs/OccupancyGrid`)
 //!   with their schema text;
 //! - [`Ros2Encoder`]: what `--record FILE --ros2` writes for each event (topics below);
@@ -47,8 +47,7 @@
 //! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
 
 pub mod bag;
-pub mod cdr;
-pub mod msg;
+pub use amr_ros2::{cdr, msg};
 
 use std::collections::BTreeMap;
 

@@ -1,4 +1,4 @@
-//! The ROS 2 messages this crate writes and reads, their CDR encoding ([`super::cdr`]) and their
+//! The ROS 2 messages this crate writes and reads, their CDR encoding ([`crate::cdr`]) and their
 //! `ros2msg` schema text.
 //!
 //! Field lists as in the `.msg` files of ros2/common_interfaces (`std_msgs`, `sensor_msgs`,
@@ -9,7 +9,7 @@
 //! message_definition_cache; the MCAP spec's "ros2msg" schema encoding,
 //! <https://mcap.dev/spec/registry#ros2msg>).
 
-use super::cdr::{CdrError, CdrReader, CdrWriter};
+use crate::cdr::{CdrError, CdrReader, CdrWriter};
 
 /// `builtin_interfaces/Time`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -1,0 +1,14 @@
+//! ROS 2 without a ROS installation: what the fleet needs to write ROS 2 bags and to be a ROS 2
+//! node on the wire.
+//!
+//! - [`cdr`]: the CDR encoding of ROS 2 messages (one implementation for writing and reading);
+//! - [`msg`]: the message types the fleet speaks, their schema text and their REP 2011 type hashes;
+//! - [`rmw_zenoh`]: rmw_zenoh's key expressions, liveliness tokens, QoS strings, GIDs and sample
+//!   attachments.
+//!
+//! Nothing here knows the fleet: the recorder (`amr-record`) turns the fleet's events into these
+//! messages.
+
+pub mod cdr;
+pub mod msg;
+pub mod rmw_zenoh;
