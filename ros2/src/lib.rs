@@ -4,11 +4,13 @@
 //! - [`cdr`]: the CDR encoding of ROS 2 messages (one implementation for writing and reading);
 //! - [`msg`]: the message types the fleet speaks, their schema text and their REP 2011 type hashes;
 //! - [`rmw_zenoh`]: rmw_zenoh's key expressions, liveliness tokens, QoS strings, GIDs and sample
-//!   attachments.
+//!   attachments;
+//! - [`node`]: a ROS 2 node on rmw_zenoh (a Zenoh session, its tokens, publishers and subscriptions).
 //!
 //! Nothing here knows the fleet: the recorder (`amr-record`) turns the fleet's events into these
 //! messages.
 
 pub mod cdr;
 pub mod msg;
+pub mod node;
 pub mod rmw_zenoh;

@@ -183,6 +183,13 @@ impl Default for TwistWithCovariance {
     }
 }
 
+/// `geometry_msgs/Twist`: linear and angular velocity (each x, y, z), what `/cmd_vel` carries.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Twist {
+    pub linear: [f64; 3],
+    pub angular: [f64; 3],
+}
+
 /// `nav_msgs/Odometry`.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Odometry {
@@ -311,6 +318,23 @@ impl Ros2Message for PoseWithCovarianceStamped {
     }
 }
 
+impl Ros2Message for Twist {
+    const TYPE: &'static str = "geometry_msgs/msg/Twist";
+    const TYPE_HASH: &'static str = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a";
+    fn write(&self, w: &mut CdrWriter) {
+        for v in self.linear.iter().chain(&self.angular) {
+            w.f64(*v);
+        }
+    }
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        let mut t = Twist::default();
+        for v in t.linear.iter_mut().chain(t.angular.iter_mut()) {
+            *v = r.f64()?;
+        }
+        Ok(t)
+    }
+}
+
 impl Ros2Message for Odometry {
     const TYPE: &'static str = "nav_msgs/msg/Odometry";
     const TYPE_HASH: &'static str = "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0";
@@ -405,6 +429,22 @@ impl Ros2Message for OccupancyGrid {
     }
 }
 
+/// Every message type here, `(TYPE, TYPE_HASH)`.
+pub const TYPE_HASHES: [(&str, &str); 6] = [
+    (LaserScan::TYPE, LaserScan::TYPE_HASH),
+    (PoseWithCovarianceStamped::TYPE, PoseWithCovarianceStamped::TYPE_HASH),
+    (Odometry::TYPE, Odometry::TYPE_HASH),
+    (TfMessage::TYPE, TfMessage::TYPE_HASH),
+    (OccupancyGrid::TYPE, OccupancyGrid::TYPE_HASH),
+    (Twist::TYPE, Twist::TYPE_HASH),
+];
+
+/// The REP 2011 hash of a type here (`pkg/msg/Type`).
+#[must_use]
+pub fn type_hash(type_name: &str) -> Option<&'static str> {
+    TYPE_HASHES.iter().find(|(t, _)| *t == type_name).map(|(_, h)| *h)
+}
+
 /// Each type's own definition (fields only) and the types it uses, `pkg/Type` as `.msg` files
 /// name them.
 fn definition(name: &str) -> Option<(&'static str, &'static [&'static str])> {
@@ -496,6 +536,19 @@ pub fn schema_text(type_name: &str) -> Option<String> {
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
     use super::*;
+
+    #[test]
+    fn a_twist_is_six_doubles_after_the_header() {
+        let t = Twist { linear: [0.5, 0.0, 0.0], angular: [0.0, 0.0, -0.25] };
+        let b = t.to_cdr();
+        assert_eq!(b.len(), 4 + 48);
+        assert_eq!(b[4..12], 0.5f64.to_le_bytes());
+        assert_eq!(b[44..52], (-0.25f64).to_le_bytes());
+        assert_eq!(Twist::from_cdr(&b).unwrap(), t);
+        assert!(Twist::from_cdr(&b[..40]).is_err());
+        assert_eq!(type_hash("geometry_msgs/msg/Twist"), Some(Twist::TYPE_HASH));
+        assert_eq!(type_hash("geometry_msgs/msg/Wrench"), None);
+    }
 
     #[test]
     fn messages_round_trip() {

@@ -1,0 +1,122 @@
+"""An rmw_zenoh peer written from ros2/rmw_zenoh's design document alone, with eclipse-zenoh (the
+Zenoh project's Python binding), rosbags (an independent CDR codec and REP 2011 type hashes) and
+xxhash (the GID). It joins the node under test on `tcp/127.0.0.1:<port>` and prints one JSON
+object: the graph it sees, what it decoded, and whether each sample's attachment and GID are as
+rmw_zenoh writes them. It also publishes /cmd_vel (geometry_msgs/msg/Twist) as rmw_zenoh would.
+
+usage: rmw_zenoh_peer.py PORT DOMAIN
+"""
+import json
+import struct
+import sys
+import time
+
+import xxhash
+import zenoh
+import zenoh.ext as ze
+from rosbags.typesys import Stores, get_typestore
+
+port, domain = sys.argv[1], int(sys.argv[2])
+ts = get_typestore(Stores.ROS2_JAZZY)
+TYPES = {
+    "scan": "sensor_msgs/msg/LaserScan",
+    "map": "nav_msgs/msg/OccupancyGrid",
+    "cmd_vel": "geometry_msgs/msg/Twist",
+}
+
+
+def dds(t):
+    pkg, kind, name = t.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def key(topic, t):
+    return f"{domain}/{topic.strip('/')}/{dds(t)}/{ts.hash_rihs01(t)}"
+
+
+conf = zenoh.Config()
+conf.insert_json5("mode", '"peer"')
+conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+conf.insert_json5("scouting/multicast/enabled", "false")
+conf.insert_json5("timestamping/enabled", "true")
+s = zenoh.open(conf)
+time.sleep(1.0)
+
+out = {"hashes": {t: ts.hash_rihs01(t) for t in TYPES.values()}}
+
+# The graph: every liveliness token in the domain, split into its fields.
+tokens = []
+for r in s.liveliness().get(f"@ros2_lv/{domain}/**", timeout=5.0):
+    if r.ok is not None:
+        tokens.append(str(r.ok.key_expr))
+out["tokens"] = sorted(tokens)
+gid_of = {}
+for t in tokens:
+    f = t.split("/")
+    if len(f) == 13 and f[5] == "MP":
+        gid_of[f[9].replace("%", "/")] = xxhash.xxh3_128_intdigest(t.encode()).to_bytes(16, "little")
+
+# A late joiner on /map (transient local): the cached sample, through an advanced subscriber.
+got_map = []
+map_sub = ze.declare_advanced_subscriber(
+    s, key("/map", TYPES["map"]),
+    history=ze.HistoryConfig(detect_late_publishers=True),
+    subscriber_detection=True,
+    handler=lambda smp: got_map.append((bytes(smp.payload.to_bytes()),
+                                        bytes(smp.attachment.to_bytes()) if smp.attachment else b"")),
+)
+scans = []
+scan_sub = s.declare_subscriber(
+    key("/robot_a/scan", TYPES["scan"]),
+    lambda smp: scans.append((bytes(smp.payload.to_bytes()),
+                              bytes(smp.attachment.to_bytes()) if smp.attachment else b"")),
+)
+
+# /cmd_vel as an rmw_zenoh publisher: a node token, a publisher token, attachments.
+zid = str(s.info.zid())
+hash_tw = ts.hash_rihs01(TYPES["cmd_vel"])
+node_tok = f"@ros2_lv/{domain}/{zid}/0/0/NN/%/%/teleop"
+pub_tok = f"@ros2_lv/{domain}/{zid}/0/1/MP/%/%/teleop/%cmd_vel/{dds(TYPES['cmd_vel'])}/{hash_tw}/::,10:,:,:,,"
+tok1 = s.liveliness().declare_token(node_tok)
+tok2 = s.liveliness().declare_token(pub_tok)
+pub = s.declare_publisher(key("/cmd_vel", TYPES["cmd_vel"]))
+my_gid = xxhash.xxh3_128_intdigest(pub_tok.encode()).to_bytes(16, "little")
+Twist = ts.types["geometry_msgs/msg/Twist"]
+Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+
+deadline = time.time() + 15.0
+seq = 0
+while time.time() < deadline and (len(scans) < 5 or not got_map or seq < 10):
+    seq += 1
+    msg = Twist(linear=Vector3(x=0.25, y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=-0.5))
+    pub.put(bytes(ts.serialize_cdr(msg, TYPES["cmd_vel"])),
+            attachment=struct.pack("<qqB16s", seq, time.time_ns(), 16, my_gid))
+    time.sleep(0.1)
+
+
+def attachment_ok(att, gid):
+    if len(att) != 33:
+        return None
+    n, t, ln, g = struct.unpack("<qqB16s", att)
+    return {"seq": n, "time_ok": abs(t - time.time_ns()) < 60e9, "len": ln, "gid_ok": g == gid}
+
+
+scan_out = []
+for payload, att in scans[:5]:
+    m = ts.deserialize_cdr(payload, TYPES["scan"])
+    scan_out.append({"frame_id": m.header.frame_id, "ranges": len(m.ranges),
+                     "angle_increment": float(m.angle_increment),
+                     "attachment": attachment_ok(att, gid_of.get("/robot_a/scan"))})
+out["scans"] = scan_out
+map_out = []
+for payload, att in got_map:
+    m = ts.deserialize_cdr(payload, TYPES["map"])
+    map_out.append({"frame_id": m.header.frame_id, "width": int(m.info.width), "height": int(m.info.height),
+                    "resolution": float(m.info.resolution), "cells": len(m.data),
+                    "attachment": attachment_ok(att, gid_of.get("/map"))})
+out["map"] = map_out
+out["cmd_vel_sent"] = seq
+print(json.dumps(out))
+sys.stdout.flush()
+s.close()
