@@ -39,6 +39,7 @@ fn a_recorded_simulation_replays_to_the_same_estimates() {
                 live: None,
                 flush: FlushPolicy::default(),
                 ros2: false,
+                ros2_live: None,
             },
             sources,
         )

@@ -40,6 +40,31 @@ pub(crate) struct RecordArgs {
     /// file does not `amr replay`. The live view stays Foxglove's.
     #[arg(long, requires = "record")]
     pub ros2: bool,
+    /// Publish the fleet live on ROS 2 over this transport: `zenoh` is rmw_zenoh's protocol
+    /// (Jazzy and later, and Humble's rmw_zenoh). The topics of a `--ros2` bag, each with the QoS
+    /// ROS 2 tools subscribe with (docs/ros2.md).
+    #[arg(long, value_name = "TRANSPORT", value_enum)]
+    pub ros2_live: Option<Ros2Transport>,
+    /// The ROS 2 domain (`ROS_DOMAIN_ID`).
+    #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_name = "ID")]
+    pub ros2_domain: u32,
+    /// The ROS 2 distribution of the peers: `humble` (no type hashes) or `jazzy` and later.
+    #[arg(long, default_value = "jazzy", value_name = "DISTRO")]
+    pub ros2_distro: amr_ros2::rmw_zenoh::Distro,
+    /// The Zenoh router of the ROS 2 graph to join (rmw_zenohd's default).
+    #[arg(long, default_value = "tcp/localhost:7447", value_name = "ENDPOINT")]
+    pub ros2_connect: String,
+    /// Be the ROS 2 graph's Zenoh router, listening here (no rmw_zenohd needed; ROS 2 nodes
+    /// connect to it), instead of joining one.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub ros2_router: Option<String>,
+}
+
+/// A ROS 2 transport for `--ros2-live`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Ros2Transport {
+    /// rmw_zenoh's key expressions, liveliness tokens and attachments.
+    Zenoh,
 }
 
 /// A running recording and/or live view.
@@ -53,7 +78,7 @@ pub(crate) struct Recording {
 impl RecordArgs {
     /// Start what was asked for (nothing: `None`). The command line goes into the metadata.
     pub(crate) async fn start(&self, mut sources: RecordSources) -> anyhow::Result<Option<Recording>> {
-        if self.record.is_none() && self.foxglove.is_none() {
+        if self.record.is_none() && self.foxglove.is_none() && self.ros2_live.is_none() {
             return Ok(None);
         }
         let argv: Vec<String> = std::env::args().collect();
@@ -73,12 +98,44 @@ impl RecordArgs {
             None => (None, None),
         };
         let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
-        let options = RecordOptions { file: self.record.clone(), live: hub, flush, ros2: self.ros2 };
+        let ros2_live = match self.ros2_live {
+            Some(Ros2Transport::Zenoh) => Some(self.ros2_node().await?),
+            None => None,
+        };
+        let options =
+            RecordOptions { file: self.record.clone(), live: hub, flush, ros2: self.ros2, ros2_live };
         let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;
         if let Some(f) = &self.record {
             tracing::info!(file = %f.display(), ros2 = self.ros2, "recording");
         }
         Ok(Some(Recording { recorder, _live: live, file: self.record.clone() }))
+    }
+}
+
+impl RecordArgs {
+    /// The live ROS 2 output's node, on rmw_zenoh.
+    async fn ros2_node(&self) -> anyhow::Result<amr_record::ros2::live::Ros2Live> {
+        use amr_ros2::node::{Mode, Node, NodeOptions};
+        let mut o = NodeOptions::new("amr");
+        o.domain = self.ros2_domain;
+        o.distro = self.ros2_distro;
+        match &self.ros2_router {
+            Some(listen) => {
+                o.mode = Mode::Router;
+                o.connect = Vec::new();
+                o.listen = vec![listen.clone()];
+            }
+            None => o.connect = vec![self.ros2_connect.clone()],
+        }
+        let node = Node::open(&o).await.context("opening the ROS 2 node (rmw_zenoh)")?;
+        tracing::info!(
+            domain = o.domain,
+            zid = %node.info().zid,
+            router = ?self.ros2_router,
+            connect = ?o.connect,
+            "ROS 2 live output (rmw_zenoh)"
+        );
+        Ok(amr_record::ros2::live::Ros2Live::start(node))
     }
 }
 

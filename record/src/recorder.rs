@@ -81,6 +81,8 @@ pub struct RecordOptions {
     /// Write the file as a ROS 2 bag (rosbag2's MCAP profile, CDR; [`crate::ros2`]) instead of
     /// Foxglove's JSON schemas. The live view is Foxglove's either way.
     pub ros2: bool,
+    /// Publish what a ROS 2 bag would hold, live, on a ROS 2 node.
+    pub ros2_live: Option<crate::ros2::live::Ros2Live>,
 }
 
 /// Why recording could not start or finish.
@@ -134,6 +136,8 @@ struct State {
     ros2: Option<crate::ros2::Ros2Encoder>,
     file: Option<McapFile>,
     live: Option<Hub>,
+    /// The live ROS 2 output and its own encoder.
+    ros2_live: Option<(crate::ros2::live::Ros2Live, crate::ros2::Ros2Encoder)>,
     logs: Option<LogTap>,
     /// The first write error (the file is then closed; the live view goes on).
     failed: Option<String>,
@@ -170,6 +174,12 @@ impl State {
         if let Some(h) = &self.live {
             for out in &outs {
                 h.publish(out);
+            }
+        }
+        if let Some((live, encoder)) = &self.ros2_live {
+            live.clock(now_s);
+            for out in encoder.encode(now_s, ev) {
+                live.publish(&out);
             }
         }
     }
@@ -226,12 +236,14 @@ impl Actor for RecorderActor {
             f.metadata("amr", sources.metadata.clone())?;
         }
         let robots = sources.server.as_ref().map(|s| s.robots.clone()).unwrap_or_default();
+        let robots_for_live = robots.clone();
         let mut state = State {
             clock: sources.clock,
             ros2: options.ros2.then(|| crate::ros2::Ros2Encoder::new(robots.clone())),
             encoder: Encoder::new(robots),
             file,
             live: options.live,
+            ros2_live: options.ros2_live.map(|l| (l, crate::ros2::Ros2Encoder::new(robots_for_live))),
             logs: sources.logs.clone(),
             failed: None,
         };

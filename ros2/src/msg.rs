@@ -183,6 +183,12 @@ impl Default for TwistWithCovariance {
     }
 }
 
+/// `rosgraph_msgs/Clock`: the time a simulation is at (what ROS 2 nodes with `use_sim_time` follow).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Clock {
+    pub clock: Time,
+}
+
 /// `geometry_msgs/Twist`: linear and angular velocity (each x, y, z), what `/cmd_vel` carries.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Twist {
@@ -318,6 +324,17 @@ impl Ros2Message for PoseWithCovarianceStamped {
     }
 }
 
+impl Ros2Message for Clock {
+    const TYPE: &'static str = "rosgraph_msgs/msg/Clock";
+    const TYPE_HASH: &'static str = "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564";
+    fn write(&self, w: &mut CdrWriter) {
+        self.clock.write(w);
+    }
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        Ok(Clock { clock: Time::read(r)? })
+    }
+}
+
 impl Ros2Message for Twist {
     const TYPE: &'static str = "geometry_msgs/msg/Twist";
     const TYPE_HASH: &'static str = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a";
@@ -430,13 +447,14 @@ impl Ros2Message for OccupancyGrid {
 }
 
 /// Every message type here, `(TYPE, TYPE_HASH)`.
-pub const TYPE_HASHES: [(&str, &str); 6] = [
+pub const TYPE_HASHES: [(&str, &str); 7] = [
     (LaserScan::TYPE, LaserScan::TYPE_HASH),
     (PoseWithCovarianceStamped::TYPE, PoseWithCovarianceStamped::TYPE_HASH),
     (Odometry::TYPE, Odometry::TYPE_HASH),
     (TfMessage::TYPE, TfMessage::TYPE_HASH),
     (OccupancyGrid::TYPE, OccupancyGrid::TYPE_HASH),
     (Twist::TYPE, Twist::TYPE_HASH),
+    (Clock::TYPE, Clock::TYPE_HASH),
 ];
 
 /// The REP 2011 hash of a type here (`pkg/msg/Type`).
@@ -450,6 +468,7 @@ pub fn type_hash(type_name: &str) -> Option<&'static str> {
 fn definition(name: &str) -> Option<(&'static str, &'static [&'static str])> {
     Some(match name {
         "builtin_interfaces/Time" => ("int32 sec\nuint32 nanosec\n", &[]),
+        "rosgraph_msgs/Clock" => ("builtin_interfaces/Time clock\n", &["builtin_interfaces/Time"]),
         "std_msgs/Header" => {
             ("builtin_interfaces/Time stamp\nstring frame_id\n", &["builtin_interfaces/Time"])
         }

@@ -12,3 +12,4 @@ mod localize;
 mod mocks;
 mod record;
 mod ros2_bag;
+mod ros2_live;

@@ -5,7 +5,8 @@
 //!   `geometry_msgs/PoseWithCovarianceStamped`, `tf2_msgs/TFMessage`, `nav_msgs/OccupancyGrid`)
 //!   with their schema text;
 //! - [`Ros2Encoder`]: what `--record FILE --ros2` writes for each event (topics below);
-//! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`.
+//! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`;
+//! - [`live`]: the same messages published live on a ROS 2 node (rmw_zenoh).
 //!
 //! # rosbag2's MCAP profile
 //!
@@ -47,6 +48,7 @@
 //! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
 
 pub mod bag;
+pub mod live;
 pub use amr_ros2::{cdr, msg};
 
 use std::collections::BTreeMap;

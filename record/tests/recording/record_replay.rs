@@ -109,6 +109,7 @@ fn record(configuration: Configuration, clock_kind: Clock, scans: usize) -> Reco
             live: None,
             flush: FlushPolicy::default(),
             ros2: false,
+            ros2_live: None,
         };
         let recorder = Recorder::start(options, sources).await.unwrap();
         tracing::info!(robots = ids.len(), "test: recording started");

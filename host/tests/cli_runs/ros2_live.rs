@@ -1,0 +1,103 @@
+//! `amr sim --ros2-live zenoh` as a ROS 2 user sees it, through an independent rmw_zenoh peer
+//! (`peers/ros2_live_peer.py`: eclipse-zenoh and rosbags) that joins after the fleet started: the
+//! graph lists our publishers with ROS 2's type names and QoS, the scans, odometry, estimates and
+//! /tf decode as ROS 2 types with rmw_zenoh attachments, /clock carries the fleet's clock, and /map and /tf_static reach the late
+//! joiner. Loopback only: our node is the graph's Zenoh router on a free local port.
+#![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
+
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use amr_actors::config::{ConfigSource, load};
+use hil_tests::config_dir;
+
+#[test]
+fn a_ros2_user_sees_the_simulated_fleet_live_over_rmw_zenoh() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let router = format!("tcp/127.0.0.1:{port}");
+    let config = config_dir();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_amr"))
+        .args(["sim", "--quiet", "--duration", "14", "--config", config.to_str().unwrap()])
+        .args(["--ros2-live", "zenoh", "--ros2-router", &router, "--ros2-domain", "9"])
+        .env_remove("RUST_LOG")
+        .env_remove("ROS_DOMAIN_ID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Join late: the map and the mounts went out when the run started.
+    std::thread::sleep(Duration::from_secs(3));
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/cli_runs/peers/ros2_live_peer.py");
+    let peer = Command::new("python3")
+        .args([script, &port.to_string(), "9", "5"])
+        .output()
+        .expect("python3 (the CI installs eclipse-zenoh and rosbags)");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(s) = sim.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "amr sim did not end");
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(sim.stderr.as_mut().unwrap(), &mut err).unwrap();
+    assert!(status.success(), "amr sim: {err}");
+    assert!(peer.status.success(), "peer: {}", String::from_utf8_lossy(&peer.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&peer.stdout).unwrap();
+
+    // The graph: our publishers with ROS 2's names, types and QoS.
+    let publishers = v["publishers"].as_array().unwrap();
+    let offered = |topic: &str| {
+        publishers
+            .iter()
+            .find(|p| p["topic"] == topic)
+            .map(|p| (p["type"].as_str().unwrap().to_owned(), p["qos"].as_str().unwrap().to_owned()))
+    };
+    assert_eq!(
+        offered("/robot_a/scan"),
+        Some(("sensor_msgs::msg::dds_::LaserScan_".into(), "2::,5:,:,:,,".into()))
+    );
+    assert_eq!(offered("/map"), Some(("nav_msgs::msg::dds_::OccupancyGrid_".into(), ":1:,1:,:,:,,".into())));
+    assert_eq!(offered("/tf_static").map(|o| o.1), Some(":1:,1:,:,:,,".into()));
+    assert_eq!(offered("/tf").map(|o| o.1), Some("::,100:,:,:,,".into()));
+    assert_eq!(
+        offered("/amcl/V").map(|o| o.0),
+        Some("geometry_msgs::msg::dds_::PoseWithCovarianceStamped_".into())
+    );
+
+    let topic = |t: &str| &v["topics"][t];
+    // Scans at 15 Hz for 5 s, each with its attachment.
+    let scans = topic("/robot_a/scan");
+    let n = scans["count"].as_u64().unwrap();
+    assert!(n >= 20, "{scans}");
+    assert_eq!(scans["attachments"].as_u64(), Some(n));
+    assert_eq!(scans["first"]["frame_id"], "robot-a/laser");
+    assert!(scans["first"]["ranges"].as_u64().unwrap() > 100, "{scans}");
+    assert!(scans["last"]["stamp"].as_f64().unwrap() > scans["first"]["stamp"].as_f64().unwrap());
+    // The fleet's clock on /clock (for `use_sim_time`), and the scans stamped on it.
+    let clock = topic("/clock");
+    assert!(clock["count"].as_u64().unwrap() > 20, "{clock}");
+    let (t0, t1) = (clock["first"]["t"].as_f64().unwrap(), clock["last"]["t"].as_f64().unwrap());
+    assert!(t1 - t0 > 3.0, "{clock}");
+    assert!((scans["last"]["stamp"].as_f64().unwrap() - t1).abs() < 1.0, "{scans} {clock}");
+    assert_eq!(topic("/virtual/scan")["first"]["frame_id"], "V");
+    assert_eq!(topic("/robot_a/odom")["first"]["child"], "robot-a");
+    let v_pose = &topic("/amcl/V")["last"];
+    assert_eq!(v_pose["frame_id"], "map", "{v_pose}");
+    assert!(v_pose["x"].as_f64().unwrap().is_finite());
+    let pairs = |t: &str| topic(t)["first"]["pairs"].as_array().unwrap().clone();
+    let has = |t: &str, parent: &str, child: &str| pairs(t).iter().any(|p| p[0] == parent && p[1] == child);
+    assert!(topic("/tf")["count"].as_u64().unwrap() > 5);
+
+    // The late joiner got the latched topics once each.
+    assert_eq!(topic("/tf_static")["count"], 1, "{}", topic("/tf_static"));
+    assert!(has("/tf_static", "robot-a", "robot-a/laser") && has("/tf_static", "robot-b", "robot-b/laser"));
+    let map = topic("/map");
+    assert_eq!(map["count"], 1, "{map}");
+    let grid = load(&ConfigSource::Dir(config)).unwrap().scenario("straight").unwrap().map;
+    assert_eq!(map["first"]["width"].as_u64(), Some(grid.width as u64));
+    assert_eq!(map["first"]["height"].as_u64(), Some(grid.height as u64));
+    assert_eq!(map["first"]["cells"].as_u64(), Some((grid.width * grid.height) as u64));
+    assert!((map["first"]["resolution"].as_f64().unwrap() - grid.resolution_m).abs() < 1e-6);
+}
