@@ -266,6 +266,9 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         let mut sources = amr_record::RecordSources::server(&tree.ports, &setup);
         sources.metadata.insert("scenario".into(), args.scenario.clone());
         let recording = args.rec.start(sources).await?;
+        if let Some(r) = &recording {
+            r.ros2_inputs(tree.control()).await?;
+        }
         tracing::info!(
             auto_arm = args.auto_arm,
             "server running; commands on stdin: rearm, stop, estop, reset-estop; Ctrl-C stops it"

@@ -3,7 +3,7 @@
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 
 use amr_actors::config::load;
 use amr_actors::server::{ServerSetup, formation_robots};
@@ -58,6 +58,11 @@ pub(crate) struct RecordArgs {
     /// connect to it), instead of joining one.
     #[arg(long, value_name = "ENDPOINT")]
     pub ros2_router: Option<String>,
+    /// Let `/cmd_vel` (`geometry_msgs/Twist`: a teleop, nav2's controller) drive the formation as
+    /// one robot, V: from the first twist on the plan is paused; every robot's limits apply, and V
+    /// stops 0.5 s after the last twist. `/initialpose` is taken whenever `--ros2-live` is on.
+    #[arg(long, requires = "ros2_live")]
+    pub ros2_cmd_vel: bool,
 }
 
 /// A ROS 2 transport for `--ros2-live`.
@@ -73,6 +78,8 @@ pub(crate) struct Recording {
     recorder: Recorder,
     _live: Option<LiveServer>,
     file: Option<PathBuf>,
+    /// The live ROS 2 node, and whether `/cmd_vel` may drive.
+    ros2: Option<(Arc<amr_ros2::node::Node>, bool)>,
 }
 
 impl RecordArgs {
@@ -98,23 +105,25 @@ impl RecordArgs {
             None => (None, None),
         };
         let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
-        let ros2_live = match self.ros2_live {
-            Some(Ros2Transport::Zenoh) => Some(self.ros2_node().await?),
+        let node = match self.ros2_live {
+            Some(Ros2Transport::Zenoh) => Some(Arc::new(self.ros2_node().await?)),
             None => None,
         };
+        let ros2_live = node.as_ref().map(|n| amr_record::ros2::live::Ros2Live::start(Arc::clone(n)));
         let options =
             RecordOptions { file: self.record.clone(), live: hub, flush, ros2: self.ros2, ros2_live };
         let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;
         if let Some(f) = &self.record {
             tracing::info!(file = %f.display(), ros2 = self.ros2, "recording");
         }
-        Ok(Some(Recording { recorder, _live: live, file: self.record.clone() }))
+        let ros2 = node.map(|n| (n, self.ros2_cmd_vel));
+        Ok(Some(Recording { recorder, _live: live, file: self.record.clone(), ros2 }))
     }
 }
 
 impl RecordArgs {
     /// The live ROS 2 output's node, on rmw_zenoh.
-    async fn ros2_node(&self) -> anyhow::Result<amr_record::ros2::live::Ros2Live> {
+    async fn ros2_node(&self) -> anyhow::Result<amr_ros2::node::Node> {
         use amr_ros2::node::{Mode, Node, NodeOptions};
         let mut o = NodeOptions::new("amr");
         o.domain = self.ros2_domain;
@@ -135,11 +144,35 @@ impl RecordArgs {
             connect = ?o.connect,
             "ROS 2 live output (rmw_zenoh)"
         );
-        Ok(amr_record::ros2::live::Ros2Live::start(node))
+        Ok(node)
     }
 }
 
 impl Recording {
+    /// Take `/initialpose` (and `/cmd_vel` if allowed) from the live ROS 2 node into the server,
+    /// until the node closes. Nothing without `--ros2-live`.
+    pub(crate) async fn ros2_inputs(&self, control: amr_actors::server::ServerControl) -> anyhow::Result<()> {
+        use amr_record::ros2::inputs::{Input, listen};
+        let Some((node, cmd_vel)) = &self.ros2 else { return Ok(()) };
+        let mut rx =
+            listen(Arc::clone(node), *cmd_vel).await.context("subscribing /initialpose and /cmd_vel")?;
+        tokio::spawn(async move {
+            while let Some(input) = rx.recv().await {
+                let taken = match input {
+                    Input::InitialPose { v, std_xy_m, std_yaw_rad } => {
+                        tracing::info!(x = v.x, y = v.y, theta = v.theta, "ROS 2: an initial pose for V");
+                        control.initial_pose(v, std_xy_m, std_yaw_rad).await
+                    }
+                    Input::Twist { v_mps, w_radps } => control.twist(v_mps, w_radps).await,
+                };
+                if !taken {
+                    tracing::warn!(?input, "ROS 2: the server is not running; input dropped");
+                }
+            }
+        });
+        Ok(())
+    }
+
     /// Close the file (its summary and index) and stop the live view.
     pub(crate) async fn stop(self) -> anyhow::Result<()> {
         let stats = self.recorder.stop().await.context("finishing the recording")?;

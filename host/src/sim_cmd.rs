@@ -88,6 +88,9 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
         sources.metadata.insert("scenario".into(), args.scenario.clone());
         sources.robots = sim.robots.iter().map(|r| std::sync::Arc::clone(&r.ports)).collect();
         let recording = args.rec.start(sources).await?;
+        if let Some(r) = &recording {
+            r.ros2_inputs(sim.server.control()).await?;
+        }
         let quiet = args.quiet;
         tokio::select! {
             () = sim.run(|s| {

@@ -310,6 +310,36 @@ impl ServerCore {
         }
     }
 
+    /// An operator's pose for V (RViz's "2D Pose Estimate", `/initialpose`): each robot's filter
+    /// starts again in its slot around `v`, spread by `std_xy_m` and `std_yaw_rad`, and V's filters
+    /// start again from the robots' estimates once these track (as after a gap in fusion). Until
+    /// every estimate has verified itself again the formation holds. A pose that is not finite,
+    /// or a spread that is not finite and positive, is refused (`false`).
+    pub fn set_initial_pose(&mut self, v: Se2, std_xy_m: f64, std_yaw_rad: f64) -> bool {
+        let spread_ok = |s: f64| s.is_finite() && s > 0.0;
+        let finite = v.x.is_finite() && v.y.is_finite() && v.theta.is_finite();
+        if !(finite && spread_ok(std_xy_m) && spread_ok(std_yaw_rad)) {
+            return false;
+        }
+        for ((f, m), c) in self.robot_filters.iter_mut().zip(&self.members).zip(&mut self.corrections) {
+            f.init_pose(v * Se2::new(0.0, m.slot_y_m, 0.0), std_xy_m, std_yaw_rad);
+            *c = None;
+        }
+        for ch in &mut self.channels {
+            ch.started = false;
+            ch.last_fused_s = None;
+        }
+        tracing::info!(
+            x = v.x,
+            y = v.y,
+            theta = v.theta,
+            std_xy_m,
+            std_yaw_rad,
+            "an initial pose for V: the filters start again there"
+        );
+        true
+    }
+
     /// The true pose of robot `i`'s next scan, for the oracle (evaluations only).
     pub fn set_truth(&mut self, i: usize, pose: Se2) {
         if let Some(t) = self.truth.get_mut(i) {

@@ -28,6 +28,9 @@ use amr_msgs::{Command, Device, Downlink, Health, OdomMsg, SafetyState, Uplink};
 pub(crate) const ESTIMATE_FRESH_S: f64 = 0.5;
 /// Robots that do not confirm an arm within this long are asked again, s.
 const ARM_TIMEOUT_S: f64 = 2.0;
+
+/// A twist for V older than this is silence: the formation stops (holds, armed) until the next.
+pub(crate) const TELEOP_TIMEOUT_S: f64 = 0.5;
 /// A robot this far from its slot, as the first robot sees it (m, rad), stops the plan: the formation re-forms
 /// before it goes on. Its tracking law corrects small errors while V moves; from far off it can
 /// steer a robot the wrong way (in the chaos soak, one drove through the site's wall).
@@ -123,6 +126,14 @@ pub enum FormationMsg {
     Rearm,
     /// The operator stops the formation.
     Stop,
+    /// A twist for V from outside (a teleop, or nav2's controller, on ROS 2's `/cmd_vel`), m/s and
+    /// rad/s: from the first one on the formation follows these instead of its plan (the plan
+    /// paused), through the same checks, the formation law and every robot's limits; each holds for
+    /// [`TELEOP_TIMEOUT_S`], then V stops.
+    Twist {
+        v_mps: f64,
+        w_radps: f64,
+    },
     Status(ractor::RpcReplyPort<FormationStatus>),
 }
 
@@ -176,6 +187,8 @@ pub(crate) struct FormationState {
     published_at_s: f64,
     /// Re-forming: a robot was out of shape, and not every one is back in it yet.
     reforming: bool,
+    /// Teleoperated: the last twist for V and when it came (fleet clock, s).
+    teleop: Option<(f64, f64, f64)>,
 }
 
 impl RobotView {
@@ -317,7 +330,9 @@ impl FormationActor {
                         state.auto_refused = true;
                     }
                 } else if may_arm {
-                    if state.plan_s > 0.0 {
+                    if state.teleop.is_some() {
+                        // Teleoperated: no plan point to resume at.
+                    } else if state.plan_s > 0.0 {
                         self.resync_plan(state, now);
                     } else if state.record_s.is_some() || self.away_from_start(state, now) {
                         self.resume_where_v_is(state, now);
@@ -389,6 +404,8 @@ impl FormationActor {
                         self.command_all_zero(state, now);
                     }
                     state.phase = Phase::Holding { reason };
+                } else if let Some((_, _, at)) = state.teleop {
+                    self.teleoperate(state, now, at);
                 } else {
                     if matches!(state.phase, Phase::Holding { .. }) {
                         self.resync_plan(state, now);
@@ -420,6 +437,30 @@ impl FormationActor {
         }
     }
 
+    /// Teleoperated, on a verified V in shape: every robot follows V's last twist (received at
+    /// `at`) from its slot, within its limits; once the twist is older than [`TELEOP_TIMEOUT_S`], V
+    /// stops and the formation holds, armed, until the next.
+    fn teleoperate(&self, state: &mut FormationState, now: f64, at: f64) {
+        if now - at > TELEOP_TIMEOUT_S {
+            let reason = format!("teleoperated: no twist for V in {TELEOP_TIMEOUT_S} s");
+            if state.phase != (Phase::Holding { reason: reason.clone() }) {
+                tracing::info!(%reason, "formation holding");
+            }
+            self.command_all_zero(state, now);
+            state.phase = Phase::Holding { reason };
+            return;
+        }
+        let Some(r) = self.reference(state, now) else {
+            self.command_all_zero(state, now);
+            return;
+        };
+        state.phase = Phase::Running;
+        for i in 0..state.robots.len() {
+            let Some(pose) = state.robots[i].pose_now(now) else { continue };
+            self.steer(state, i, &r, pose, (r.v_mps, r.w_radps), now);
+        }
+    }
+
     /// Drive every robot towards its slot around the plan's current point on its own verified
     /// estimate, when there is no fresh fused estimate and every robot has one; whether it did.
     fn reform(&self, state: &mut FormationState, now: f64) -> bool {
@@ -437,8 +478,7 @@ impl FormationActor {
     /// sideways (a differential drive moves sideways only while it moves): the go-to-pose law
     /// does.
     fn reform_around_plan(&self, state: &mut FormationState, now: f64, poses: &[Se2]) -> bool {
-        let k = (state.plan_s / self.params.period_s).round() as usize;
-        let Some(r) = self.params.plan.get(k).copied() else { return false };
+        let Some(r) = self.reference(state, now) else { return false };
         // Farther than this, a robot is not driven back on its own: the way may not be clear.
         let far = poses.iter().zip(&self.params.slots).any(|(p, slot)| {
             let in_v = r.pose.inverse() * *p;
@@ -476,9 +516,9 @@ impl FormationActor {
             .max_by(|a, b| {
                 (a.1 + HEADING_WEIGHT_M_PER_RAD * a.2).total_cmp(&(b.1 + HEADING_WEIGHT_M_PER_RAD * b.2))
             })?;
+        let reference = self.reference(state, now);
         state.reforming = if state.reforming {
-            let k = (state.plan_s / self.params.period_s).round() as usize;
-            let at_rest = self.params.plan.get(k).is_some_and(|r| {
+            let at_rest = reference.is_some_and(|r| {
                 poses
                     .iter()
                     .zip(&self.params.slots)
@@ -493,6 +533,18 @@ impl FormationActor {
         }
         let who = self.ports.robots.get(i).map_or("a robot", String::as_str).to_owned();
         Some((who, format!("{m:.2} m and {:.0}° from its slot", rad.to_degrees())))
+    }
+
+    /// What the formation follows now: while teleoperated, V where the robots stand, with the last
+    /// twist (zero once it is older than [`TELEOP_TIMEOUT_S`]); else the plan's current point.
+    fn reference(&self, state: &FormationState, now: f64) -> Option<Reference> {
+        match state.teleop {
+            Some((v, w, at)) => {
+                let (v_mps, w_radps) = if now - at <= TELEOP_TIMEOUT_S { (v, w) } else { (0.0, 0.0) };
+                Self::v_now(state, now).map(|pose| Reference { pose, v_mps, w_radps })
+            }
+            None => self.params.plan.get((state.plan_s / self.params.period_s).round() as usize).copied(),
+        }
     }
 
     /// Command robot `i`, at `pose`, V's twist `(v, w)` plus the correction towards its slot
@@ -693,6 +745,7 @@ impl Actor for FormationActor {
             published: None,
             published_at_s: f64::NEG_INFINITY,
             reforming: false,
+            teleop: None,
         })
     }
 
@@ -771,6 +824,16 @@ impl Actor for FormationActor {
                 }
             }
             FormationMsg::Stop => self.stop(state, "the operator stopped it".to_owned()),
+            FormationMsg::Twist { v_mps, w_radps } => {
+                if v_mps.is_finite() && w_radps.is_finite() {
+                    if state.teleop.is_none() {
+                        tracing::info!("formation: teleoperated from now on (the plan paused)");
+                    }
+                    state.teleop = Some((v_mps, w_radps, self.ports.clock.now_s()));
+                } else {
+                    tracing::warn!(v_mps, w_radps, "formation: a twist that is not finite, ignored");
+                }
+            }
             FormationMsg::Status(reply) => {
                 let _ = reply.send(self.status(state));
             }
@@ -1167,6 +1230,78 @@ mod tests {
             }
         }
         assert!(turned, "robot-b was not driven towards its slot");
+        tree.shutdown().await;
+    }
+
+    /// Twists for V (a teleop on `/cmd_vel`) drive the armed formation instead of its plan: both
+    /// robots forward, within their limits, the plan paused; when the twists stop, V stops within
+    /// the timeout and the formation holds, armed, saying why; the next twist moves it again. A
+    /// twist that is not finite is ignored.
+    #[tokio::test(start_paused = true)]
+    async fn twists_for_v_drive_the_formation_and_their_silence_stops_it() {
+        let (tree, f, mut queues, starts) = server().await;
+        for robot in ROBOTS {
+            f.cast(safety(robot, SafetyState::Disarmed(DisarmReason::Startup), 1)).unwrap();
+        }
+        f.cast(FormationMsg::Rearm).unwrap();
+        let status = || async { ractor::call!(f, FormationMsg::Status).unwrap() };
+        let speed = |sent: &[(usize, Downlink)], i: usize| {
+            sent.iter().rev().find_map(|(j, d)| match d {
+                Downlink::Command(c) if *j == i => Some((c.v_mps, c.w_radps)),
+                _ => None,
+            })
+        };
+        let max = load(&ConfigSource::Embedded).unwrap().scenarios["straight"].limits.max_speed_mps.get();
+        let (mut last_moving, mut plan_at_twist) = (None, None);
+        for k in 1..=100u32 {
+            let now = f64::from(k) * 0.05;
+            localised(&f, &starts, u64::from(k), now);
+            if k >= 3 {
+                for robot in ROBOTS {
+                    f.cast(safety(robot, SafetyState::Armed, 1)).unwrap();
+                }
+            }
+            // Twists from 10 to 40, a NaN one at 41, none after, one again at 80.
+            if (10..=40).contains(&k) || k == 80 {
+                f.cast(FormationMsg::Twist { v_mps: 5.0, w_radps: 0.0 }).unwrap();
+            }
+            if k == 41 {
+                f.cast(FormationMsg::Twist { v_mps: f64::NAN, w_radps: 0.0 }).unwrap();
+            }
+            let sent = period(&f, &mut queues).await;
+            let st = status().await;
+            if k == 10 {
+                plan_at_twist = Some(st.plan_s);
+            }
+            if (30..=40).contains(&k) {
+                for i in 0..2 {
+                    let (v, _) =
+                        speed(&sent, i).unwrap_or_else(|| panic!("at {k}: nothing to robot {i}: {sent:?}"));
+                    assert!(v > 0.05 && v <= max + 1e-9, "at {k}: robot {i} at {v} m/s (limit {max})");
+                }
+                assert_eq!(st.phase, Phase::Running, "at {k}");
+                assert_eq!(Some(st.plan_s), plan_at_twist, "the plan is paused while teleoperated");
+                last_moving = Some(k);
+            }
+            // 0.5 s (10 periods) after the last twist, and a period of slack.
+            if (52..80).contains(&k) {
+                for i in 0..2 {
+                    assert_eq!(speed(&sent, i), Some((0.0, 0.0)), "at {k}: robot {i} {sent:?}");
+                }
+                match &st.phase {
+                    Phase::Holding { reason } => {
+                        assert!(reason.starts_with("teleoperated: no twist"), "{reason}")
+                    }
+                    p => panic!("at {k}: {p:?}"),
+                }
+                assert!(!sent.iter().any(|(_, d)| matches!(d, Downlink::Disarm)), "stays armed: {sent:?}");
+            }
+            if k == 82 {
+                assert_eq!(st.phase, Phase::Running, "the next twist moves it again");
+                assert!(speed(&sent, 0).is_some_and(|(v, _)| v > 0.0), "{sent:?}");
+            }
+        }
+        assert_eq!(last_moving, Some(40));
         tree.shutdown().await;
     }
 }

@@ -20,6 +20,8 @@ pub enum LocalizerMsg {
     Scans,
     /// Check for lost robots.
     Tick,
+    /// An operator's pose for V ([`ServerCore::set_initial_pose`]): V, and the spread, m and rad.
+    InitialPose { v: amr_core::se2::Se2, std_xy_m: f64, std_yaw_rad: f64 },
     /// A drill: for `during` from now, every scan first blocks the actor's worker thread for
     /// `each` (a stalled localisation). A deadline rather than an "end" message, which would queue
     /// behind the backlog the stall builds.
@@ -104,6 +106,16 @@ impl Actor for LocalizerActor {
                     tracing::warn!(robot = %self.ports.robots[i], "localizer: scans stopped, robot lost");
                     ServerStats::add(&self.ports.stats.robots_lost);
                     self.ports.status.send(FusionStatus::RobotLost(i));
+                }
+            }
+            LocalizerMsg::InitialPose { v, std_xy_m, std_yaw_rad } => {
+                if !state.core.set_initial_pose(v, std_xy_m, std_yaw_rad) {
+                    tracing::warn!(
+                        ?v,
+                        std_xy_m,
+                        std_yaw_rad,
+                        "localizer: an initial pose that is not one, ignored"
+                    );
                 }
             }
             #[cfg(feature = "fault-injection")]

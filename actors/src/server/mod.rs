@@ -140,6 +140,13 @@ impl ServerTree {
         !self.join.is_finished()
     }
 
+    /// A handle for inputs from outside (ROS 2's `/initialpose` and `/cmd_vel`), to move into a
+    /// task: it finds the running localizer and formation each time (they may have restarted).
+    #[must_use]
+    pub fn control(&self) -> ServerControl {
+        ServerControl { supervisor: self.supervisor.clone() }
+    }
+
     /// Allow the formation to (re)start.
     pub async fn rearm(&self) -> bool {
         self.formation_actor().await.is_some_and(|f| f.cast(FormationMsg::Rearm).is_ok())
@@ -171,6 +178,34 @@ impl ServerTree {
     pub async fn shutdown(self) {
         self.supervisor.stop(Some("shutdown".into()));
         let _ = tokio::time::timeout(Duration::from_secs(5), self.join).await;
+    }
+}
+
+/// Inputs to a running server from outside ([`ServerTree::control`]).
+#[derive(Debug, Clone)]
+pub struct ServerControl {
+    supervisor: ActorRef<SupervisorMsg>,
+}
+
+impl ServerControl {
+    async fn child<M: ractor::Message>(&self, name: &str) -> Option<ActorRef<M>> {
+        let children = ractor::call!(self.supervisor, SupervisorMsg::Children).ok()?;
+        children.into_iter().find(|c| c.name == name).and_then(|c| c.cell).map(ActorRef::from)
+    }
+
+    /// An operator's pose for V: the localizer's filters start again around it
+    /// ([`core::ServerCore::set_initial_pose`]). Whether a localizer took it.
+    pub async fn initial_pose(&self, v: amr_core::se2::Se2, std_xy_m: f64, std_yaw_rad: f64) -> bool {
+        self.child::<LocalizerMsg>("localizer")
+            .await
+            .is_some_and(|l| l.cast(LocalizerMsg::InitialPose { v, std_xy_m, std_yaw_rad }).is_ok())
+    }
+
+    /// A twist for V ([`FormationMsg::Twist`]). Whether a formation took it.
+    pub async fn twist(&self, v_mps: f64, w_radps: f64) -> bool {
+        self.child::<FormationMsg>("formation")
+            .await
+            .is_some_and(|f| f.cast(FormationMsg::Twist { v_mps, w_radps }).is_ok())
     }
 }
 

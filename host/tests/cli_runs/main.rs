@@ -13,3 +13,4 @@ mod mocks;
 mod record;
 mod ros2_bag;
 mod ros2_live;
+mod ros2_teleop;

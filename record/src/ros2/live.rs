@@ -60,10 +60,10 @@ pub struct LiveStats {
 }
 
 impl Ros2Live {
-    /// Publish on `node` from now on (call from within a tokio runtime). The node lives as long
-    /// as the task: until every handle is dropped.
+    /// Publish on `node` from now on (call from within a tokio runtime), until every handle is
+    /// dropped.
     #[must_use]
-    pub fn start(node: Node) -> Ros2Live {
+    pub fn start(node: Arc<Node>) -> Ros2Live {
         let (tx, rx) = mpsc::channel(QUEUE);
         let stats = Arc::new(LiveStats::default());
         tokio::spawn(run(node, rx, Arc::clone(&stats)));
@@ -103,7 +103,7 @@ impl Ros2Live {
     }
 }
 
-async fn run(node: Node, mut rx: mpsc::Receiver<Out>, stats: Arc<LiveStats>) {
+async fn run(node: Arc<Node>, mut rx: mpsc::Receiver<Out>, stats: Arc<LiveStats>) {
     let mut publishers: BTreeMap<String, Option<Publisher>> = BTreeMap::new();
     while let Some(out) = rx.recv().await {
         if !publishers.contains_key(&out.topic) {
@@ -127,7 +127,10 @@ async fn run(node: Node, mut rx: mpsc::Receiver<Out>, stats: Arc<LiveStats>) {
         };
     }
     drop(publishers);
-    if let Err(e) = node.close().await {
+    // The last holder closes the session (its tokens withdrawn at once).
+    if let Ok(node) = Arc::try_unwrap(node)
+        && let Err(e) = node.close().await
+    {
         tracing::debug!(error = %e, "ROS 2: closing the node");
     }
 }

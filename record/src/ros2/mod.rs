@@ -6,7 +6,8 @@
 //!   with their schema text;
 //! - [`Ros2Encoder`]: what `--record FILE --ros2` writes for each event (topics below);
 //! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`;
-//! - [`live`]: the same messages published live on a ROS 2 node (rmw_zenoh).
+//! - [`live`]: the same messages published live on a ROS 2 node (rmw_zenoh);
+//! - [`inputs`]: what the node takes from ROS 2 (`/initialpose`, `/cmd_vel`), checked.
 //!
 //! # rosbag2's MCAP profile
 //!
@@ -48,6 +49,7 @@
 //! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
 
 pub mod bag;
+pub mod inputs;
 pub mod live;
 pub use amr_ros2::{cdr, msg};
 

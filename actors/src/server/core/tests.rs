@@ -267,3 +267,26 @@ fn a_virtual_filter_waits_for_fusion_and_keeps_every_robots_beams() {
     let config = load(&ConfigSource::Embedded).unwrap();
     assert_eq!(virtual_params(&config.amcl, 4).max_beams.get(), 4 * config.amcl.max_beams.get());
 }
+
+/// RViz's "2D Pose Estimate": every robot's filter starts again in its slot around the given V,
+/// not yet verified; nonsense is refused and changes nothing.
+#[test]
+fn an_initial_pose_restarts_each_robots_filter_in_its_slot() {
+    let mut core = core();
+    let v = Se2::new(1.0, 2.0, 0.5);
+    assert!(!core.set_initial_pose(Se2::new(f64::NAN, 0.0, 0.0), 0.2, 0.1));
+    assert!(!core.set_initial_pose(v, 0.0, 0.1));
+    assert!(!core.set_initial_pose(v, 0.2, f64::INFINITY));
+    let before = core.filter(EstimateSource::Robot(0)).unwrap().estimate().unwrap().pose;
+    assert!((before.x - -2.0).abs() < 0.3, "{before:?}");
+    assert!(core.set_initial_pose(v, 0.2, 0.1));
+    for (i, slot) in [0.45, -0.45].into_iter().enumerate() {
+        let f = core.filter(EstimateSource::Robot(i)).unwrap();
+        let want = v * Se2::new(0.0, slot, 0.0);
+        let n = f.particles().len() as f64;
+        let (mx, my) =
+            f.particles().iter().fold((0.0, 0.0), |(x, y), p| (x + p.pose.x / n, y + p.pose.y / n));
+        assert!((mx - want.x).hypot(my - want.y) < 0.1, "robot {i}: mean ({mx}, {my}), want {want:?}");
+        assert_ne!(f.integrity_state(), amr_core::amcl::IntegrityState::Tracking, "not verified yet");
+    }
+}
