@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 /// The version of these types' encoding, on the network and in recordings. Any change to a type
 /// here that changes its encoding must bump it (a test pins the encoding of a sample of every
 /// message: it fails on such a change and says so).
-pub const SCHEMA_VERSION: u16 = 6;
+pub const SCHEMA_VERSION: u16 = 7;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
@@ -288,6 +288,11 @@ pub struct Estimate {
     pub robots: Vec<Option<Anchored>>,
     /// How far it can be trusted.
     pub integrity: EstimateIntegrity,
+    /// The filter's covariance of its pose (V's for a fused estimate, the robot's for its own):
+    /// x, y (m²) and heading (rad²), from the particles of its heaviest cluster. What the spread
+    /// of particles says, not whether they are right (that is `integrity`).
+    #[serde(default)]
+    pub covariance: Option<[[f64; 3]; 3]>,
 }
 
 /// How far an estimate can be trusted: its filter's own judgement (`amr_core::amcl::integrity`)

@@ -78,6 +78,7 @@ fn samples() -> (Vec<Uplink>, Vec<Downlink>, Vec<Estimate>, FusedFrame, Vec<Fusi
                 level: 0.93,
                 disagrees: Some(1),
             },
+            covariance: Some([[0.01, 0.002, 0.0], [0.002, 0.02, -1e-4], [0.0, -1e-4, 0.003]]),
         },
         Estimate {
             source: EstimateSource::Robot(1),
@@ -85,6 +86,7 @@ fn samples() -> (Vec<Uplink>, Vec<Downlink>, Vec<Estimate>, FusedFrame, Vec<Fusi
             v: None,
             robots: vec![None, Some(anchored)],
             integrity: EstimateIntegrity::default(),
+            covariance: None,
         },
     ];
     let fused = FusedFrame {
@@ -194,7 +196,7 @@ fn the_encoding_is_pinned_to_the_schema_version() {
         json_bytes.extend(serde_json::to_vec(s).unwrap());
     }
     let got = (SCHEMA_VERSION, fnv(&postcard_bytes), fnv(&json_bytes));
-    let pinned = (6, 0xbbab_a2eb_bec5_5aa8, 0x3062_dbb5_a311_87c7);
+    let pinned = (7, 0x2a86_6631_aefa_e951, 0x04cc_a953_b8e5_e116);
     assert_eq!(got, pinned, "the encoding changed: bump SCHEMA_VERSION and pin the new hashes");
 }
 

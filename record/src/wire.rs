@@ -221,6 +221,7 @@ mod tests {
                     Some(Anchored { map: Se2 { x: t, y, theta: x }, odom: Se2::IDENTITY, stamp_s: y }),
                 ],
                 integrity: amr_msgs::EstimateIntegrity::default(),
+                covariance: Some([[x, y, t], [y, t, x], [t, x, y]]),
             };
             let back = decode_estimate(&encode_estimate(&e).unwrap()).unwrap();
             let bits = |e: &Estimate| {

@@ -498,6 +498,7 @@ impl ServerCore {
             v: None,
             robots,
             integrity: EstimateIntegrity::of(filter.integrity()),
+            covariance: filter.estimate().map(|e| e.covariance),
         });
     }
 
@@ -674,6 +675,8 @@ impl ServerCore {
                     v: Some(v),
                     robots,
                     integrity,
+                    // V's filter's; T1 has none (V comes from the reference robot's estimate).
+                    covariance: ch.filter.as_ref().and_then(Amcl::estimate).map(|e| e.covariance),
                 });
             }
             step.fusions.push(Fusion {

@@ -1085,6 +1085,7 @@ mod tests {
             v: None,
             robots,
             integrity,
+            covariance: None,
         };
         f.cast(FormationMsg::Estimate(Box::new(e))).unwrap();
     }

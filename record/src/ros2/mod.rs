@@ -39,7 +39,7 @@
 //! | `/<robot>/scan` | `sensor_msgs/msg/LaserScan` | each robot's scans, frame `<robot>/laser`; invalid beams NaN |
 //! | `/virtual/scan` | `sensor_msgs/msg/LaserScan` | the virtual scan, frame `V`: 720 bins of 0.5° from −π, the nearest point per bin, empty bins NaN |
 //! | `/<robot>/odom` | `nav_msgs/msg/Odometry` | odometry, frame `<robot>/odom`, child `<robot>` |
-//! | `/amcl/V`, `/amcl/<robot>`, `/amcl/<robot>/own`, `/truth/...` | `geometry_msgs/msg/PoseWithCovarianceStamped` | as in the Foxglove recording, frame `map`; the covariance is zero (the estimates carry none) |
+//! | `/amcl/V`, `/amcl/<robot>`, `/amcl/<robot>/own`, `/truth/...` | `geometry_msgs/msg/PoseWithCovarianceStamped` | as in the Foxglove recording, frame `map`; the covariance is the filter's (V's, carried to each robot by its offset; the robot's own; zero for the truth) |
 //! | `/tf` | `tf2_msgs/msg/TFMessage` | map→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>` (and map→`truth/...`) |
 //! | `/tf_static` | `tf2_msgs/msg/TFMessage` | `<robot>`→`<robot>/laser`, once |
 //! | `/map` | `nav_msgs/msg/OccupancyGrid` | the map, once, frame `map` |
@@ -155,11 +155,49 @@ pub fn points_scan(stamp_s: f64, frame: &str, points: &[[f64; 2]]) -> LaserScan 
     }
 }
 
-fn pose_stamped(stamp_s: f64, frame: &str, p: &Se2) -> PoseWithCovarianceStamped {
+fn pose_stamped(stamp_s: f64, frame: &str, p: &Se2, cov: Option<[[f64; 3]; 3]>) -> PoseWithCovarianceStamped {
     PoseWithCovarianceStamped {
         header: Header::new(stamp_s, frame),
-        pose: PoseWithCovariance { pose: Pose::planar(p.x, p.y, p.theta), covariance: [0.0; 36] },
+        pose: PoseWithCovariance { pose: Pose::planar(p.x, p.y, p.theta), covariance: ros_covariance(cov) },
     }
+}
+
+/// A planar covariance (x, y, heading) as ROS's 6×6 row-major one (x, y, z, and rotations about x,
+/// y, z): z and the tilts zero. None: all zero, ROS's "unknown".
+#[must_use]
+pub fn ros_covariance(cov: Option<[[f64; 3]; 3]>) -> [f64; 36] {
+    let mut out = [0.0; 36];
+    if let Some(c) = cov {
+        let at = [0, 1, 5];
+        for (i, row) in c.iter().enumerate() {
+            for (j, v) in row.iter().enumerate() {
+                out[at[i] * 6 + at[j]] = *v;
+            }
+        }
+    }
+    out
+}
+
+/// The covariance of `v ∘ b` (a pose rigidly offset by `b` from `v`) from `v`'s: the first-order
+/// propagation J Σ Jᵀ with J the Jacobian of the composition in `v`. What a robot placed by V
+/// inherits from V's uncertainty (the fusion's own uncertainty of `b` is not in it).
+#[must_use]
+pub fn offset_covariance(cov: [[f64; 3]; 3], v: &Se2, b: &Se2) -> [[f64; 3]; 3] {
+    let (s, c) = v.theta.sin_cos();
+    let j = [[1.0, 0.0, -s * b.x - c * b.y], [0.0, 1.0, c * b.x - s * b.y], [0.0, 0.0, 1.0]];
+    let mut js = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for k in 0..3 {
+            js[i][k] = (0..3).map(|m| j[i][m] * cov[m][k]).sum();
+        }
+    }
+    let mut out = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for k in 0..3 {
+            out[i][k] = (0..3).map(|m| js[i][m] * j[k][m]).sum();
+        }
+    }
+    out
 }
 
 fn tf(stamp_s: f64, parent: &str, child: &str, p: &Se2) -> TransformStamped {
@@ -234,13 +272,20 @@ impl Ros2Encoder {
                 EstimateSource::Fused(_) => {
                     let mut transforms = Vec::new();
                     if let Some(vm) = &e.v {
-                        b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm));
+                        b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm, e.covariance));
                         transforms.push(tf(e.stamp_s, "map", "V", vm));
                     }
                     for (i, a) in e.robots.iter().enumerate() {
                         let Some(a) = a else { continue };
                         let name = self.robot_name(i);
-                        b.emit(&format!("/amcl/{name}"), e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map));
+                        let cov =
+                            e.v.zip(e.covariance)
+                                .map(|(v, c)| offset_covariance(c, &v, &(v.inverse() * a.map)));
+                        b.emit(
+                            &format!("/amcl/{name}"),
+                            e.stamp_s,
+                            &pose_stamped(e.stamp_s, "map", &a.map, cov),
+                        );
                         let map_odom = a.map * a.odom.inverse();
                         transforms.push(tf(e.stamp_s, "map", &format!("{name}/odom"), &map_odom));
                     }
@@ -251,16 +296,16 @@ impl Ros2Encoder {
                 EstimateSource::Robot(i) => {
                     if let Some(Some(a)) = e.robots.get(i) {
                         let topic = format!("/amcl/{}/own", self.robot_name(i));
-                        b.emit(&topic, e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map));
+                        b.emit(&topic, e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map, e.covariance));
                     }
                 }
             },
             Event::Truth { stamp_s, v: vt, robots } => {
-                b.emit("/truth/V", *stamp_s, &pose_stamped(*stamp_s, "map", vt));
+                b.emit("/truth/V", *stamp_s, &pose_stamped(*stamp_s, "map", vt, None));
                 let mut transforms = vec![tf(*stamp_s, "map", "truth/V", vt)];
                 for (i, p) in robots.iter().enumerate() {
                     let name = self.robot_name(i);
-                    b.emit(&format!("/truth/{name}"), *stamp_s, &pose_stamped(*stamp_s, "map", p));
+                    b.emit(&format!("/truth/{name}"), *stamp_s, &pose_stamped(*stamp_s, "map", p, None));
                     transforms.push(tf(*stamp_s, "map", &format!("truth/{name}"), p));
                 }
                 b.emit("/tf", *stamp_s, &TfMessage { transforms });
@@ -323,6 +368,41 @@ mod tests {
         assert_eq!(topic_name("/amcl/robot-b/own"), "/amcl/robot_b/own");
         assert_eq!(topic_name("/2d/scan.x"), "/_2d/scan_x");
         assert_eq!(topic_name("/virtual/scan"), "/virtual/scan");
+    }
+
+    #[test]
+    fn an_offset_pose_inherits_vs_covariance_by_the_composition_s_jacobian() {
+        let cov = [[0.04, 0.01, 0.003], [0.01, 0.09, -0.002], [0.003, -0.002, 0.0025]];
+        let (v, b) = (Se2::new(3.0, -1.0, 0.7), Se2::new(0.4, -0.6, 0.2));
+        // The Jacobian by central differences of v ∘ b in (x, y, θ) of v.
+        let h = 1e-6;
+        let mut j = [[0.0; 3]; 3];
+        for k in 0..3 {
+            let mut d = [0.0; 3];
+            d[k] = h;
+            let plus = Se2::new(v.x + d[0], v.y + d[1], v.theta + d[2]) * b;
+            let minus = Se2::new(v.x - d[0], v.y - d[1], v.theta - d[2]) * b;
+            let diff = [plus.x - minus.x, plus.y - minus.y, plus.theta - minus.theta];
+            for (i, di) in diff.iter().enumerate() {
+                j[i][k] = di / (2.0 * h);
+            }
+        }
+        let got = offset_covariance(cov, &v, &b);
+        for i in 0..3 {
+            for k in 0..3 {
+                let want: f64 = (0..3)
+                    .flat_map(|m| (0..3).map(move |n| (m, n)))
+                    .map(|(m, n)| j[i][m] * cov[m][n] * j[k][n])
+                    .sum();
+                assert!((got[i][k] - want).abs() < 1e-9, "[{i}][{k}]: {} vs {want}", got[i][k]);
+            }
+        }
+        // No offset: the same covariance.
+        assert_eq!(offset_covariance(cov, &v, &Se2::IDENTITY), cov);
+        // ROS's layout; none: all zero.
+        let r = ros_covariance(Some(cov));
+        assert_eq!((r[0], r[1], r[5], r[30], r[35], r[14]), (0.04, 0.01, 0.003, 0.003, 0.0025, 0.0));
+        assert_eq!(ros_covariance(None), [0.0; 36]);
     }
 
     #[test]

@@ -142,6 +142,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
         v: Some(v),
         robots: vec![Some(Anchored { map: a_map, odom: a_odom, stamp_s: 1.4 }), None],
         integrity: amr_msgs::EstimateIntegrity::default(),
+        covariance: Some([[0.04, 0.01, 0.0], [0.01, 0.09, 0.002], [0.0, 0.002, 0.0025]]),
     };
     rec.put(1.41, &Event::Estimate(estimate)).unwrap();
     let points = vec![[1.0, 0.0], [0.0, 2.0], [1.2, 0.001], [-3.0, 0.0]];
@@ -246,6 +247,19 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
     assert!(close(planar(&pv["pose"]["pose"]["position"], &pv["pose"]["pose"]["orientation"]), v));
     let pa = one("/amcl/robot_a");
     assert!(close(planar(&pa["pose"]["pose"]["position"], &pa["pose"]["pose"]["orientation"]), a_map));
+    // V's covariance in ROS's 6×6 layout (x, y, yaw at rows/columns 0, 1, 5), as rosbags reads it.
+    let cov = |m: &Value| -> Vec<f64> {
+        m["pose"]["covariance"].as_array().unwrap().iter().map(|c| c.as_f64().unwrap()).collect()
+    };
+    let cv = cov(pv);
+    assert_eq!(
+        (cv[0], cv[1], cv[6], cv[7], cv[35], cv[5], cv[11]),
+        (0.04, 0.01, 0.01, 0.09, 0.0025, 0.0, 0.002)
+    );
+    assert_eq!(cv[14], 0.0, "no z variance");
+    // robot-a inherits it through its offset from V: more position variance from V's heading's.
+    let ca = cov(pa);
+    assert!(ca[0] + ca[7] > cv[0] + cv[7] && (ca[35] - 0.0025).abs() < 1e-12, "{ca:?}");
     let tfs: Vec<&Value> = msgs
         .iter()
         .filter(|m| m["topic"] == "/tf")
