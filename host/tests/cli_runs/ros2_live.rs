@@ -66,6 +66,49 @@ fn a_ros2_user_sees_the_simulated_fleet_live_over_rmw_zenoh() {
         Some("geometry_msgs::msg::dds_::PoseWithCovarianceStamped_".into())
     );
 
+    // The RViz configuration shipped for ROS 2 users shows only what we publish, each with a QoS
+    // our offer matches, and its "2D Pose Estimate" publishes where we listen.
+    let rviz_path = concat!(env!("CARGO_MANIFEST_DIR"), "/../ros2/rviz/amr.rviz");
+    let rviz: serde_norway::Value =
+        serde_norway::from_str(&std::fs::read_to_string(rviz_path).unwrap()).unwrap();
+    let manager = &rviz["Visualization Manager"];
+    let mut shown = 0;
+    for d in manager["Displays"].as_sequence().unwrap() {
+        let Some(t) = d["Topic"]["Value"].as_str() else { continue };
+        let want = match d["Class"].as_str().unwrap() {
+            "rviz_default_plugins/Map" => "nav_msgs::msg::dds_::OccupancyGrid_",
+            "rviz_default_plugins/LaserScan" => "sensor_msgs::msg::dds_::LaserScan_",
+            "rviz_default_plugins/PoseWithCovariance" => {
+                "geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"
+            }
+            other => panic!("a display of {other} on {t}: say which type it shows"),
+        };
+        let (ty, qos) = offered(t).unwrap_or_else(|| panic!("RViz shows {t}, which is not published"));
+        assert_eq!(ty, want, "{t}");
+        let mut q = qos.split(':');
+        let (reliability, durability) = (q.next().unwrap(), q.next().unwrap());
+        if d["Topic"]["Reliability Policy"].as_str() == Some("Reliable") {
+            assert_ne!(reliability, "2", "RViz asks {t} reliable; it is offered best effort");
+        }
+        if d["Topic"]["Durability Policy"].as_str() == Some("Transient Local") {
+            assert_eq!(durability, "1", "RViz asks {t} transient local; it is offered volatile");
+        }
+        shown += 1;
+    }
+    assert!(shown >= 4);
+    let pose_tool = manager["Tools"]
+        .as_sequence()
+        .unwrap()
+        .iter()
+        .find(|t| t["Class"] == "rviz_default_plugins/SetInitialPose");
+    let pose_topic = pose_tool.and_then(|t| t["Topic"]["Value"].as_str()).unwrap();
+    let subscribed = v["subscriptions"].as_array().unwrap();
+    assert!(
+        subscribed.iter().any(|s| s["topic"] == pose_topic
+            && s["type"] == "geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"),
+        "{pose_topic} not subscribed: {subscribed:?}"
+    );
+
     let topic = |t: &str| &v["topics"][t];
     // Scans at 15 Hz for 5 s, each with its attachment.
     let scans = topic("/robot_a/scan");

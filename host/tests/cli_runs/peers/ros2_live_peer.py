@@ -56,12 +56,13 @@ subs += [ze.declare_advanced_subscriber(s, key(t, ty), history=ze.HistoryConfig(
          for t, ty in LATCHED.items()]
 time.sleep(listen_s)
 
-publishers = []
+publishers, subscriptions = [], []
 for r in s.liveliness().get(f"@ros2_lv/{domain}/**", timeout=5.0):
     if r.ok is not None:
         f = str(r.ok.key_expr).split("/")
-        if len(f) == 13 and f[5] == "MP":
-            publishers.append({"topic": f[9].replace("%", "/"), "type": f[10], "hash": f[11], "qos": f[12]})
+        if len(f) == 13 and f[5] in ("MP", "MS"):
+            entry = {"topic": f[9].replace("%", "/"), "type": f[10], "hash": f[11], "qos": f[12]}
+            (publishers if f[5] == "MP" else subscriptions).append(entry)
 
 
 def decoded(topic, ty, payload):
@@ -83,7 +84,7 @@ def decoded(topic, ty, payload):
     return {}
 
 
-out = {"publishers": publishers, "topics": {}}
+out = {"publishers": publishers, "subscriptions": subscriptions, "topics": {}}
 types = dict(SUBS, **LATCHED)
 for t, samples in got.items():
     out["topics"][t] = {
