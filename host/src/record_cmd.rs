@@ -63,6 +63,10 @@ pub(crate) struct RecordArgs {
     /// stops 0.5 s after the last twist. `/initialpose` is taken whenever `--ros2-live` is on.
     #[arg(long, requires = "ros2_live")]
     pub ros2_cmd_vel: bool,
+    /// nav2_amcl localises V from `/virtual/scan` (the paper's mode; `ros2/nav2/v_amcl.yaml`): our
+    /// `map` → `V/odom` is not published, nav2_amcl publishes it.
+    #[arg(long, requires = "ros2_live")]
+    pub ros2_nav2_amcl: bool,
 }
 
 /// A ROS 2 transport for `--ros2-live`.
@@ -109,7 +113,10 @@ impl RecordArgs {
             Some(Ros2Transport::Zenoh) => Some(Arc::new(self.ros2_node().await?)),
             None => None,
         };
-        let ros2_live = node.as_ref().map(|n| amr_record::ros2::live::Ros2Live::start(Arc::clone(n)));
+        let ros2_live = node.as_ref().map(|n| {
+            let live = amr_record::ros2::live::Ros2Live::start(Arc::clone(n));
+            if self.ros2_nav2_amcl { live.for_nav2_amcl() } else { live }
+        });
         let options =
             RecordOptions { file: self.record.clone(), live: hub, flush, ros2: self.ros2, ros2_live };
         let recorder = Recorder::start(options, sources).await.context("starting the recorder")?;

@@ -157,7 +157,7 @@ impl State {
         } else {
             Vec::new()
         };
-        let file_outs = match &self.ros2 {
+        let file_outs = match &mut self.ros2 {
             Some(r) if self.file.is_some() => r.encode(now_s, ev),
             _ => Vec::new(),
         };
@@ -176,7 +176,7 @@ impl State {
                 h.publish(out);
             }
         }
-        if let Some((live, encoder)) = &self.ros2_live {
+        if let Some((live, encoder)) = &mut self.ros2_live {
             live.clock(now_s);
             for out in encoder.encode(now_s, ev) {
                 live.publish(&out);
@@ -243,7 +243,11 @@ impl Actor for RecorderActor {
             encoder: Encoder::new(robots),
             file,
             live: options.live,
-            ros2_live: options.ros2_live.map(|l| (l, crate::ros2::Ros2Encoder::new(robots_for_live))),
+            ros2_live: options.ros2_live.map(|l| {
+                let encoder = crate::ros2::Ros2Encoder::new(robots_for_live);
+                let encoder = if l.nav2_amcl() { encoder.without_v_map_tf() } else { encoder };
+                (l, encoder)
+            }),
             logs: sources.logs.clone(),
             failed: None,
         };
@@ -402,7 +406,7 @@ impl FileRecorder {
 
     /// Write `event` as seen at `t_s` (fleet-clock seconds; keep it non-decreasing).
     pub fn put(&mut self, t_s: f64, event: &Event) -> Result<(), RecordError> {
-        if let Some(r) = &self.ros2 {
+        if let Some(r) = &mut self.ros2 {
             for o in &r.encode(t_s, event) {
                 if let Some(f) = self.file.as_mut() {
                     f.write(o)?;

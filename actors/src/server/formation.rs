@@ -30,7 +30,7 @@ pub(crate) const ESTIMATE_FRESH_S: f64 = 0.5;
 const ARM_TIMEOUT_S: f64 = 2.0;
 
 /// A twist for V older than this is silence: the formation stops (holds, armed) until the next.
-pub(crate) const TELEOP_TIMEOUT_S: f64 = 0.5;
+pub const TELEOP_TIMEOUT_S: f64 = 0.5;
 /// A robot this far from its slot, as the first robot sees it (m, rad), stops the plan: the formation re-forms
 /// before it goes on. Its tracking law corrects small errors while V moves; from far off it can
 /// steer a robot the wrong way (in the chaos soak, one drove through the site's wall).

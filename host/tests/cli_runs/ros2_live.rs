@@ -133,6 +133,42 @@ fn a_ros2_user_sees_the_simulated_fleet_live_over_rmw_zenoh() {
     let has = |t: &str, parent: &str, child: &str| pairs(t).iter().any(|p| p[0] == parent && p[1] == child);
     assert!(topic("/tf")["count"].as_u64().unwrap() > 5);
 
+    // V under REP 105, as a robot: V/odom → V from V's odometry, map → V/odom from our estimate.
+    let tf_pairs = topic("/tf")["pairs"].as_array().unwrap();
+    let has_pair = |p: &str, c: &str| tf_pairs.iter().any(|x| x[0] == p && x[1] == c);
+    assert!(has_pair("V/odom", "V") && has_pair("map", "V/odom"), "{tf_pairs:?}");
+    assert!(has_pair("robot-a/odom", "robot-a") && has_pair("map", "robot-a/odom"), "{tf_pairs:?}");
+    assert!(!has_pair("map", "V"), "V has one parent");
+
+    // nav2_amcl on V (ros2/nav2/v_amcl.yaml): each topic it subscribes, with the QoS it asks
+    // (nav2_amcl's amcl_node.cpp: the scan as sensor data, the map transient local; tf2's
+    // listener), is offered compatibly; its frames are ours.
+    let params_path = concat!(env!("CARGO_MANIFEST_DIR"), "/../ros2/nav2/v_amcl.yaml");
+    let params: serde_norway::Value =
+        serde_norway::from_str(&std::fs::read_to_string(params_path).unwrap()).unwrap();
+    let amcl = &params["amcl"]["ros__parameters"];
+    let scan_topic = amcl["scan_topic"].as_str().unwrap();
+    for (t, want_type, reliable, transient) in [
+        (scan_topic, "sensor_msgs::msg::dds_::LaserScan_", false, false),
+        ("/map", "nav_msgs::msg::dds_::OccupancyGrid_", true, true),
+        ("/tf", "tf2_msgs::msg::dds_::TFMessage_", true, false),
+        ("/tf_static", "tf2_msgs::msg::dds_::TFMessage_", true, true),
+    ] {
+        let (ty, qos) = offered(t).unwrap_or_else(|| panic!("nav2_amcl subscribes {t}: not published"));
+        assert_eq!(ty, want_type, "{t}");
+        let mut q = qos.split(':');
+        let (r, d) = (q.next().unwrap(), q.next().unwrap());
+        assert!(!reliable || r != "2", "{t}: nav2_amcl asks reliable, offered {qos}");
+        assert!(!transient || d == "1", "{t}: nav2_amcl asks transient local, offered {qos}");
+    }
+    assert!(has_pair(amcl["odom_frame_id"].as_str().unwrap(), amcl["base_frame_id"].as_str().unwrap()));
+    assert_eq!(amcl["global_frame_id"], "map");
+    assert_eq!(
+        topic(scan_topic)["first"]["frame_id"].as_str(),
+        amcl["base_frame_id"].as_str(),
+        "the laser is V itself"
+    );
+
     // The late joiner got the latched topics once each.
     assert_eq!(topic("/tf_static")["count"], 1, "{}", topic("/tf_static"));
     assert!(has("/tf_static", "robot-a", "robot-a/laser") && has("/tf_static", "robot-b", "robot-b/laser"));

@@ -44,6 +44,8 @@ pub struct Ros2Live {
     stats: Arc<LiveStats>,
     /// The last `/clock` sent, ns.
     clock_ns: Arc<AtomicU64>,
+    /// nav2_amcl localises V: `map` → `V/odom` is left to it.
+    nav2_amcl: bool,
 }
 
 /// `/clock` goes out at most this often, ns (100 Hz).
@@ -67,7 +69,20 @@ impl Ros2Live {
         let (tx, rx) = mpsc::channel(QUEUE);
         let stats = Arc::new(LiveStats::default());
         tokio::spawn(run(node, rx, Arc::clone(&stats)));
-        Ros2Live { tx, stats, clock_ns: Arc::new(AtomicU64::new(0)) }
+        Ros2Live { tx, stats, clock_ns: Arc::new(AtomicU64::new(0)), nav2_amcl: false }
+    }
+
+    /// nav2_amcl localises V from `/virtual/scan` (the paper's mode): `map` → `V/odom` is not
+    /// published from our estimate, nav2_amcl publishes it.
+    #[must_use]
+    pub fn for_nav2_amcl(mut self) -> Self {
+        self.nav2_amcl = true;
+        self
+    }
+
+    #[must_use]
+    pub fn nav2_amcl(&self) -> bool {
+        self.nav2_amcl
     }
 
     /// The fleet's clock, as `/clock` (`rosgraph_msgs/Clock`): ROS 2 nodes started with

@@ -40,7 +40,7 @@
 //! | `/virtual/scan` | `sensor_msgs/msg/LaserScan` | the virtual scan, frame `V`: 720 bins of 0.5° from −π, the nearest point per bin, empty bins NaN |
 //! | `/<robot>/odom` | `nav_msgs/msg/Odometry` | odometry, frame `<robot>/odom`, child `<robot>` |
 //! | `/amcl/V`, `/amcl/<robot>`, `/amcl/<robot>/own`, `/truth/...` | `geometry_msgs/msg/PoseWithCovarianceStamped` | as in the Foxglove recording, frame `map`; the covariance is the filter's (V's, carried to each robot by its offset; the robot's own; zero for the truth) |
-//! | `/tf` | `tf2_msgs/msg/TFMessage` | map→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>` (and map→`truth/...`) |
+//! | `/tf` | `tf2_msgs/msg/TFMessage` | map→`V/odom`, `V/odom`→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>` (and map→`truth/...`) |
 //! | `/tf_static` | `tf2_msgs/msg/TFMessage` | `<robot>`→`<robot>/laser`, once |
 //! | `/map` | `nav_msgs/msg/OccupancyGrid` | the map, once, frame `map` |
 //!
@@ -53,7 +53,7 @@ pub mod inputs;
 pub mod live;
 pub use amr_ros2::{cdr, msg};
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
 use amr_core::map::OccupancyGrid as Grid;
 use amr_core::scan::Scan;
@@ -222,13 +222,28 @@ pub fn occupancy_grid(stamp_s: f64, map: &Grid) -> OccupancyGrid {
 #[derive(Debug, Clone)]
 pub struct Ros2Encoder {
     robots: Vec<String>,
+    /// V's odometry (`V/odom` → `V`) at the last fused frames, by stamp, and V's estimates whose
+    /// frame has not come yet (a frame and its estimate come on two ports, in either order): each
+    /// pair makes one `map` → `V/odom`.
+    v_odoms: VecDeque<(f64, Se2)>,
+    v_pending: VecDeque<(f64, Se2)>,
+    /// Publish `map` → `V/odom` from our estimate of V; off when nav2_amcl localises V (it
+    /// publishes that transform itself).
+    v_map_tf: bool,
 }
 
 impl Ros2Encoder {
     /// `robots`: the formation's ids in order (names the estimates' robots).
     #[must_use]
     pub fn new(robots: Vec<String>) -> Self {
-        Ros2Encoder { robots }
+        Ros2Encoder { robots, v_odoms: VecDeque::new(), v_pending: VecDeque::new(), v_map_tf: true }
+    }
+
+    /// Leave `map` → `V/odom` to another localiser (nav2_amcl on `/virtual/scan`).
+    #[must_use]
+    pub fn without_v_map_tf(mut self) -> Self {
+        self.v_map_tf = false;
+        self
     }
 
     fn robot_name(&self, i: usize) -> String {
@@ -237,7 +252,7 @@ impl Ros2Encoder {
 
     /// The messages for `event`, seen at `now_s` on the fleet clock.
     #[must_use]
-    pub fn encode(&self, now_s: f64, event: &Event) -> Vec<Out> {
+    pub fn encode(&mut self, now_s: f64, event: &Event) -> Vec<Out> {
         let mut b = Batch { log_time_ns: nanos(now_s), out: Vec::new() };
         match event {
             Event::Uplink(Uplink::Scan(s), _) | Event::Scan(s) => {
@@ -267,13 +282,30 @@ impl Ros2Encoder {
                 if let Some(points) = &f.points {
                     b.emit("/virtual/scan", f.stamp_s, &points_scan(f.stamp_s, "V", points));
                 }
+                // V's odometry, as a robot's: `V/odom` → `V` (REP 105), for a localiser of V.
+                let mut transforms = vec![tf(f.stamp_s, "V/odom", "V", &f.v_odom)];
+                if let Some(k) = self.v_pending.iter().position(|(t, _)| *t == f.stamp_s)
+                    && let Some((_, vm)) = self.v_pending.remove(k)
+                {
+                    transforms.push(tf(f.stamp_s, "map", "V/odom", &(vm * f.v_odom.inverse())));
+                }
+                push_bounded(&mut self.v_odoms, (f.stamp_s, f.v_odom));
+                b.emit("/tf", f.stamp_s, &TfMessage { transforms });
             }
             Event::Estimate(e) => match e.source {
                 EstimateSource::Fused(_) => {
                     let mut transforms = Vec::new();
                     if let Some(vm) = &e.v {
                         b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm, e.covariance));
-                        transforms.push(tf(e.stamp_s, "map", "V", vm));
+                        // `map` → `V/odom` at the frame of the same stamp (here, or when it comes).
+                        if self.v_map_tf {
+                            match self.v_odoms.iter().find(|(t, _)| *t == e.stamp_s) {
+                                Some((_, vo)) => {
+                                    transforms.push(tf(e.stamp_s, "map", "V/odom", &(*vm * vo.inverse())))
+                                }
+                                None => push_bounded(&mut self.v_pending, (e.stamp_s, *vm)),
+                            }
+                        }
                     }
                     for (i, a) in e.robots.iter().enumerate() {
                         let Some(a) = a else { continue };
@@ -334,6 +366,16 @@ impl Ros2Encoder {
 }
 
 /// The messages of one event.
+/// Frames or estimates kept to pair at most (a few fusion periods).
+const PAIRING: usize = 16;
+
+fn push_bounded(q: &mut VecDeque<(f64, Se2)>, x: (f64, Se2)) {
+    if q.len() == PAIRING {
+        q.pop_front();
+    }
+    q.push_back(x);
+}
+
 struct Batch {
     log_time_ns: u64,
     out: Vec<Out>,
@@ -403,6 +445,71 @@ mod tests {
         let r = ros_covariance(Some(cov));
         assert_eq!((r[0], r[1], r[5], r[30], r[35], r[14]), (0.04, 0.01, 0.003, 0.003, 0.0025, 0.0));
         assert_eq!(ros_covariance(None), [0.0; 36]);
+    }
+
+    /// The `map` → `V/odom` transforms of a run of events.
+    fn v_map_tfs(enc: &mut Ros2Encoder, events: &[Event]) -> Vec<(f64, Se2)> {
+        let mut out = Vec::new();
+        for ev in events {
+            for o in enc.encode(0.0, ev).iter().filter(|o| o.topic == "/tf") {
+                for t in TfMessage::from_cdr(&o.data).unwrap().transforms {
+                    if t.header.frame_id == "map" && t.child_frame_id == "V/odom" {
+                        let [x, y, _] = t.translation;
+                        out.push((t.header.stamp.secs(), Se2::new(x, y, msg::yaw(t.rotation))));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn vs_map_to_odom_pairs_each_estimate_with_its_frame_in_either_order() {
+        use amr_core::config::Configuration;
+        use amr_msgs::{Estimate, EstimateIntegrity, FusedFrame, StageTimes};
+        let frame = |t: f64, vo: Se2| {
+            Event::Fused(FusedFrame {
+                seq: 1,
+                configuration: Configuration::T4,
+                stamp_s: t,
+                oldest_stamp_s: t,
+                v_odom: vo,
+                points: None,
+                robots: vec![],
+                times: StageTimes::default(),
+            })
+        };
+        let estimate = |t: f64, v: Se2| {
+            Event::Estimate(Estimate {
+                source: EstimateSource::Fused(Configuration::T4),
+                stamp_s: t,
+                v: Some(v),
+                robots: vec![],
+                integrity: EstimateIntegrity::default(),
+                covariance: None,
+            })
+        };
+        let (vo1, vo2, v1, v2) = (
+            Se2::new(1.0, 0.0, 0.1),
+            Se2::new(1.2, 0.1, 0.2),
+            Se2::new(5.0, 2.0, 1.0),
+            Se2::new(5.2, 2.1, 1.1),
+        );
+        // Frame then estimate, then estimate then frame; a frame with no estimate gives nothing.
+        let events =
+            [frame(1.0, vo1), estimate(1.0, v1), estimate(2.0, v2), frame(3.0, vo1), frame(2.0, vo2)];
+        let got = v_map_tfs(&mut Ros2Encoder::new(vec![]), &events);
+        assert_eq!(got.len(), 2, "{got:?}");
+        for ((t, m), (t_want, v, vo)) in got.iter().zip([(1.0, v1, vo1), (2.0, v2, vo2)]) {
+            let want = v * vo.inverse();
+            assert!(
+                *t == t_want && (m.x - want.x).abs() < 1e-9 && (m.y - want.y).abs() < 1e-9,
+                "{m:?} {want:?}"
+            );
+            assert!((amr_core::se2::angle_diff(m.theta, want.theta)).abs() < 1e-9);
+        }
+        // nav2_amcl publishes it: none from us.
+        assert!(v_map_tfs(&mut Ros2Encoder::new(vec![]).without_v_map_tf(), &events).is_empty());
     }
 
     #[test]

@@ -136,6 +136,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
     let odom = OdomMsg { seq: 1, frame: 1, stamp_s: 1.3, pose: odom_pose, twist: (0.2, -0.1), gyro: true };
     rec.put(1.31, &Event::Odom("robot-b".into(), odom)).unwrap();
     let (v, a_map, a_odom) = (Se2::new(3.0, 4.0, -2.0), Se2::new(3.1, 4.4, -1.9), Se2::new(0.5, 0.1, 0.2));
+    let v_odom = Se2::new(0.7, -0.2, 0.4);
     let estimate = Estimate {
         source: EstimateSource::Fused(Configuration::T4),
         stamp_s: 1.4,
@@ -149,9 +150,10 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
     let fused = FusedFrame {
         seq: 1,
         configuration: Configuration::T4,
-        stamp_s: 1.45,
-        oldest_stamp_s: 1.44,
-        v_odom: Se2::IDENTITY,
+        // The frame of the estimate above (the same stamp), after it, as it may come live.
+        stamp_s: 1.4,
+        oldest_stamp_s: 1.39,
+        v_odom,
         points: Some(Arc::new(points)),
         robots: vec![],
         times: StageTimes::default(),
@@ -270,7 +272,9 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
             tfs.iter().find(|t| t["header"]["frame_id"] == parent && t["child_frame_id"] == child).unwrap();
         planar(&t["transform"]["translation"], &t["transform"]["rotation"])
     };
-    assert!(close(find("map", "V"), v));
+    // V as a robot under REP 105: V/odom → V from V's odometry, map → V/odom from the estimate.
+    assert!(close(find("V/odom", "V"), v_odom));
+    assert!(close(find("map", "V/odom") * find("V/odom", "V"), v));
     assert!(close(find("map", "robot-a/odom"), a_map * a_odom.inverse()));
     assert!(close(find("robot-b/odom", "robot-b"), odom_pose));
     // The virtual scan: 720 bins of 0.5° from −π, the nearest point per bin.

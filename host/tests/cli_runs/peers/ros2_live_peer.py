@@ -91,6 +91,8 @@ for t, samples in got.items():
         "count": len(samples),
         "attachments": sum(1 for _, a in samples if a),
         "first": decoded(t, types[t], samples[0][0]) if samples else None,
+        "pairs": sorted({tuple(p) for pl, _ in samples for p in decoded(t, types[t], pl)["pairs"]})
+        if types[t].endswith("TFMessage") else None,
         "last": decoded(t, types[t], samples[-1][0]) if samples else None,
     }
 print(json.dumps(out))
