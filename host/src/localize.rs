@@ -115,8 +115,9 @@ pub(crate) struct Summary {
     pub scans_without_odometry: usize,
 }
 
-/// The .mcap files of a bag: the file itself, or a bag directory's files in name order (rosbag2
-/// splits as `<name>_0.mcap`, `<name>_1.mcap`, …: shorter names first, so `_10` after `_9`).
+/// The files of a bag: the file itself, or a bag directory's `.mcap` and `.db3` files in name order
+/// (rosbag2 splits as `<name>_0.mcap`, `<name>_1.mcap`, …: shorter names first, so `_10` after
+/// `_9`).
 fn bag_files(path: &Path) -> anyhow::Result<Vec<PathBuf>> {
     if !path.is_dir() {
         return Ok(vec![path.to_owned()]);
@@ -125,11 +126,48 @@ fn bag_files(path: &Path) -> anyhow::Result<Vec<PathBuf>> {
         .with_context(|| format!("cannot read the bag directory {}", path.display()))?
         .filter_map(Result::ok)
         .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap" || e == "db3"))
         .collect();
     files.sort_by_key(|p| (p.as_os_str().len(), p.clone()));
-    anyhow::ensure!(!files.is_empty(), "no .mcap file in the bag directory {}", path.display());
+    anyhow::ensure!(
+        !files.is_empty(),
+        "no .mcap or .db3 file in the bag directory {} (rosbag2 stores a bag as MCAP or sqlite3)",
+        path.display()
+    );
     Ok(files)
+}
+
+/// What a bag file is, by its first bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Storage {
+    Mcap,
+    Sqlite3,
+}
+
+/// MCAP's magic (the MCAP specification, "Magic": 0x89 `MCAP0` CR LF).
+const MCAP_MAGIC: &[u8] = b"\x89MCAP0\r\n";
+
+fn storage_of(file: &Path, bytes: &[u8]) -> anyhow::Result<Storage> {
+    if bytes.starts_with(MCAP_MAGIC) {
+        return Ok(Storage::Mcap);
+    }
+    if bytes.starts_with(amr_record::ros2::db3::SQLITE_MAGIC) {
+        return Ok(Storage::Sqlite3);
+    }
+    let head: String =
+        bytes.iter().take(16).map(|b| if b.is_ascii_graphic() { *b as char } else { '.' }).collect();
+    let what = match bytes {
+        [] => "an empty file".to_owned(),
+        [b'#', b'R', b'O', b'S', b'B', b'A', b'G', ..] => "a ROS 1 bag".to_owned(),
+        b if b.starts_with(b"\x89PNG") => "a PNG image".to_owned(),
+        b if b.starts_with(b"P5") || b.starts_with(b"P2") => "a PGM image (a map?)".to_owned(),
+        _ => format!("a file that starts with {head:?}"),
+    };
+    anyhow::bail!(
+        "{} is {what}, not a ROS 2 bag: `--bag` reads rosbag2 bags stored as MCAP (.mcap) or sqlite3 \
+         (.db3), a file or the bag's directory",
+        file.display()
+    )
 }
 
 /// A bag's scans as records, skipped messages logged and counted.
@@ -140,16 +178,27 @@ fn bag_records(
 ) -> anyhow::Result<Vec<Record>> {
     let mut messages = Vec::new();
     let mut stopped = None;
+    let wanted = [&opts.scan_topic, &opts.odom_topic, &opts.tf_topic, &opts.tf_static_topic];
+    let want = |t: &str| wanted.iter().any(|w| *w == t);
     for file in bag_files(path)? {
         let bytes = std::fs::read(&file).with_context(|| format!("cannot read {}", file.display()))?;
-        let wanted = [&opts.scan_topic, &opts.odom_topic, &opts.tf_topic, &opts.tf_static_topic];
-        let rec = amr_record::read::read_bytes_where(&bytes, |t| wanted.iter().any(|w| *w == t))
-            .with_context(|| format!("cannot read {}", file.display()))?;
-        if let Some(why) = &rec.stopped {
+        let (read, why) = match storage_of(&file, &bytes)? {
+            Storage::Mcap => {
+                let rec = amr_record::read::read_bytes_where(&bytes, want)
+                    .with_context(|| format!("cannot read {}", file.display()))?;
+                (rec.messages, rec.stopped)
+            }
+            Storage::Sqlite3 => {
+                let db = amr_record::ros2::db3::read(&file, want)
+                    .with_context(|| format!("cannot read {} (rosbag2 sqlite3)", file.display()))?;
+                (db.messages, db.stopped)
+            }
+        };
+        if let Some(why) = &why {
             tracing::warn!(file = %file.display(), reason = %why, "the bag is not whole; reading what is there");
             stopped.get_or_insert_with(|| format!("{}: {why}", file.display()));
         }
-        messages.extend(rec.messages);
+        messages.extend(read);
     }
     if let (true, Some(why)) = (messages.is_empty(), stopped) {
         anyhow::bail!("no message of the bag could be read: {why}");

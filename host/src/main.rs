@@ -66,8 +66,9 @@ enum Command {
         /// The CARMEN log.
         #[arg(long, required_unless_present = "bag", conflicts_with = "bag")]
         log: Option<PathBuf>,
-        /// A ROS 2 bag: a rosbag2 MCAP file, or its directory.
-        #[arg(long, value_name = "FILE.mcap")]
+        /// A ROS 2 bag: a rosbag2 file in either storage (MCAP `.mcap`, sqlite3 `.db3`), or the
+        /// bag's directory.
+        #[arg(long, value_name = "BAG")]
         bag: Option<PathBuf>,
         #[command(flatten)]
         ros2: localize::BagArgs,

@@ -4,7 +4,8 @@
 //! test drove. One bag has nav_msgs/Odometry on /odom, big-endian messages among the
 //! little-endian ones and damaged scans; the other has its odometry on /tf only, other frame
 //! names, the mounting through an intermediate frame, and a scan topic given on the command line.
-//! And `amr sim --record --ros2` through the recorder actor, every message decoded by `rosbags`.
+//! The first bag again in rosbag2's sqlite3 storage gives the same poses. And `amr sim --record
+//! --ros2` through the recorder actor, every message decoded by `rosbags`.
 #![allow(
     clippy::unwrap_used,
     clippy::expect_used,
@@ -182,7 +183,12 @@ for k, b in enumerate(bag['damaged']):
     # Damaged scans between the others: a cut message, another encapsulation (XCDR2), garbage.
     out.append((int(round((d['scans'][20 + 7 * k]['stamp'] + 0.011) * 1e9)), bag['scan_topic'], LS, bytes.fromhex(b)))
 out.sort(key=lambda o: o[0])
-w = Writer(bag['path'], version=9, storage_plugin=StoragePlugin.MCAP)
+if bag.get('storage') == 'sqlite3':
+    # rosbag2's sqlite3 storage (rosbags writes bag versions 8 and 9 only; Humble's 5 has the
+    # same topics and messages tables, without the type hash column).
+    w = Writer(bag['path'], version=8, storage_plugin=StoragePlugin.SQLITE3)
+else:
+    w = Writer(bag['path'], version=9, storage_plugin=StoragePlugin.MCAP)
 w.open()
 conns = {}
 for t_ns, topic, typ, data in out:
@@ -325,6 +331,40 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
     assert!(
         last < 0.08 && worst < 0.16 && heading < 0.15,
         "bag 2: final {last:.3} m, worst {worst:.3} m, heading {heading:.3} rad"
+    );
+
+    // Bag 3: bag 1 again in rosbag2's sqlite3 storage (Humble's default): the directory, and its
+    // .db3 file alone, give the same poses as bag 1.
+    let bag3 = dir.path().join("bag3");
+    write_bag(
+        dir.path(),
+        &run,
+        &json!({
+            "path": bag3, "scan_topic": "/scan", "odometry": "topic", "odom_frame": "odom", "storage": "sqlite3",
+            "base_frame": "base_link", "intermediate_frame": false, "big_endian": true, "damaged": damaged,
+        }),
+    );
+    let db3 = std::fs::read_dir(&bag3)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "db3"))
+        .expect("rosbags wrote a .db3");
+    for (k, input) in [bag3.clone(), db3].iter().enumerate() {
+        let out3 = dir.path().join(format!("bag3-{k}.csv"));
+        let r = localize(dir.path(), input, &["--out", out3.to_str().unwrap()]);
+        let stderr = String::from_utf8_lossy(&r.stderr);
+        assert!(r.status.success(), "{stderr}");
+        assert!(stderr.contains("skipped=3"), "{stderr}");
+        let csv3 = std::fs::read_to_string(&out3).unwrap();
+        assert_eq!(csv3, csv, "the sqlite3 bag gives what the MCAP bag gave ({})", input.display());
+    }
+    // What is not a bag says what it is and what is read.
+    let r = localize(dir.path(), &dir.path().join("map.pgm"), &[]);
+    assert_eq!(r.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        stderr.contains("is a PGM image") && stderr.contains("MCAP (.mcap) or sqlite3 (.db3)"),
+        "{stderr}"
     );
 
     // Wrong names are clear errors.

@@ -6,6 +6,7 @@
 //!   with their schema text;
 //! - [`Ros2Encoder`]: what `--record FILE --ros2` writes for each event (topics below);
 //! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`;
+//! - [`db3`]: reading rosbag2's sqlite3 storage (`.db3`) into the same messages as an MCAP bag;
 //! - [`live`]: the same messages published live on a ROS 2 node (rmw_zenoh);
 //! - [`inputs`]: what the node takes from ROS 2 (`/initialpose`, `/cmd_vel`), checked.
 //!
@@ -49,6 +50,7 @@
 //! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
 
 pub mod bag;
+pub mod db3;
 pub mod inputs;
 pub mod live;
 pub use amr_ros2::{cdr, msg};
