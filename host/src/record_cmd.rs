@@ -41,8 +41,9 @@ pub(crate) struct RecordArgs {
     #[arg(long, requires = "record")]
     pub ros2: bool,
     /// Publish the fleet live on ROS 2 over this transport: `zenoh` is rmw_zenoh's protocol
-    /// (Jazzy and later, and Humble's rmw_zenoh). The topics of a `--ros2` bag, each with the QoS
-    /// ROS 2 tools subscribe with (docs/ros2.md).
+    /// (Jazzy and later, and Humble's rmw_zenoh), `dds` is DDS/RTPS (Humble's and Foxy's default:
+    /// Fast DDS, Cyclone DDS; discovery by multicast). The topics of a `--ros2` bag, each with the
+    /// QoS ROS 2 tools subscribe with (docs/ros2.md).
     #[arg(long, value_name = "TRANSPORT", value_enum)]
     pub ros2_live: Option<Ros2Transport>,
     /// The ROS 2 domain (`ROS_DOMAIN_ID`).
@@ -74,6 +75,8 @@ pub(crate) struct RecordArgs {
 pub(crate) enum Ros2Transport {
     /// rmw_zenoh's key expressions, liveliness tokens and attachments.
     Zenoh,
+    /// DDS/RTPS, as ROS 2's DDS middlewares name topics and types.
+    Dds,
 }
 
 /// A running recording and/or live view.
@@ -83,7 +86,7 @@ pub(crate) struct Recording {
     _live: Option<LiveServer>,
     file: Option<PathBuf>,
     /// The live ROS 2 node, and whether `/cmd_vel` may drive.
-    ros2: Option<(Arc<amr_ros2::node::Node>, bool)>,
+    ros2: Option<(Arc<amr_ros2::transport::Ros2Node>, bool)>,
 }
 
 impl RecordArgs {
@@ -110,7 +113,7 @@ impl RecordArgs {
         };
         let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
         let node = match self.ros2_live {
-            Some(Ros2Transport::Zenoh) => Some(Arc::new(self.ros2_node().await?)),
+            Some(t) => Some(Arc::new(self.ros2_node(t).await?)),
             None => None,
         };
         let ros2_live = node.as_ref().map(|n| {
@@ -129,9 +132,10 @@ impl RecordArgs {
 }
 
 impl RecordArgs {
-    /// The live ROS 2 output's node, on rmw_zenoh.
-    async fn ros2_node(&self) -> anyhow::Result<amr_ros2::node::Node> {
-        use amr_ros2::node::{Mode, Node, NodeOptions};
+    /// The live ROS 2 output's node.
+    async fn ros2_node(&self, transport: Ros2Transport) -> anyhow::Result<amr_ros2::transport::Ros2Node> {
+        use amr_ros2::node::{Mode, NodeOptions};
+        use amr_ros2::transport::{Ros2Node, Transport};
         let mut o = NodeOptions::new("amr");
         o.domain = self.ros2_domain;
         o.distro = self.ros2_distro;
@@ -143,14 +147,12 @@ impl RecordArgs {
             }
             None => o.connect = vec![self.ros2_connect.clone()],
         }
-        let node = Node::open(&o).await.context("opening the ROS 2 node (rmw_zenoh)")?;
-        tracing::info!(
-            domain = o.domain,
-            zid = %node.info().zid,
-            router = ?self.ros2_router,
-            connect = ?o.connect,
-            "ROS 2 live output (rmw_zenoh)"
-        );
+        let t = match transport {
+            Ros2Transport::Zenoh => Transport::Zenoh,
+            Ros2Transport::Dds => Transport::Dds,
+        };
+        let node = Ros2Node::open(t, &o).await.context("opening the ROS 2 node")?;
+        tracing::info!(domain = o.domain, node = %node.describe(), "ROS 2 live output");
         Ok(node)
     }
 }

@@ -5,12 +5,16 @@
 //! - [`msg`]: the message types the fleet speaks, their schema text and their REP 2011 type hashes;
 //! - [`rmw_zenoh`]: rmw_zenoh's key expressions, liveliness tokens, QoS strings, GIDs and sample
 //!   attachments;
-//! - [`node`]: a ROS 2 node on rmw_zenoh (a Zenoh session, its tokens, publishers and subscriptions).
+//! - [`node`]: a ROS 2 node on rmw_zenoh (a Zenoh session, its tokens, publishers and subscriptions);
+//! - [`dds`]: a ROS 2 node on DDS/RTPS (RustDDS), for Humble's and Foxy's default middleware;
+//! - [`transport`]: either node behind one type.
 //!
 //! Nothing here knows the fleet: the recorder (`amr-record`) turns the fleet's events into these
 //! messages.
 
 pub mod cdr;
+pub mod dds;
 pub mod msg;
 pub mod node;
 pub mod rmw_zenoh;
+pub mod transport;

@@ -123,7 +123,7 @@ impl std::fmt::Debug for Node {
 }
 
 /// A fully qualified topic name: `/` first, no `/` last, in `namespace` if relative.
-fn qualified(namespace: &str, topic: &str) -> Result<String, NodeError> {
+pub(crate) fn qualified(namespace: &str, topic: &str) -> Result<String, NodeError> {
     let full = if topic.starts_with('/') {
         topic.to_owned()
     } else {

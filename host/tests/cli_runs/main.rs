@@ -12,5 +12,6 @@ mod localize;
 mod mocks;
 mod record;
 mod ros2_bag;
+mod ros2_dds;
 mod ros2_live;
 mod ros2_teleop;

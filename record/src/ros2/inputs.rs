@@ -7,8 +7,8 @@ use std::sync::Arc;
 
 use amr_core::se2::Se2;
 use amr_ros2::msg::{PoseWithCovarianceStamped, Ros2Message as _, Twist, yaw};
-use amr_ros2::node::{Node, NodeError, Subscription};
 use amr_ros2::rmw_zenoh::Qos;
+use amr_ros2::transport::{Ros2Error, Ros2Node, Ros2Subscription};
 use tokio::sync::mpsc;
 
 /// A checked input.
@@ -69,7 +69,7 @@ pub fn twist(t: &Twist) -> Result<Input, String> {
 
 /// Subscribe `/initialpose` and, if `cmd_vel`, `/cmd_vel` on `node`: the checked inputs, in the
 /// order they came. Refused messages are logged and dropped.
-pub async fn listen(node: Arc<Node>, cmd_vel: bool) -> Result<mpsc::Receiver<Input>, NodeError> {
+pub async fn listen(node: Arc<Ros2Node>, cmd_vel: bool) -> Result<mpsc::Receiver<Input>, Ros2Error> {
     let (tx, rx) = mpsc::channel(64);
     let poses = node.subscription("/initialpose", PoseWithCovarianceStamped::TYPE, Qos::reliable(10)).await?;
     tokio::spawn(forward(poses, tx.clone(), |b| {
@@ -84,15 +84,19 @@ pub async fn listen(node: Arc<Node>, cmd_vel: bool) -> Result<mpsc::Receiver<Inp
     Ok(rx)
 }
 
-async fn forward(sub: Subscription, tx: mpsc::Sender<Input>, check: impl Fn(&[u8]) -> Result<Input, String>) {
-    while let Some(r) = sub.recv().await {
-        match check(&r.payload) {
+async fn forward(
+    sub: Ros2Subscription,
+    tx: mpsc::Sender<Input>,
+    check: impl Fn(&[u8]) -> Result<Input, String>,
+) {
+    while let Some(payload) = sub.recv().await {
+        match check(&payload) {
             Ok(input) => {
                 if tx.send(input).await.is_err() {
                     return;
                 }
             }
-            Err(why) => tracing::warn!(topic = sub.key(), %why, "ROS 2: a message refused"),
+            Err(why) => tracing::warn!(topic = %sub.describe(), %why, "ROS 2: a message refused"),
         }
     }
 }

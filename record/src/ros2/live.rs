@@ -1,5 +1,6 @@
 //! The fleet live on ROS 2: what a `--record FILE --ros2` bag would hold, published as it happens on
-//! a ROS 2 node ([`amr_ros2::node`], rmw_zenoh), with the QoS ROS 2 tools expect of each topic.
+//! a ROS 2 node ([`amr_ros2::transport`]: rmw_zenoh or DDS), with the QoS ROS 2 tools expect of each
+//! topic.
 //!
 //! The recorder hands each encoded message to [`Ros2Live::publish`], which never blocks: a bounded
 //! queue feeds one task that owns the node's publishers (one per topic, made on its first message).
@@ -11,8 +12,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use amr_ros2::msg::{Clock, Ros2Message as _, Time};
-use amr_ros2::node::{Node, Publisher};
 use amr_ros2::rmw_zenoh::Qos;
+use amr_ros2::transport::{Ros2Node, Ros2Publisher};
 use tokio::sync::mpsc;
 
 use crate::encode::Out;
@@ -65,7 +66,7 @@ impl Ros2Live {
     /// Publish on `node` from now on (call from within a tokio runtime), until every handle is
     /// dropped.
     #[must_use]
-    pub fn start(node: Arc<Node>) -> Ros2Live {
+    pub fn start(node: Arc<Ros2Node>) -> Ros2Live {
         let (tx, rx) = mpsc::channel(QUEUE);
         let stats = Arc::new(LiveStats::default());
         tokio::spawn(run(node, rx, Arc::clone(&stats)));
@@ -118,8 +119,8 @@ impl Ros2Live {
     }
 }
 
-async fn run(node: Arc<Node>, mut rx: mpsc::Receiver<Out>, stats: Arc<LiveStats>) {
-    let mut publishers: BTreeMap<String, Option<Publisher>> = BTreeMap::new();
+async fn run(node: Arc<Ros2Node>, mut rx: mpsc::Receiver<Out>, stats: Arc<LiveStats>) {
+    let mut publishers: BTreeMap<String, Option<Ros2Publisher>> = BTreeMap::new();
     while let Some(out) = rx.recv().await {
         if !publishers.contains_key(&out.topic) {
             let made = match node.publisher(&out.topic, out.schema, qos_for(&out.topic)).await {

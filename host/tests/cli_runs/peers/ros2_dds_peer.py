@@ -1,0 +1,194 @@
+"""A ROS 2 user of `amr sim --ros2-live dds --ros2-cmd-vel` on DDS, as Eclipse Cyclone DDS's Python
+binding sees it (the PyPI `cyclonedds` wheel bundles the C library): ROS 2's DDS names (`rt/...`,
+`pkg::msg::dds_::Type_`) and the message types declared here from their .msg files. It joins
+after the fleet started (so `/map` reaches it only as a late joiner), reads scans, /tf and V's
+estimate, then drives V on /cmd_vel for DRIVE_S seconds. Prints one JSON object.
+
+usage: ros2_dds_peer.py DOMAIN DRIVE_S W_RADPS
+"""
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.annotations import final
+from cyclonedds.idl.types import array, float32, float64, int8, int32, sequence, uint32
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+
+domain, drive_s, w_cmd = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+
+
+@dataclass
+@final
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: int32 = 0
+    nanosec: uint32 = 0
+
+
+@dataclass
+@final
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
+
+
+@dataclass
+@final
+class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
+    header: Header = field(default_factory=Header)
+    angle_min: float32 = 0.0
+    angle_max: float32 = 0.0
+    angle_increment: float32 = 0.0
+    time_increment: float32 = 0.0
+    scan_time: float32 = 0.0
+    range_min: float32 = 0.0
+    range_max: float32 = 0.0
+    ranges: sequence[float32] = field(default_factory=list)
+    intensities: sequence[float32] = field(default_factory=list)
+
+
+@dataclass
+@final
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+
+
+@dataclass
+@final
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+
+
+@dataclass
+@final
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: float64 = 0.0
+    y: float64 = 0.0
+    z: float64 = 0.0
+    w: float64 = 1.0
+
+
+@dataclass
+@final
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point = field(default_factory=Point)
+    orientation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+@final
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose = field(default_factory=Pose)
+    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+@final
+class PoseWithCovarianceStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"):
+    header: Header = field(default_factory=Header)
+    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+
+
+@dataclass
+@final
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3 = field(default_factory=Vector3)
+    angular: Vector3 = field(default_factory=Vector3)
+
+
+@dataclass
+@final
+class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
+    translation: Vector3 = field(default_factory=Vector3)
+    rotation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+@final
+class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    transform: Transform = field(default_factory=Transform)
+
+
+@dataclass
+@final
+class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
+    transforms: sequence[TransformStamped] = field(default_factory=list)
+
+
+@dataclass
+@final
+class MapMetaData(IdlStruct, typename="nav_msgs::msg::dds_::MapMetaData_"):
+    map_load_time: Time = field(default_factory=Time)
+    resolution: float32 = 0.0
+    width: uint32 = 0
+    height: uint32 = 0
+    origin: Pose = field(default_factory=Pose)
+
+
+@dataclass
+@final
+class OccupancyGrid(IdlStruct, typename="nav_msgs::msg::dds_::OccupancyGrid_"):
+    header: Header = field(default_factory=Header)
+    info: MapMetaData = field(default_factory=MapMetaData)
+    data: sequence[int8] = field(default_factory=list)
+
+
+dp = DomainParticipant(domain)
+sensor = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))
+reliable = Qos(Policy.Reliability.Reliable(max_blocking_time=0), Policy.Durability.Volatile, Policy.History.KeepLast(10))
+latched = Qos(Policy.Reliability.Reliable(max_blocking_time=0), Policy.Durability.TransientLocal, Policy.History.KeepLast(1))
+scan_r = DataReader(dp, Topic(dp, "rt/robot_a/scan", LaserScan), qos=sensor)
+map_r = DataReader(dp, Topic(dp, "rt/map", OccupancyGrid), qos=latched)
+tf_r = DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=Qos(Policy.Reliability.Reliable(max_blocking_time=0), Policy.History.KeepLast(100)))
+v_r = DataReader(dp, Topic(dp, "rt/amcl/V", PoseWithCovarianceStamped), qos=reliable)
+cmd_w = DataWriter(dp, Topic(dp, "rt/cmd_vel", Twist), qos=reliable)
+
+start = time.time()
+out = {"scans": [], "maps": [], "tf_pairs": set(), "estimates": [], "phases": {}}
+
+
+def poll():
+    for s in scan_r.take(20):
+        out["scans"].append({"frame_id": s.header.frame_id, "ranges": len(s.ranges)})
+    for m in map_r.take(5):
+        out["maps"].append({"width": m.info.width, "height": m.info.height, "cells": len(m.data),
+                            "resolution": m.info.resolution, "frame_id": m.header.frame_id})
+    for t in tf_r.take(50):
+        for x in t.transforms:
+            out["tf_pairs"].add((x.header.frame_id, x.child_frame_id))
+    for e in v_r.take(20):
+        q = e.pose.pose.orientation
+        th = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        out["estimates"].append([time.time() - start, e.pose.pose.position.x, e.pose.pose.position.y, th,
+                                 e.pose.covariance[0], e.header.frame_id])
+
+
+deadline = time.time() + 20.0
+while time.time() < deadline and (not out["estimates"] or len(out["scans"]) < 10 or not out["maps"]):
+    poll()
+    time.sleep(0.05)
+out["phases"]["drive"] = time.time() - start
+end = time.time() + drive_s
+while time.time() < end:
+    cmd_w.write(Twist(linear=Vector3(x=0.2), angular=Vector3(z=w_cmd)))
+    poll()
+    time.sleep(0.1)
+out["phases"]["silent"] = time.time() - start
+t_end = time.time() + 1.0
+while time.time() < t_end:
+    poll()
+    time.sleep(0.05)
+out["tf_pairs"] = sorted(out["tf_pairs"])
+print(json.dumps(out))
