@@ -1,8 +1,9 @@
 //! `amr sim --ros2-live dds --ros2-cmd-vel` against Eclipse Cyclone DDS (its Python binding, with
 //! the C library it bundles; `peers/ros2_dds_peer.py`), the DDS of many ROS 2 installations: the
 //! peer reads our scans, /tf and V's estimate with its covariance, gets /map as a late joiner
-//! (transient local), and turns the formation on /cmd_vel. DDS discovers by multicast: both run
-//! in a network namespace of their own (`unshare -n`, loopback only), nothing leaves it.
+//! (transient local), gives V's pose on /initialpose and turns the formation on /cmd_vel. DDS
+//! discovers by multicast: both run in a network namespace of their own (`unshare -n`, loopback
+//! only), nothing leaves it.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::process::Command;
@@ -49,6 +50,7 @@ exit $STATUS
         String::from_utf8_lossy(&run.stderr)
     );
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert!(sim_err.contains("an initial pose for V"), "Cyclone's /initialpose was not taken:\n{sim_err}");
 
     let scans = v["scans"].as_array().unwrap();
     assert!(scans.len() >= 10, "{} scans\n{sim_err}", scans.len());

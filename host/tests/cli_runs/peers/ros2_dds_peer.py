@@ -2,7 +2,7 @@
 binding sees it (the PyPI `cyclonedds` wheel bundles the C library): ROS 2's DDS names (`rt/...`,
 `pkg::msg::dds_::Type_`) and the message types declared here from their .msg files. It joins
 after the fleet started (so `/map` reaches it only as a late joiner), reads scans, /tf and V's
-estimate, then drives V on /cmd_vel for DRIVE_S seconds. Prints one JSON object.
+estimate, gives V's pose on /initialpose, then drives V on /cmd_vel for DRIVE_S seconds. Prints one JSON object.
 
 usage: ros2_dds_peer.py DOMAIN DRIVE_S W_RADPS
 """
@@ -154,6 +154,7 @@ map_r = DataReader(dp, Topic(dp, "rt/map", OccupancyGrid), qos=latched)
 tf_r = DataReader(dp, Topic(dp, "rt/tf", TFMessage), qos=Qos(Policy.Reliability.Reliable(max_blocking_time=0), Policy.History.KeepLast(100)))
 v_r = DataReader(dp, Topic(dp, "rt/amcl/V", PoseWithCovarianceStamped), qos=reliable)
 cmd_w = DataWriter(dp, Topic(dp, "rt/cmd_vel", Twist), qos=reliable)
+pose_w = DataWriter(dp, Topic(dp, "rt/initialpose", PoseWithCovarianceStamped), qos=reliable)
 
 start = time.time()
 out = {"scans": [], "maps": [], "tf_pairs": set(), "estimates": [], "phases": {}}
@@ -177,6 +178,19 @@ def poll():
 
 deadline = time.time() + 20.0
 while time.time() < deadline and (not out["estimates"] or len(out["scans"]) < 10 or not out["maps"]):
+    poll()
+    time.sleep(0.05)
+# RViz's "2D Pose Estimate" where V is (with RViz's covariance), then time to verify again.
+_, x, y, th = out["estimates"][-1][:4]
+cov = [0.0] * 36
+cov[0], cov[7], cov[35] = 0.25, 0.25, 0.0685
+pose_w.write(PoseWithCovarianceStamped(
+    header=Header(frame_id="map"),
+    pose=PoseWithCovariance(pose=Pose(position=Point(x=x, y=y), orientation=Quaternion(z=math.sin(th / 2), w=math.cos(th / 2))),
+                            covariance=cov)))
+out["phases"]["initialpose"] = time.time() - start
+t_end = time.time() + 3.0
+while time.time() < t_end:
     poll()
     time.sleep(0.05)
 out["phases"]["drive"] = time.time() - start
