@@ -16,7 +16,10 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::pubsub::Subscriber;
 use zenoh::qos::{CongestionControl, Reliability as ZReliability};
 use zenoh::sample::Sample;
-use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt as _, CacheConfig, MissDetectionConfig};
+use zenoh_ext::{
+    AdvancedPublisher, AdvancedPublisherBuilderExt as _, AdvancedSubscriber,
+    AdvancedSubscriberBuilderExt as _, CacheConfig, HistoryConfig, MissDetectionConfig, RecoveryConfig,
+};
 
 use crate::rmw_zenoh::{
     self, Attachment, Distro, Durability, EntityKind, NodeInfo, Qos, Reliability, data_key, dds_type_name,
@@ -201,7 +204,9 @@ impl Node {
         Ok(Publisher { inner, gid, key, sequence: AtomicI64::new(0), _token: token })
     }
 
-    /// A subscription to `ros_type` on `topic`: the samples as they come, with their attachment.
+    /// A subscription to `ros_type` on `topic`: the samples as they come, with their attachment. A
+    /// transient-local one also gets the last `depth` samples of publishers that published before
+    /// it existed (their caches, as rmw_zenoh's subscriptions query them).
     pub async fn subscription(
         &self,
         topic: &str,
@@ -209,7 +214,21 @@ impl Node {
         qos: Qos,
     ) -> Result<Subscription, NodeError> {
         let (key, token) = self.endpoint(EntityKind::Subscription, topic, ros_type, &qos)?;
-        let inner = self.session.declare_subscriber(key.clone()).await.map_err(zerr)?;
+        let inner = if qos.durability == Durability::TransientLocal {
+            let depth = usize::try_from(qos.depth).unwrap_or(usize::MAX);
+            let mut b = self
+                .session
+                .declare_subscriber(key.clone())
+                .advanced()
+                .history(HistoryConfig::default().detect_late_publishers().max_samples(depth))
+                .subscriber_detection();
+            if qos.reliability == Reliability::Reliable {
+                b = b.recovery(RecoveryConfig::default().heartbeat());
+            }
+            Inner::Advanced(Box::new(b.await.map_err(zerr)?))
+        } else {
+            Inner::Plain(self.session.declare_subscriber(key.clone()).await.map_err(zerr)?)
+        };
         let token = self.session.liveliness().declare_token(token).await.map_err(zerr)?;
         Ok(Subscription { inner, key, _token: token })
     }
@@ -266,9 +285,17 @@ pub struct Received {
     pub attachment: Option<Attachment>,
 }
 
+type Fifo = zenoh::handlers::FifoChannelHandler<Sample>;
+
+/// A plain subscriber, or one that also asks late publishers for their history.
+enum Inner {
+    Plain(Subscriber<Fifo>),
+    Advanced(Box<AdvancedSubscriber<Fifo>>),
+}
+
 /// One subscription.
 pub struct Subscription {
-    inner: Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
+    inner: Inner,
     key: String,
     _token: LivelinessToken,
 }
@@ -282,7 +309,10 @@ impl std::fmt::Debug for Subscription {
 impl Subscription {
     /// The next sample; `None` once the session is closed.
     pub async fn recv(&self) -> Option<Received> {
-        let s = self.inner.recv_async().await.ok()?;
+        let s = match &self.inner {
+            Inner::Plain(p) => p.recv_async().await.ok()?,
+            Inner::Advanced(a) => a.recv_async().await.ok()?,
+        };
         Some(Received {
             payload: s.payload().to_bytes().into_owned(),
             attachment: s.attachment().and_then(|a| Attachment::parse(&a.to_bytes())),

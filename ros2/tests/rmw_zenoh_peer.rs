@@ -1,7 +1,8 @@
 //! Our rmw_zenoh node against an independent peer (`peers/rmw_zenoh_peer.py`: eclipse-zenoh,
 //! rosbags and xxhash, written from rmw_zenoh's design document): it sees our node and endpoints
 //! in the graph, decodes our scans, gets our `/map` though it joins after it was published, finds
-//! each attachment and GID as rmw_zenoh writes them; and we decode its `/cmd_vel`.
+//! each attachment and GID as rmw_zenoh writes them; and we decode its `/cmd_vel`, and get its
+//! latched `/peer_map` though we subscribe after it was published.
 //! Loopback only; the Zenoh session has multicast scouting off.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
@@ -67,23 +68,37 @@ async fn an_independent_rmw_zenoh_peer_sees_decodes_and_drives_our_node() {
         out
     };
     let publishing = async {
-        // Scans at about 10 Hz while the peer runs (it gives up after 16 s), and its /cmd_vel.
-        let mut got = None;
+        // Scans at about 10 Hz while the peer runs (it gives up after 16 s), and its /cmd_vel; once
+        // a twist came, the peer has put its latched /peer_map: a subscription made now must still
+        // get it.
+        let (mut got, mut late) = (None, None);
+        let mut late_map = None;
         for i in 0..250u32 {
             if done.load(std::sync::atomic::Ordering::SeqCst) {
                 break;
             }
             scan_pub.put(scan(i).to_cdr()).unwrap();
             match tokio::time::timeout(Duration::from_millis(100), cmd.recv()).await {
-                Ok(Some(r)) if got.is_none() => got = Some(r),
+                Ok(Some(r)) if got.is_none() => {
+                    got = Some(r);
+                    late = Some(
+                        node.subscription("/peer_map", OccupancyGrid::TYPE, Qos::LATCHED).await.unwrap(),
+                    );
+                }
                 _ => {}
             }
+            if let (Some(sub), None) = (&late, &late_map)
+                && let Ok(Some(r)) = tokio::time::timeout(Duration::from_millis(1), sub.recv()).await
+            {
+                late_map = Some(r);
+            }
         }
-        got
+        (got, late_map)
     };
-    let (out, got) = tokio::time::timeout(Duration::from_secs(40), async { tokio::join!(peer, publishing) })
-        .await
-        .expect("the peer finishes within 40 s");
+    let (out, (got, late_map)) =
+        tokio::time::timeout(Duration::from_secs(40), async { tokio::join!(peer, publishing) })
+            .await
+            .expect("the peer finishes within 40 s");
     let out = out.expect("python3 (the CI installs eclipse-zenoh, rosbags and xxhash)");
     assert!(out.status.success(), "peer failed: {}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -151,5 +166,13 @@ async fn an_independent_rmw_zenoh_peer_sees_decodes_and_drives_our_node() {
     );
     let a = got.attachment.expect("an rmw_zenoh attachment");
     assert!(a.sequence >= 1);
+
+    // Our transient-local subscription, made after the peer put /peer_map, got it from the peer's
+    // cache, as rmw_zenoh's would.
+    let m = late_map.expect("the latched /peer_map, published before we subscribed");
+    let grid = OccupancyGrid::from_cdr(&m.payload).unwrap();
+    assert_eq!((grid.width, grid.height, grid.data.clone()), (2, 2, vec![0, 100, -1, 0]));
+    assert_eq!(grid.header.frame_id, "peer");
+    assert_eq!(m.attachment.map(|a| a.sequence), Some(1));
     node.close().await.unwrap();
 }

@@ -14,6 +14,7 @@ import time
 import xxhash
 import zenoh
 import zenoh.ext as ze
+import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 port, domain = sys.argv[1], int(sys.argv[2])
@@ -83,11 +84,31 @@ tok2 = s.liveliness().declare_token(pub_tok)
 pub = s.declare_publisher(key("/cmd_vel", TYPES["cmd_vel"]))
 my_gid = xxhash.xxh3_128_intdigest(pub_tok.encode()).to_bytes(16, "little")
 Twist = ts.types["geometry_msgs/msg/Twist"]
+
+# A latched /peer_map as rmw_zenoh publishes one (transient local: an advanced publisher with a
+# cache of 1), put once before the first /cmd_vel: a subscription made after that still gets it.
+MAP = TYPES["map"]
+hash_map = ts.hash_rihs01(MAP)
+map_tok = f"@ros2_lv/{domain}/{zid}/0/3/MP/%/%/teleop/%peer_map/{dds(MAP)}/{hash_map}/:1:,1:,:,:,,"
+tok3 = s.liveliness().declare_token(map_tok)
+peer_map_pub = ze.declare_advanced_publisher(s, key("/peer_map", MAP), cache=ze.CacheConfig(max_samples=1),
+                                            publisher_detection=True)
+T = ts.types
+grid = T[MAP](
+    header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=7, nanosec=0), frame_id="peer"),
+    info=T["nav_msgs/msg/MapMetaData"](
+        map_load_time=T["builtin_interfaces/msg/Time"](sec=7, nanosec=0), resolution=0.1, width=2, height=2,
+        origin=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0),
+                                           orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))),
+    data=np.array([0, 100, -1, 0], dtype="int8"))
+peer_map_pub.put(bytes(ts.serialize_cdr(grid, MAP)),
+                 attachment=struct.pack("<qqB16s", 1, time.time_ns(), 16,
+                                        xxhash.xxh3_128_intdigest(map_tok.encode()).to_bytes(16, "little")))
 Vector3 = ts.types["geometry_msgs/msg/Vector3"]
 
 deadline = time.time() + 15.0
 seq = 0
-while time.time() < deadline and (len(scans) < 5 or not got_map or seq < 10):
+while time.time() < deadline and (len(scans) < 5 or not got_map or seq < 30):
     seq += 1
     msg = Twist(linear=Vector3(x=0.25, y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=-0.5))
     pub.put(bytes(ts.serialize_cdr(msg, TYPES["cmd_vel"])),
