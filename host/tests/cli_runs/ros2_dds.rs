@@ -50,7 +50,10 @@ exit $STATUS
         String::from_utf8_lossy(&run.stderr)
     );
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
-    assert!(sim_err.contains("an initial pose for V"), "Cyclone's /initialpose was not taken:\n{sim_err}");
+    assert!(
+        sim_err.contains("the filters start again there"),
+        "the server did not take Cyclone's /initialpose:\n{sim_err}"
+    );
 
     let scans = v["scans"].as_array().unwrap();
     assert!(scans.len() >= 10, "{} scans\n{sim_err}", scans.len());

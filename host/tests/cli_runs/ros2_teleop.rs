@@ -50,7 +50,7 @@ fn a_ros2_operator_sets_vs_pose_and_drives_the_formation_and_its_silence_stops_i
     assert!(peer.status.success(), "peer: {}", String::from_utf8_lossy(&peer.stderr));
     let v: serde_json::Value = serde_json::from_slice(&peer.stdout).unwrap();
     assert!(v["error"].is_null(), "{v}\n{err}");
-    assert!(err.contains("an initial pose for V"), "the pose was not taken:\n{err}");
+    assert!(err.contains("the filters start again there"), "the server did not take the pose:\n{err}");
 
     let estimates: Vec<Vec<f64>> = serde_json::from_value(v["estimates"].clone()).unwrap();
     let phase = |p: &str| v["phases"][p].as_f64().unwrap();
