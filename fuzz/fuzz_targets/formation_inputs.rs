@@ -492,6 +492,8 @@ impl Run<'_> {
                 level: 0.9,
                 disagrees: None,
             },
+            // The formation does not read it; any value, NaN included, must change nothing.
+            covariance: (r.u8() >= 192).then(|| [[r.real(0.01, -1.0, 1.0); 3]; 3]),
         };
         if r.u8() >= 128 {
             e.source = match r.u8() {
@@ -667,6 +669,11 @@ async fn run(data: &[u8]) {
                 // It sends its disarms at once: they are read before anything else happens.
                 run.cast(FormationMsg::Stop);
                 run.drain();
+            }
+            0xf0..=0xf7 => {
+                // A twist for V (a teleop on /cmd_vel): any values, NaN and huge ones included.
+                let (v_mps, w_radps) = (r.real(0.2, -5.0, 5.0), r.real(0.0, -5.0, 5.0));
+                run.cast(FormationMsg::Twist { v_mps, w_radps });
             }
             _ => {
                 let dt = [0.1, 0.25, 0.5, 0.55, 1.0, 2.0, 2.1, 5.0][usize::from(r.u8() % 8)];
