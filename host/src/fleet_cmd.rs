@@ -264,6 +264,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         };
         let tree = start_server(setup.clone(), end, clock).await.context("starting the server")?;
         let mut sources = amr_record::RecordSources::server(&tree.ports, &setup);
+        sources.formation = Some(std::sync::Arc::clone(&tree.formation));
         sources.metadata.insert("scenario".into(), args.scenario.clone());
         let recording = args.rec.start(sources).await?;
         if let Some(r) = &recording {

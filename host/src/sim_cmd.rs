@@ -87,6 +87,7 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
         let mut sources = amr_record::RecordSources::server(&sim.server.ports, &sim.setup);
         sources.metadata.insert("scenario".into(), args.scenario.clone());
         sources.robots = sim.robots.iter().map(|r| std::sync::Arc::clone(&r.ports)).collect();
+        sources.formation = Some(std::sync::Arc::clone(&sim.server.formation));
         let recording = args.rec.start(sources).await?;
         if let Some(r) = &recording {
             r.ros2_inputs(sim.server.control()).await?;

@@ -84,6 +84,24 @@ pub struct LogLine {
     pub line: u32,
 }
 
+/// The formation's phase as a log line: its level (running or finished: info; waiting, arming,
+/// holding: warning; stopped: error) and its text.
+#[must_use]
+pub fn formation_line(f: &amr_actors::server::formation::FormationStatus) -> (Level, String) {
+    use amr_actors::server::formation::Phase;
+    let progress = format!("plan {:.1} of {:.1} s", f.plan_s, f.plan_len_s);
+    match &f.phase {
+        Phase::Running => (Level::Info, format!("running, {progress}")),
+        Phase::Finished => (Level::Info, format!("finished, {progress}")),
+        Phase::Waiting => {
+            (Level::Warning, format!("waiting for every robot to be healthy and localised, {progress}"))
+        }
+        Phase::Arming { .. } => (Level::Warning, format!("arming, {progress}")),
+        Phase::Holding { reason } => (Level::Warning, format!("holding: {reason}, {progress}")),
+        Phase::Stopped { reason } => (Level::Error, format!("stopped: {reason}, {progress}")),
+    }
+}
+
 /// Everything the recorder can see.
 #[derive(Debug, Clone)]
 pub enum Event {
@@ -92,6 +110,8 @@ pub enum Event {
     Fused(FusedFrame),
     Estimate(Estimate),
     Status(FusionStatus),
+    /// The formation's status (its phase and why, the plan's progress, V's integrity).
+    Formation(amr_actors::server::formation::FormationStatus),
     Particles(ParticleCloud),
     /// A message the formation sent to robot `.0` (its formation index).
     Command(usize, Downlink),
@@ -339,6 +359,15 @@ impl Encoder {
                     }
                 };
                 v.push(out("/health".into(), fg::LOG, now_s, fg::log(now_s, level, "fusion", &text, "", 0)));
+            }
+            Event::Formation(f) => {
+                let (level, text) = formation_line(f);
+                v.push(out(
+                    "/formation".into(),
+                    fg::LOG,
+                    now_s,
+                    fg::log(now_s, level, "formation", &text, "", 0),
+                ));
             }
             Event::Particles(p) => {
                 let (topic, frame) = match p.source {

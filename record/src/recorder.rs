@@ -25,6 +25,8 @@ pub struct RecordSources {
     pub clock: FleetClock,
     /// The fusion server (`amr server`, `amr sim`, `amr eval`).
     pub server: Option<Arc<ServerPorts>>,
+    /// The server's formation status ([`amr_actors::server::ServerTree::formation`]).
+    pub formation: Option<Arc<ractor::OutputPort<amr_actors::server::formation::FormationStatus>>>,
     /// Robots whose own ports to record (`amr robot`). With a server too (`amr sim`) only their IMU
     /// and wheels are taken from here: the uplink carries the rest.
     pub robots: Vec<Arc<RobotPorts>>,
@@ -45,6 +47,7 @@ impl RecordSources {
         RecordSources {
             clock,
             server: None,
+            formation: None,
             robots: Vec::new(),
             map: None,
             mounts: Vec::new(),
@@ -260,6 +263,9 @@ impl Actor for RecorderActor {
         }
         if let Some(s) = &sources.server {
             subscribe_server(&me, s);
+        }
+        if let Some(f) = &sources.formation {
+            f.subscribe(me.clone(), |s| Some(RecMsg::Event(Box::new(Event::Formation(s)))));
         }
         for r in &sources.robots {
             subscribe_robot(&me, r, sources.server.is_some());

@@ -183,6 +183,31 @@ impl Default for TwistWithCovariance {
     }
 }
 
+/// `diagnostic_msgs/DiagnosticStatus`: a level (`OK` 0, `WARN` 1, `ERROR` 2, `STALE` 3), a name, a
+/// message, the hardware it is about, and key/value pairs.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DiagnosticStatus {
+    pub level: u8,
+    pub name: String,
+    pub message: String,
+    pub hardware_id: String,
+    pub values: Vec<(String, String)>,
+}
+
+impl DiagnosticStatus {
+    pub const OK: u8 = 0;
+    pub const WARN: u8 = 1;
+    pub const ERROR: u8 = 2;
+    pub const STALE: u8 = 3;
+}
+
+/// `diagnostic_msgs/DiagnosticArray`: what `/diagnostics` carries (rqt_robot_monitor shows it).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DiagnosticArray {
+    pub header: Header,
+    pub status: Vec<DiagnosticStatus>,
+}
+
 /// `rosgraph_msgs/Clock`: the time a simulation is at (what ROS 2 nodes with `use_sim_time` follow).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Clock {
@@ -335,6 +360,42 @@ impl Ros2Message for Clock {
     }
 }
 
+/// A status's least bytes: the level, three empty strings and an empty sequence.
+const MIN_STATUS_BYTES: usize = 1 + 3 * 5 + 4;
+
+impl Ros2Message for DiagnosticArray {
+    const TYPE: &'static str = "diagnostic_msgs/msg/DiagnosticArray";
+    const TYPE_HASH: &'static str = "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e";
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        w.len(self.status.len());
+        for st in &self.status {
+            w.u8(st.level);
+            w.string(&st.name);
+            w.string(&st.message);
+            w.string(&st.hardware_id);
+            w.len(st.values.len());
+            for (k, v) in &st.values {
+                w.string(k);
+                w.string(v);
+            }
+        }
+    }
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        let header = Header::read(r)?;
+        let n = r.len(MIN_STATUS_BYTES)?;
+        let mut status = Vec::with_capacity(n);
+        for _ in 0..n {
+            let level = r.u8()?;
+            let (name, message, hardware_id) = (r.string()?, r.string()?, r.string()?);
+            let k = r.len(10)?;
+            let values = (0..k).map(|_| Ok((r.string()?, r.string()?))).collect::<Result<_, CdrError>>()?;
+            status.push(DiagnosticStatus { level, name, message, hardware_id, values });
+        }
+        Ok(DiagnosticArray { header, status })
+    }
+}
+
 impl Ros2Message for Twist {
     const TYPE: &'static str = "geometry_msgs/msg/Twist";
     const TYPE_HASH: &'static str = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a";
@@ -447,7 +508,7 @@ impl Ros2Message for OccupancyGrid {
 }
 
 /// Every message type here, `(TYPE, TYPE_HASH)`.
-pub const TYPE_HASHES: [(&str, &str); 7] = [
+pub const TYPE_HASHES: [(&str, &str); 8] = [
     (LaserScan::TYPE, LaserScan::TYPE_HASH),
     (PoseWithCovarianceStamped::TYPE, PoseWithCovarianceStamped::TYPE_HASH),
     (Odometry::TYPE, Odometry::TYPE_HASH),
@@ -455,6 +516,7 @@ pub const TYPE_HASHES: [(&str, &str); 7] = [
     (OccupancyGrid::TYPE, OccupancyGrid::TYPE_HASH),
     (Twist::TYPE, Twist::TYPE_HASH),
     (Clock::TYPE, Clock::TYPE_HASH),
+    (DiagnosticArray::TYPE, DiagnosticArray::TYPE_HASH),
 ];
 
 /// The REP 2011 hash of a type here (`pkg/msg/Type`).
@@ -469,6 +531,16 @@ fn definition(name: &str) -> Option<(&'static str, &'static [&'static str])> {
     Some(match name {
         "builtin_interfaces/Time" => ("int32 sec\nuint32 nanosec\n", &[]),
         "rosgraph_msgs/Clock" => ("builtin_interfaces/Time clock\n", &["builtin_interfaces/Time"]),
+        "diagnostic_msgs/KeyValue" => ("string key\nstring value\n", &[]),
+        "diagnostic_msgs/DiagnosticStatus" => (
+            "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\nstring message\n\
+             string hardware_id\ndiagnostic_msgs/KeyValue[] values\n",
+            &["diagnostic_msgs/KeyValue"],
+        ),
+        "diagnostic_msgs/DiagnosticArray" => (
+            "std_msgs/Header header\ndiagnostic_msgs/DiagnosticStatus[] status\n",
+            &["std_msgs/Header", "diagnostic_msgs/DiagnosticStatus"],
+        ),
         "std_msgs/Header" => {
             ("builtin_interfaces/Time stamp\nstring frame_id\n", &["builtin_interfaces/Time"])
         }
@@ -555,6 +627,28 @@ pub fn schema_text(type_name: &str) -> Option<String> {
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
     use super::*;
+
+    #[test]
+    fn diagnostics_round_trip_and_refuse_a_cut_message() {
+        let d = DiagnosticArray {
+            header: Header::new(3.5, ""),
+            status: vec![
+                DiagnosticStatus {
+                    level: DiagnosticStatus::WARN,
+                    name: "amr: V localisation".into(),
+                    message: "uncertain".into(),
+                    hardware_id: "V".into(),
+                    values: vec![("explained".into(), "0.71".into()), ("level".into(), "0.93".into())],
+                },
+                DiagnosticStatus::default(),
+            ],
+        };
+        let b = d.to_cdr();
+        assert_eq!(DiagnosticArray::from_cdr(&b).unwrap(), d);
+        for cut in 0..b.len() {
+            assert!(DiagnosticArray::from_cdr(&b[..cut]).is_err(), "cut at {cut}");
+        }
+    }
 
     #[test]
     fn a_twist_is_six_doubles_after_the_header() {

@@ -169,6 +169,23 @@ fn a_ros2_user_sees_the_simulated_fleet_live_over_rmw_zenoh() {
         "the laser is V itself"
     );
 
+    // /diagnostics: V's integrity and the formation's phase, as rqt_robot_monitor shows them.
+    let statuses = topic("/diagnostics")["statuses"].as_array().unwrap().clone();
+    let named = |n: &str| statuses.iter().filter(|s| s[0] == n).cloned().collect::<Vec<_>>();
+    let v_diag = named("amr: V localisation");
+    assert!(!v_diag.is_empty(), "{statuses:?}");
+    assert!(v_diag.len() <= 12, "once a second or on a change, not at the scan rate: {}", v_diag.len());
+    assert!(
+        v_diag.iter().any(|s| s[1] == 0 && s[3]["state"] == "tracking"),
+        "V tracking at some point of the run: {v_diag:?}"
+    );
+    let formation = named("amr: formation");
+    assert!(formation.len() >= 3, "{formation:?}");
+    assert!(
+        formation.iter().any(|s| s[2].as_str().unwrap().starts_with("running") && s[1] == 0),
+        "the formation was running: {formation:?}"
+    );
+
     // The late joiner got the latched topics once each.
     assert_eq!(topic("/tf_static")["count"], 1, "{}", topic("/tf_static"));
     assert!(has("/tf_static", "robot-a", "robot-a/laser") && has("/tf_static", "robot-b", "robot-b/laser"));

@@ -44,6 +44,7 @@
 //! | `/tf` | `tf2_msgs/msg/TFMessage` | map→`V/odom`, `V/odom`→V, map→`<robot>/odom`, `<robot>/odom`→`<robot>` (and map→`truth/...`) |
 //! | `/tf_static` | `tf2_msgs/msg/TFMessage` | `<robot>`→`<robot>/laser`, once |
 //! | `/map` | `nav_msgs/msg/OccupancyGrid` | the map, once, frame `map` |
+//! | `/diagnostics` | `diagnostic_msgs/msg/DiagnosticArray` | "amr: V localisation" (V's integrity: OK tracking, WARN uncertain or disagreeing, ERROR lost; on a change, else once a second) and "amr: formation" (its phase and why, the plan's progress) |
 //!
 //! The other channels of a Foxglove recording (`/amr/...` exact records, particles, commands,
 //! health, logs) have no ROS 2 type here and are not written: such a file is for `ros2 bag play`,
@@ -65,8 +66,8 @@ use amr_msgs::{EstimateSource, Uplink};
 use crate::encode::{Event, Out};
 use crate::foxglove::nanos;
 use msg::{
-    Header, LaserScan, OccupancyGrid, Odometry, Pose, PoseWithCovariance, PoseWithCovarianceStamped,
-    Ros2Message, TfMessage, TransformStamped, TwistWithCovariance,
+    DiagnosticArray, DiagnosticStatus, Header, LaserScan, OccupancyGrid, Odometry, Pose, PoseWithCovariance,
+    PoseWithCovarianceStamped, Ros2Message, TfMessage, TransformStamped, TwistWithCovariance,
 };
 
 /// A name usable as a ROS 2 topic: every character other than a letter, digit, `_` or `/`
@@ -232,13 +233,22 @@ pub struct Ros2Encoder {
     /// Publish `map` → `V/odom` from our estimate of V; off when nav2_amcl localises V (it
     /// publishes that transform itself).
     v_map_tf: bool,
+    /// V's integrity as last put on `/diagnostics`, and when: it goes out on a change, else at
+    /// most once a second (estimates come at the scan rate).
+    v_diag: Option<(f64, amr_msgs::IntegrityState, Option<u32>)>,
 }
 
 impl Ros2Encoder {
     /// `robots`: the formation's ids in order (names the estimates' robots).
     #[must_use]
     pub fn new(robots: Vec<String>) -> Self {
-        Ros2Encoder { robots, v_odoms: VecDeque::new(), v_pending: VecDeque::new(), v_map_tf: true }
+        Ros2Encoder {
+            robots,
+            v_odoms: VecDeque::new(),
+            v_pending: VecDeque::new(),
+            v_map_tf: true,
+            v_diag: None,
+        }
     }
 
     /// Leave `map` → `V/odom` to another localiser (nav2_amcl on `/virtual/scan`).
@@ -250,6 +260,38 @@ impl Ros2Encoder {
 
     fn robot_name(&self, i: usize) -> String {
         self.robots.get(i).cloned().unwrap_or_else(|| format!("robot{i}"))
+    }
+
+    /// V's integrity as a diagnostic status: tracking and agreed with the robots' own estimates
+    /// OK, uncertain or disagreeing WARN (the formation holds), lost ERROR.
+    fn v_integrity_status(&self, i: &amr_msgs::EstimateIntegrity) -> DiagnosticStatus {
+        use amr_msgs::IntegrityState as S;
+        let disagrees = i.disagrees.map(|k| self.robot_name(k as usize));
+        let (level, message) = match (i.state, &disagrees) {
+            (S::Lost, _) => (DiagnosticStatus::ERROR, "lost: re-localising".to_owned()),
+            (S::Uncertain, _) => {
+                (DiagnosticStatus::WARN, "uncertain: the map explains too little of the scan".to_owned())
+            }
+            (S::Tracking, Some(r)) => {
+                (DiagnosticStatus::WARN, format!("tracking, but {r}'s own estimate disagrees"))
+            }
+            (S::Tracking, None) => (DiagnosticStatus::OK, "tracking".to_owned()),
+        };
+        let mut values = vec![
+            ("state".to_owned(), i.state.as_str().to_owned()),
+            ("explained".to_owned(), format!("{:.3}", i.explained)),
+            ("level".to_owned(), format!("{:.3}", i.level)),
+        ];
+        if let Some(r) = disagrees {
+            values.push(("disagrees".to_owned(), r));
+        }
+        DiagnosticStatus {
+            level,
+            name: "amr: V localisation".into(),
+            message,
+            hardware_id: "V".into(),
+            values,
+        }
     }
 
     /// The messages for `event`, seen at `now_s` on the fleet clock.
@@ -326,6 +368,19 @@ impl Ros2Encoder {
                     if !transforms.is_empty() {
                         b.emit("/tf", e.stamp_s, &TfMessage { transforms });
                     }
+                    let i = e.integrity;
+                    let changed = self.v_diag.is_none_or(|(t, st, d)| {
+                        st != i.state || d != i.disagrees || e.stamp_s - t >= 1.0 || e.stamp_s < t
+                    });
+                    if changed {
+                        self.v_diag = Some((e.stamp_s, i.state, i.disagrees));
+                        let status = self.v_integrity_status(&i);
+                        b.emit(
+                            "/diagnostics",
+                            e.stamp_s,
+                            &DiagnosticArray { header: Header::new(e.stamp_s, ""), status: vec![status] },
+                        );
+                    }
                 }
                 EstimateSource::Robot(i) => {
                     if let Some(Some(a)) = e.robots.get(i) {
@@ -343,6 +398,28 @@ impl Ros2Encoder {
                     transforms.push(tf(*stamp_s, "map", &format!("truth/{name}"), p));
                 }
                 b.emit("/tf", *stamp_s, &TfMessage { transforms });
+            }
+            Event::Formation(f) => {
+                let (level, text) = crate::encode::formation_line(f);
+                let mut values = vec![
+                    ("plan_s".to_owned(), format!("{:.2}", f.plan_s)),
+                    ("plan_len_s".to_owned(), format!("{:.2}", f.plan_len_s)),
+                ];
+                if let Some(i) = f.v_integrity {
+                    values.push(("v_integrity".to_owned(), i.state.as_str().to_owned()));
+                }
+                let status = DiagnosticStatus {
+                    level: diagnostic_level(level),
+                    name: "amr: formation".into(),
+                    message: text,
+                    hardware_id: "V".into(),
+                    values,
+                };
+                b.emit(
+                    "/diagnostics",
+                    now_s,
+                    &DiagnosticArray { header: Header::new(now_s, ""), status: vec![status] },
+                );
             }
             Event::Map(g) => b.emit("/map", now_s, &occupancy_grid(now_s, g)),
             Event::Mounts(mounts) => {
@@ -368,6 +445,16 @@ impl Ros2Encoder {
 }
 
 /// The messages of one event.
+/// A log level as a diagnostic level.
+fn diagnostic_level(l: crate::foxglove::Level) -> u8 {
+    use crate::foxglove::Level;
+    match l {
+        Level::Error | Level::Fatal => DiagnosticStatus::ERROR,
+        Level::Warning => DiagnosticStatus::WARN,
+        _ => DiagnosticStatus::OK,
+    }
+}
+
 /// Frames or estimates kept to pair at most (a few fusion periods).
 const PAIRING: usize = 16;
 

@@ -181,6 +181,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
         ("/amcl/V", "geometry_msgs/msg/PoseWithCovarianceStamped"),
         ("/amcl/robot_a", "geometry_msgs/msg/PoseWithCovarianceStamped"),
         ("/virtual/scan", "sensor_msgs/msg/LaserScan"),
+        ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
     ] {
         assert_eq!(ch[topic]["schema"], schema, "{topic}: {ch}");
         assert_eq!(ch[topic]["encoding"], "cdr");
@@ -193,7 +194,7 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
             "{topic}: transient_local only if latched"
         );
     }
-    assert_eq!(ch.as_object().unwrap().len(), 8, "{ch}");
+    assert_eq!(ch.as_object().unwrap().len(), 9, "{ch}");
     for s in out["schemas"].as_object().unwrap().values() {
         assert_eq!(s["encoding"], "ros2msg");
     }
@@ -247,6 +248,17 @@ fn an_independent_cdr_reader_decodes_every_message_with_the_values_that_went_in(
     // The fused estimate: V, robot-a, and map→V, map→robot-a/odom on /tf.
     let pv = one("/amcl/V");
     assert!(close(planar(&pv["pose"]["pose"]["position"], &pv["pose"]["pose"]["orientation"]), v));
+    // V's integrity on /diagnostics (the estimate's default, tracking: OK), as rosbags reads it.
+    let d = &one("/diagnostics")["status"][0];
+    assert_eq!(
+        (d["name"].as_str(), d["level"].as_i64(), d["hardware_id"].as_str()),
+        (Some("amr: V localisation"), Some(0), Some("V")),
+        "{d}"
+    );
+    assert!(
+        d["values"].as_array().unwrap().iter().any(|kv| kv["key"] == "state" && kv["value"] == "tracking"),
+        "{d}"
+    );
     let pa = one("/amcl/robot_a");
     assert!(close(planar(&pa["pose"]["pose"]["position"], &pa["pose"]["pose"]["orientation"]), a_map));
     // V's covariance in ROS's 6×6 layout (x, y, yaw at rows/columns 0, 1, 5), as rosbags reads it.

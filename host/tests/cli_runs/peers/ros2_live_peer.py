@@ -41,6 +41,7 @@ SUBS = {
     "/amcl/V": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "/tf": "tf2_msgs/msg/TFMessage",
     "/clock": "rosgraph_msgs/msg/Clock",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 LATCHED = {"/map": "nav_msgs/msg/OccupancyGrid", "/tf_static": "tf2_msgs/msg/TFMessage"}
 got = {t: [] for t in list(SUBS) + list(LATCHED)}
@@ -76,6 +77,8 @@ def decoded(topic, ty, payload):
         return {"frame_id": m.header.frame_id, "x": p.x, "y": p.y}
     if ty.endswith("TFMessage"):
         return {"pairs": [[t.header.frame_id, t.child_frame_id] for t in m.transforms]}
+    if ty.endswith("DiagnosticArray"):
+        return {"status": [[st.name, int(st.level), st.message, {kv.key: kv.value for kv in st.values}] for st in m.status]}
     if ty.endswith("Clock"):
         return {"t": m.clock.sec + m.clock.nanosec * 1e-9}
     if ty.endswith("OccupancyGrid"):
@@ -93,6 +96,8 @@ for t, samples in got.items():
         "first": decoded(t, types[t], samples[0][0]) if samples else None,
         "pairs": sorted({tuple(p) for pl, _ in samples for p in decoded(t, types[t], pl)["pairs"]})
         if types[t].endswith("TFMessage") else None,
+        "statuses": [st for pl, _ in samples for st in decoded(t, types[t], pl)["status"]]
+        if types[t].endswith("DiagnosticArray") else None,
         "last": decoded(t, types[t], samples[-1][0]) if samples else None,
     }
 print(json.dumps(out))
