@@ -90,6 +90,30 @@ pub(crate) fn load_params(file: Option<&Path>, config: Option<PathBuf>) -> anyho
     }
 }
 
+/// AMCL parameters from a nav2 params file (`amcl: ros__parameters:`, nav2's names) over the
+/// configuration's `amcl.toml` (what nav2 does not have: the slip tail, the integrity monitor).
+/// Parameters without effect here, and unknown names, are logged.
+pub(crate) fn load_nav2_params(file: &Path, config: Option<PathBuf>) -> anyhow::Result<AmclParams> {
+    let yaml = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
+    let files = amr_actors::config::read_files(&crate::config_cmd::source_for(config))?;
+    let base = files
+        .iter()
+        .find(|f| f.path == "amcl.toml")
+        .context("the configuration has no amcl.toml")?
+        .text()?
+        .to_owned();
+    let n = amr_core::config::nav2::from_nav2_params(&file.display().to_string(), &yaml, &base)
+        .map_err(|e| anyhow::anyhow!(e))?;
+    if !n.ignored.is_empty() {
+        tracing::info!(parameters = ?n.ignored, "nav2 parameters without an effect here");
+    }
+    if !n.unknown.is_empty() {
+        tracing::warn!(parameters = ?n.unknown, "not nav2_amcl parameters: ignored");
+    }
+    tracing::info!(base_frame = %n.frames.base_frame_id, odom_frame = %n.frames.odom_frame_id, scan_topic = %n.frames.scan_topic, "nav2 parameters read");
+    Ok(n.params)
+}
+
 pub(crate) fn read_map(yaml_path: &Path) -> anyhow::Result<OccupancyGrid> {
     let text =
         std::fs::read_to_string(yaml_path).with_context(|| format!("cannot read {}", yaml_path.display()))?;

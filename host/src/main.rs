@@ -81,6 +81,11 @@ enum Command {
         /// embedded one.
         #[arg(long)]
         params: Option<PathBuf>,
+        /// AMCL parameters from a nav2 params file (`amcl: ros__parameters:`, nav2_amcl's names)
+        /// over the configuration's amcl.toml; `set_initial_pose` and `initial_pose` as nav2 reads
+        /// them.
+        #[arg(long, value_name = "NAV2_PARAMS.yaml", conflicts_with = "params")]
+        nav2_params: Option<PathBuf>,
         /// Where to write the CSV; default: standard output.
         #[arg(long)]
         out: Option<PathBuf>,
@@ -722,23 +727,28 @@ fn main() -> ExitCode {
             }
             Ok(())
         })(),
-        Command::Localize { map, log, bag, ros2, initial, params, out, seed, kidnap } => (|| {
-            let params = localize::load_params(params.as_deref(), None)?;
-            let input = match (log, bag) {
-                (_, Some(bag)) => localize::Input::Bag(bag, ros2.options()),
-                (Some(log), None) => localize::Input::Carmen(log),
-                (None, None) => anyhow::bail!("give --log or --bag"),
-            };
-            let s = localize::run(&localize::Options { map, input, initial, params, out, seed, kidnap })?;
-            tracing::info!(
-                scans = s.scans,
-                poses = s.poses,
-                skipped = s.skipped,
-                without_odometry = s.scans_without_odometry,
-                "localised the log"
-            );
-            Ok(())
-        })(),
+        Command::Localize { map, log, bag, ros2, initial, params, nav2_params, out, seed, kidnap } => {
+            (|| {
+                let params = match nav2_params {
+                    Some(f) => localize::load_nav2_params(&f, None)?,
+                    None => localize::load_params(params.as_deref(), None)?,
+                };
+                let input = match (log, bag) {
+                    (_, Some(bag)) => localize::Input::Bag(bag, ros2.options()),
+                    (Some(log), None) => localize::Input::Carmen(log),
+                    (None, None) => anyhow::bail!("give --log or --bag"),
+                };
+                let s = localize::run(&localize::Options { map, input, initial, params, out, seed, kidnap })?;
+                tracing::info!(
+                    scans = s.scans,
+                    poses = s.poses,
+                    skipped = s.skipped,
+                    without_odometry = s.scans_without_odometry,
+                    "localised the log"
+                );
+                Ok(())
+            })()
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

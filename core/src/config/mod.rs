@@ -16,6 +16,7 @@
 //! This module does no IO: callers read the files and hand over their text.
 
 mod amcl;
+pub mod nav2;
 mod robot;
 mod scenario;
 mod server;
