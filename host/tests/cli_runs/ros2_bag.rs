@@ -319,18 +319,21 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
         }
     }
     yaml.push_str("    alpha5: 0.2\n    tf_broadcast: true\n    set_initial_pose: true\n    initial_pose: {x: 1.0, y: 1.0, z: 0.0, yaw: 0.0}\n");
-    let run_nav2 = |file: &Path, csv: &Path| {
-        let r = Command::new(env!("CARGO_BIN_EXE_amr"))
+    let nav2_localize = |file: &Path, extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_amr"))
             .args(["localize", "--map"])
             .arg(dir.path().join("map.yaml"))
             .arg("--bag")
             .arg(&bag1)
             .arg("--nav2-params")
             .arg(file)
-            .args(["--seed", "3", "--out", csv.to_str().unwrap()])
+            .args(extra)
             .env_remove("RUST_LOG")
             .output()
-            .unwrap();
+            .unwrap()
+    };
+    let run_nav2 = |file: &Path, csv: &Path| {
+        let r = nav2_localize(file, &["--seed", "3", "--out", csv.to_str().unwrap()]);
         let stderr = String::from_utf8_lossy(&r.stderr).into_owned();
         assert!(r.status.success(), "{stderr}");
         (std::fs::read_to_string(csv).unwrap(), stderr)
@@ -352,15 +355,7 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
     // and motion noise on this 1 %-long odometry.
     assert!(last < 0.5 && worst < 1.0, "bag 1 with nav2's defaults: final {last:.3} m, worst {worst:.3} m");
     std::fs::write(&nav2, "amcl:\n  ros__parameters:\n    laser_model_type: beam\n").unwrap();
-    let r = Command::new(env!("CARGO_BIN_EXE_amr"))
-        .args(["localize", "--map"])
-        .arg(dir.path().join("map.yaml"))
-        .arg("--bag")
-        .arg(&bag1)
-        .arg("--nav2-params")
-        .arg(&nav2)
-        .output()
-        .unwrap();
+    let r = nav2_localize(&nav2, &[]);
     assert_eq!(r.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&r.stderr).contains("beam is not supported"));
 

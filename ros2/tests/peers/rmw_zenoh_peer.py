@@ -7,18 +7,19 @@ rmw_zenoh writes them. It also publishes /cmd_vel (geometry_msgs/msg/Twist) as r
 usage: rmw_zenoh_peer.py PORT DOMAIN
 """
 import json
+from pathlib import Path
 import struct
 import sys
 import time
 
-import xxhash
-import zenoh
 import zenoh.ext as ze
 import numpy as np
-from rosbags.typesys import Stores, get_typestore
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rmw_zenoh_wire import TYPESTORE as ts, attachment, dds, gid, open_peer  # noqa: E402
+from rmw_zenoh_wire import key as wire_key  # noqa: E402
 
 port, domain = sys.argv[1], int(sys.argv[2])
-ts = get_typestore(Stores.ROS2_JAZZY)
 TYPES = {
     "scan": "sensor_msgs/msg/LaserScan",
     "map": "nav_msgs/msg/OccupancyGrid",
@@ -26,22 +27,11 @@ TYPES = {
 }
 
 
-def dds(t):
-    pkg, kind, name = t.split("/")
-    return f"{pkg}::{kind}::dds_::{name}_"
-
-
 def key(topic, t):
-    return f"{domain}/{topic.strip('/')}/{dds(t)}/{ts.hash_rihs01(t)}"
+    return wire_key(domain, topic, t)
 
 
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-conf.insert_json5("scouting/multicast/enabled", "false")
-conf.insert_json5("timestamping/enabled", "true")
-s = zenoh.open(conf)
+s = open_peer(port)
 time.sleep(1.0)
 
 out = {"hashes": {t: ts.hash_rihs01(t) for t in TYPES.values()}}
@@ -56,7 +46,7 @@ gid_of = {}
 for t in tokens:
     f = t.split("/")
     if len(f) == 13 and f[5] == "MP":
-        gid_of[f[9].replace("%", "/")] = xxhash.xxh3_128_intdigest(t.encode()).to_bytes(16, "little")
+        gid_of[f[9].replace("%", "/")] = gid(t)
 
 # A late joiner on /map (transient local): the cached sample, through an advanced subscriber.
 got_map = []
@@ -82,7 +72,7 @@ pub_tok = f"@ros2_lv/{domain}/{zid}/0/1/MP/%/%/teleop/%cmd_vel/{dds(TYPES['cmd_v
 tok1 = s.liveliness().declare_token(node_tok)
 tok2 = s.liveliness().declare_token(pub_tok)
 pub = s.declare_publisher(key("/cmd_vel", TYPES["cmd_vel"]))
-my_gid = xxhash.xxh3_128_intdigest(pub_tok.encode()).to_bytes(16, "little")
+my_gid = gid(pub_tok)
 Twist = ts.types["geometry_msgs/msg/Twist"]
 
 # A latched /peer_map as rmw_zenoh publishes one (transient local: an advanced publisher with a
@@ -102,8 +92,7 @@ grid = T[MAP](
                                            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))),
     data=np.array([0, 100, -1, 0], dtype="int8"))
 peer_map_pub.put(bytes(ts.serialize_cdr(grid, MAP)),
-                 attachment=struct.pack("<qqB16s", 1, time.time_ns(), 16,
-                                        xxhash.xxh3_128_intdigest(map_tok.encode()).to_bytes(16, "little")))
+                 attachment=attachment(1, gid(map_tok)))
 Vector3 = ts.types["geometry_msgs/msg/Vector3"]
 
 deadline = time.time() + 15.0
@@ -112,7 +101,7 @@ while time.time() < deadline and (len(scans) < 5 or not got_map or seq < 30):
     seq += 1
     msg = Twist(linear=Vector3(x=0.25, y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=-0.5))
     pub.put(bytes(ts.serialize_cdr(msg, TYPES["cmd_vel"])),
-            attachment=struct.pack("<qqB16s", seq, time.time_ns(), 16, my_gid))
+            attachment=attachment(seq, my_gid))
     time.sleep(0.1)
 
 

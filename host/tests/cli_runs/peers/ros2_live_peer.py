@@ -6,33 +6,24 @@ one JSON object: the graph's publishers and what it decoded on each topic.
 usage: ros2_live_peer.py PORT DOMAIN LISTEN_S
 """
 import json
+from pathlib import Path
 import sys
 import time
 
-import zenoh
 import zenoh.ext as ze
-from rosbags.typesys import Stores, get_typestore
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[4] / "ros2" / "tests" / "peers"))
+from rmw_zenoh_wire import TYPESTORE as ts, open_peer  # noqa: E402
+from rmw_zenoh_wire import key as wire_key  # noqa: E402
 
 port, domain, listen_s = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
-ts = get_typestore(Stores.ROS2_JAZZY)
-
-
-def dds(t):
-    pkg, kind, name = t.split("/")
-    return f"{pkg}::{kind}::dds_::{name}_"
 
 
 def key(topic, t):
-    return f"{domain}/{topic.strip('/')}/{dds(t)}/{ts.hash_rihs01(t)}"
+    return wire_key(domain, topic, t)
 
 
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-conf.insert_json5("scouting/multicast/enabled", "false")
-conf.insert_json5("timestamping/enabled", "true")
-s = zenoh.open(conf)
+s = open_peer(port)
 
 SUBS = {
     "/robot_a/scan": "sensor_msgs/msg/LaserScan",

@@ -6,36 +6,26 @@ and falls silent. It prints V's estimates (time, x, y, theta) and when each phas
 usage: ros2_teleop_peer.py PORT DOMAIN V_MPS W_RADPS DRIVE_S
 """
 import json
+from pathlib import Path
 import math
-import struct
 import sys
 import time
 
 import numpy as np
-import xxhash
-import zenoh
-from rosbags.typesys import Stores, get_typestore
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[4] / "ros2" / "tests" / "peers"))
+from rmw_zenoh_wire import TYPESTORE as ts, attachment, gid, open_peer, publisher_token  # noqa: E402
+from rmw_zenoh_wire import key as wire_key  # noqa: E402
 
 port, domain = sys.argv[1], int(sys.argv[2])
 v_cmd, w_cmd, drive_s = float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5])
-ts = get_typestore(Stores.ROS2_JAZZY)
-
-
-def dds(t):
-    pkg, kind, name = t.split("/")
-    return f"{pkg}::{kind}::dds_::{name}_"
 
 
 def key(topic, t):
-    return f"{domain}/{topic.strip('/')}/{dds(t)}/{ts.hash_rihs01(t)}"
+    return wire_key(domain, topic, t)
 
 
-conf = zenoh.Config()
-conf.insert_json5("mode", '"peer"')
-conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
-conf.insert_json5("scouting/multicast/enabled", "false")
-s = zenoh.open(conf)
+s = open_peer(port, timestamping=False)
 zid = str(s.info.zid())
 start = time.time()
 estimates = []
@@ -52,11 +42,10 @@ def on_v(smp):
 sub = s.declare_subscriber(key("/amcl/V", PWCS), on_v)
 
 
-def publisher(topic, ty, entity, qos="::,10:,:,:,,"):
-    tok = f"@ros2_lv/{domain}/{zid}/0/{entity}/MP/%/%/operator/{topic.replace('/', '%')}/{dds(ty)}/{ts.hash_rihs01(ty)}/{qos}"
+def publisher(topic, ty, entity):
+    tok = publisher_token(domain, zid, "operator", entity, topic, ty)
     token = s.liveliness().declare_token(tok)
-    gid = xxhash.xxh3_128_intdigest(tok.encode()).to_bytes(16, "little")
-    return s.declare_publisher(key(topic, ty)), gid, token
+    return s.declare_publisher(key(topic, ty)), gid(tok), token
 
 
 node = s.liveliness().declare_token(f"@ros2_lv/{domain}/{zid}/0/0/NN/%/%/operator")
@@ -66,9 +55,9 @@ twist_pub, twist_gid, _t2 = publisher("/cmd_vel", TWIST, 2)
 seqs = {"pose": 0, "twist": 0}
 
 
-def put(pub, gid, name, payload):
+def put(pub, entity_gid, name, payload):
     seqs[name] += 1
-    pub.put(payload, attachment=struct.pack("<qqB16s", seqs[name], time.time_ns(), 16, gid))
+    pub.put(payload, attachment=attachment(seqs[name], entity_gid))
 
 
 out = {"phases": {}}
