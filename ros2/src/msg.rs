@@ -273,6 +273,21 @@ pub struct OccupancyGrid {
     pub data: Vec<i8>,
 }
 
+/// `nav2_msgs/Particle`: one particle of a particle filter, its pose and weight.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Particle {
+    pub pose: Pose,
+    pub weight: f64,
+}
+
+/// `nav2_msgs/ParticleCloud`: what nav2_amcl publishes on `particle_cloud` (RViz's nav2 plugin
+/// draws it).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ParticleCloud {
+    pub header: Header,
+    pub particles: Vec<Particle>,
+}
+
 /// A ROS 2 message type: its name, schema and CDR body.
 pub trait Ros2Message: Sized {
     /// The full type name, `pkg/msg/Type` (the MCAP schema name rosbag2 writes).
@@ -507,8 +522,34 @@ impl Ros2Message for OccupancyGrid {
     }
 }
 
+/// CDR size of a `nav2_msgs/Particle` (7 + 1 doubles).
+const PARTICLE_BYTES: usize = 8 * 8;
+
+impl Ros2Message for ParticleCloud {
+    const TYPE: &'static str = "nav2_msgs/msg/ParticleCloud";
+    const TYPE_HASH: &'static str = "RIHS01_193d8cb88ca2b98cd81ece15342744f054bb398ebfa8f6369914432303f42b11";
+
+    fn write(&self, w: &mut CdrWriter) {
+        self.header.write(w);
+        w.len(self.particles.len());
+        for p in &self.particles {
+            p.pose.write(w);
+            w.f64(p.weight);
+        }
+    }
+
+    fn read(r: &mut CdrReader<'_>) -> Result<Self, CdrError> {
+        let header = Header::read(r)?;
+        let n = r.len(PARTICLE_BYTES)?;
+        let particles = (0..n)
+            .map(|_| Ok(Particle { pose: Pose::read(r)?, weight: r.f64()? }))
+            .collect::<Result<_, _>>()?;
+        Ok(ParticleCloud { header, particles })
+    }
+}
+
 /// Every message type here, `(TYPE, TYPE_HASH)`.
-pub const TYPE_HASHES: [(&str, &str); 8] = [
+pub const TYPE_HASHES: [(&str, &str); 9] = [
     (LaserScan::TYPE, LaserScan::TYPE_HASH),
     (PoseWithCovarianceStamped::TYPE, PoseWithCovarianceStamped::TYPE_HASH),
     (Odometry::TYPE, Odometry::TYPE_HASH),
@@ -517,6 +558,7 @@ pub const TYPE_HASHES: [(&str, &str); 8] = [
     (Twist::TYPE, Twist::TYPE_HASH),
     (Clock::TYPE, Clock::TYPE_HASH),
     (DiagnosticArray::TYPE, DiagnosticArray::TYPE_HASH),
+    (ParticleCloud::TYPE, ParticleCloud::TYPE_HASH),
 ];
 
 /// The REP 2011 hash of a type here (`pkg/msg/Type`).
@@ -593,6 +635,11 @@ fn definition(name: &str) -> Option<(&'static str, &'static [&'static str])> {
         "nav_msgs/OccupancyGrid" => (
             "std_msgs/Header header\nnav_msgs/MapMetaData info\nint8[] data\n",
             &["std_msgs/Header", "nav_msgs/MapMetaData"],
+        ),
+        "nav2_msgs/Particle" => ("geometry_msgs/Pose pose\nfloat64 weight\n", &["geometry_msgs/Pose"]),
+        "nav2_msgs/ParticleCloud" => (
+            "std_msgs/Header header\nnav2_msgs/Particle[] particles\n",
+            &["std_msgs/Header", "nav2_msgs/Particle"],
         ),
         _ => return None,
     })

@@ -60,7 +60,7 @@ pub struct LogPose {
 /// record, so that a field needing the sensor's maximum range can take the scan's own.
 #[derive(Debug)]
 pub struct LogLocalizer<'g> {
-    grid: &'g crate::map::OccupancyGrid,
+    grid: std::borrow::Cow<'g, crate::map::OccupancyGrid>,
     params: AmclParams,
     start: Start,
     seed: u64,
@@ -82,7 +82,7 @@ impl<'g> LogLocalizer<'g> {
     #[must_use]
     pub fn new(grid: &'g crate::map::OccupancyGrid, params: AmclParams, start: Start, seed: u64) -> Self {
         LogLocalizer {
-            grid,
+            grid: std::borrow::Cow::Borrowed(grid),
             params,
             start,
             seed,
@@ -90,6 +90,38 @@ impl<'g> LogLocalizer<'g> {
             last_odom: None,
             scans: 0,
             scans_without_odometry: 0,
+        }
+    }
+
+    /// A localiser that owns its map (a live node's, replaced when a new map comes).
+    #[must_use]
+    pub fn owning(
+        grid: crate::map::OccupancyGrid,
+        params: AmclParams,
+        start: Start,
+        seed: u64,
+    ) -> LogLocalizer<'static> {
+        LogLocalizer {
+            grid: std::borrow::Cow::Owned(grid),
+            params,
+            start,
+            seed,
+            amcl: None,
+            last_odom: None,
+            scans: 0,
+            scans_without_odometry: 0,
+        }
+    }
+
+    /// Start again from `start` (an operator's initial pose, or global localisation): the filter
+    /// at once if it is built, else when the first scan builds it.
+    pub fn restart(&mut self, start: Start) {
+        self.start = start;
+        if let Some(f) = &mut self.amcl {
+            match start {
+                Start::Pose { pose, std_xy_m, std_yaw_rad } => f.init_pose(pose, std_xy_m, std_yaw_rad),
+                Start::Global => f.init_global(),
+            }
         }
     }
 
@@ -115,7 +147,7 @@ impl<'g> LogLocalizer<'g> {
             self.scans_without_odometry += 1;
             return None;
         };
-        let (grid, params, start, seed) = (self.grid, &self.params, self.start, self.seed);
+        let (grid, params, start, seed) = (&*self.grid, &self.params, self.start, self.seed);
         let filter = self.amcl.get_or_insert_with(|| {
             let range_max = params.max_range_m().unwrap_or(laser.scan.range_max_m);
             let field = Arc::new(LikelihoodField::new(grid, params, range_max));

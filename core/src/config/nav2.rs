@@ -10,10 +10,11 @@
 //! - `set_initial_pose: true` with `initial_pose: {x, y, yaw}` starts there, spread as nav2 spreads
 //!   it (0.5 m, π/12: `amcl_node.cpp`'s initial covariance); otherwise the filter localises
 //!   globally (nav2 would wait for `/initialpose`).
-//! - Frames and topics (`base_frame_id`, `odom_frame_id`, `global_frame_id`, `scan_topic`) are
-//!   returned for the caller.
+//! - Frames, topics and the transform's settings (`base_frame_id`, `odom_frame_id`,
+//!   `global_frame_id`, `scan_topic`, `map_topic`, `transform_tolerance`, `tf_broadcast`) are
+//!   returned for the caller (`amr amcl` is a node with them).
 //! - Parameters without an effect here are listed as ignored (the beam model's `z_max`, `z_short`,
-//!   `lambda_short`; the omnidirectional `alpha5`; node settings such as `tf_broadcast`); any other
+//!   `lambda_short`; the omnidirectional `alpha5`; node settings such as `save_pose_rate`); any other
 //!   name as unknown. The beam model and the omnidirectional motion model are refused.
 
 use std::collections::BTreeMap;
@@ -31,13 +32,18 @@ pub struct Nav2Amcl {
     pub unknown: Vec<String>,
 }
 
-/// nav2_amcl's frames and scan topic (its defaults where the file is silent).
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// nav2_amcl's frames, topics and transform settings (its defaults where the file is silent).
+#[derive(Debug, Clone, PartialEq)]
 pub struct Nav2Frames {
     pub base_frame_id: String,
     pub odom_frame_id: String,
     pub global_frame_id: String,
     pub scan_topic: String,
+    pub map_topic: String,
+    /// How far into the future the published map → odom transform is stamped, s.
+    pub transform_tolerance_s: f64,
+    /// Whether map → odom is published at all.
+    pub tf_broadcast: bool,
 }
 
 /// Both have these, by the same name and meaning.
@@ -103,19 +109,16 @@ fn nav2_defaults() -> [(&'static str, toml::Value); 25] {
 }
 
 /// nav2_amcl's parameters that change nothing here.
-const IGNORED: [&str; 17] = [
+const IGNORED: [&str; 14] = [
     "alpha5",
     "always_reset_initial_pose",
     "bond_heartbeat_period",
     "first_map_only",
     "introspection_mode",
     "lambda_short",
-    "map_topic",
     "robot_model_type",
     "save_pose_rate",
     "service_introspection_mode",
-    "tf_broadcast",
-    "transform_tolerance",
     "use_sim_time",
     "z_max",
     "z_short",
@@ -162,6 +165,9 @@ pub fn from_nav2_params(file: &str, yaml: &str, base: &str) -> Result<Nav2Amcl, 
         odom_frame_id: "odom".into(),
         global_frame_id: "map".into(),
         scan_topic: "scan".into(),
+        map_topic: "map".into(),
+        transform_tolerance_s: 1.0,
+        tf_broadcast: true,
     };
     let (mut ignored, mut unknown) = (Vec::new(), Vec::new());
     let mut initial: BTreeMap<String, f64> = BTreeMap::new();
@@ -190,6 +196,17 @@ pub fn from_nav2_params(file: &str, yaml: &str, base: &str) -> Result<Nav2Amcl, 
             "odom_frame_id" => frames.odom_frame_id = text()?,
             "global_frame_id" => frames.global_frame_id = text()?,
             "scan_topic" => frames.scan_topic = text()?,
+            "map_topic" => frames.map_topic = text()?,
+            "transform_tolerance" => {
+                frames.transform_tolerance_s = v
+                    .as_f64()
+                    .filter(|t| t.is_finite() && *t >= 0.0)
+                    .ok_or_else(|| format!("{file}: transform_tolerance must be seconds, 0 or more"))?
+            }
+            "tf_broadcast" => {
+                frames.tf_broadcast =
+                    v.as_bool().ok_or_else(|| format!("{file}: tf_broadcast must be true or false"))?
+            }
             "set_initial_pose" => {
                 set_initial =
                     v.as_bool().ok_or_else(|| format!("{file}: set_initial_pose must be true or false"))?
@@ -295,7 +312,9 @@ amcl:
         assert_eq!(n.frames.base_frame_id, "base_footprint");
         assert_eq!(n.frames.scan_topic, "scan");
         assert!(n.unknown.is_empty(), "{:?}", n.unknown);
-        for k in ["alpha5", "z_max", "z_short", "lambda_short", "tf_broadcast", "use_sim_time"] {
+        assert_eq!((n.frames.map_topic.as_str(), n.frames.transform_tolerance_s), ("map", 1.0));
+        assert!(n.frames.tf_broadcast);
+        for k in ["alpha5", "z_max", "z_short", "lambda_short", "use_sim_time"] {
             assert!(n.ignored.contains(&k.to_owned()), "{k} in {:?}", n.ignored);
         }
     }

@@ -111,11 +111,11 @@ pub enum BagError {
     NoOdometry { topic: String, tf: String, parent: String, child: String, seen: String },
 }
 
-fn strip(frame: &str) -> &str {
+pub(crate) fn strip(frame: &str) -> &str {
     frame.strip_prefix('/').unwrap_or(frame)
 }
 
-fn planar(t: &TransformStamped) -> Se2 {
+pub(crate) fn planar(t: &TransformStamped) -> Se2 {
     Se2::new(t.translation[0], t.translation[1], yaw(t.rotation))
 }
 
@@ -165,7 +165,7 @@ fn decode_all<'a, M: Ros2Message>(
 }
 
 /// A scan as the localizer's [`Scan`], or why it cannot be one.
-fn to_scan(m: &LaserScan) -> Result<Scan, CdrError> {
+pub(crate) fn to_scan(m: &LaserScan) -> Result<Scan, CdrError> {
     let (min, inc) = (f64::from(m.angle_min), f64::from(m.angle_increment));
     if !min.is_finite() || !inc.is_finite() || inc == 0.0 || m.ranges.is_empty() {
         return Err(CdrError::Invalid(format!(
@@ -178,7 +178,7 @@ fn to_scan(m: &LaserScan) -> Result<Scan, CdrError> {
 }
 
 /// The odometry at `t` from samples sorted by stamp.
-fn odom_at(samples: &[(f64, Se2)], t: f64) -> Option<Se2> {
+pub(crate) fn odom_at(samples: &[(f64, Se2)], t: f64) -> Option<Se2> {
     let i = samples.partition_point(|(s, _)| *s < t);
     match (i.checked_sub(1).and_then(|j| samples.get(j)), samples.get(i)) {
         (Some((ta, a)), Some((tb, b))) => {
@@ -196,7 +196,7 @@ fn odom_at(samples: &[(f64, Se2)], t: f64) -> Option<Se2> {
 }
 
 /// The pose of `frame` in `base` from static transforms (child → (parent, transform)).
-fn mount(statics: &BTreeMap<String, (String, Se2)>, base: &str, frame: &str) -> Option<Se2> {
+pub(crate) fn mount(statics: &BTreeMap<String, (String, Se2)>, base: &str, frame: &str) -> Option<Se2> {
     let mut pose = Se2::IDENTITY;
     let mut at = frame;
     // A chain of static frames is short; a loop in a damaged bag ends here.

@@ -31,9 +31,14 @@ const MIN_STD_YAW_RAD: f64 = 0.01;
 /// rotation about z; the spread from the covariance's x, y and yaw variances (`DEFAULT_*` when
 /// they are zero or not finite).
 pub fn initial_pose(m: &PoseWithCovarianceStamped) -> Result<Input, String> {
+    initial_pose_in(m, "map")
+}
+
+/// As [`initial_pose`], in the global frame `global` (nav2_amcl's `global_frame_id`).
+pub fn initial_pose_in(m: &PoseWithCovarianceStamped, global: &str) -> Result<Input, String> {
     let frame = m.header.frame_id.trim_start_matches('/');
-    if !frame.is_empty() && frame != "map" {
-        return Err(format!("an initial pose in frame {frame:?}: only \"map\" is known"));
+    if !frame.is_empty() && frame != global {
+        return Err(format!("an initial pose in frame {frame:?}: only {global:?} is known"));
     }
     let p = &m.pose.pose;
     let [qx, qy, qz, qw] = p.orientation;

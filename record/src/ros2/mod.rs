@@ -8,7 +8,8 @@
 //! - [`bag`]: reading a bag's scans and odometry for `amr localize --bag`;
 //! - [`db3`]: reading rosbag2's sqlite3 storage (`.db3`) into the same messages as an MCAP bag;
 //! - [`live`]: the same messages published live on a ROS 2 node (rmw_zenoh);
-//! - [`inputs`]: what the node takes from ROS 2 (`/initialpose`, `/cmd_vel`), checked.
+//! - [`inputs`]: what the node takes from ROS 2 (`/initialpose`, `/cmd_vel`), checked;
+//! - [`amcl_node`]: our AMCL as a ROS 2 node in nav2_amcl's place (`amr amcl`).
 //!
 //! # rosbag2's MCAP profile
 //!
@@ -50,6 +51,7 @@
 //! health, logs) have no ROS 2 type here and are not written: such a file is for `ros2 bag play`,
 //! RViz and nav2, not for `amr replay`. A live view (`--foxglove`) still gets everything.
 
+pub mod amcl_node;
 pub mod bag;
 pub mod db3;
 mod encoder;
