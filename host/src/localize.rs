@@ -94,6 +94,15 @@ pub(crate) fn load_params(file: Option<&Path>, config: Option<PathBuf>) -> anyho
 /// configuration's `amcl.toml` (what nav2 does not have: the slip tail, the integrity monitor).
 /// Parameters without effect here, and unknown names, are logged.
 pub(crate) fn load_nav2_params(file: &Path, config: Option<PathBuf>) -> anyhow::Result<AmclParams> {
+    Ok(load_nav2(file, config)?.params)
+}
+
+/// A nav2 params file's AMCL section: our parameters (as [`load_nav2_params`]), nav2's frames,
+/// topics and transform settings.
+pub(crate) fn load_nav2(
+    file: &Path,
+    config: Option<PathBuf>,
+) -> anyhow::Result<amr_core::config::nav2::Nav2Amcl> {
     let yaml = std::fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
     let files = amr_actors::config::read_files(&crate::config_cmd::source_for(config))?;
     let base = files
@@ -111,7 +120,7 @@ pub(crate) fn load_nav2_params(file: &Path, config: Option<PathBuf>) -> anyhow::
         tracing::warn!(parameters = ?n.unknown, "not nav2_amcl parameters: ignored");
     }
     tracing::info!(base_frame = %n.frames.base_frame_id, odom_frame = %n.frames.odom_frame_id, scan_topic = %n.frames.scan_topic, "nav2 parameters read");
-    Ok(n.params)
+    Ok(n)
 }
 
 pub(crate) fn read_map(yaml_path: &Path) -> anyhow::Result<OccupancyGrid> {

@@ -1,5 +1,6 @@
 //! `amr`: the one binary of the project. Each subcommand is wiring around the library crates.
 
+mod amcl_cmd;
 mod bench;
 mod bench_localize;
 mod carmen_cmd;
@@ -97,6 +98,11 @@ enum Command {
         #[arg(long, value_name = "N")]
         kidnap: Option<usize>,
     },
+    /// Our AMCL as a ROS 2 node in nav2_amcl's place, for one robot: nav2_amcl's topics (`scan`,
+    /// `map`, `initialpose`, `/tf`, `/tf_static`; publishes `amcl_pose`, `particle_cloud` and
+    /// map → odom on `/tf`) and its parameter file. Without an initial pose it localises globally
+    /// and publishes once it tracks; its integrity goes to `/diagnostics`. docs/ros2.md.
+    Amcl(amcl_cmd::AmclArgs),
     /// Measure the algorithms (medians over repeated runs; nothing is asserted).
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -727,6 +733,7 @@ fn main() -> ExitCode {
             }
             Ok(())
         })(),
+        Command::Amcl(args) => amcl_cmd::amcl(args),
         Command::Localize { map, log, bag, ros2, initial, params, nav2_params, out, seed, kidnap } => {
             (|| {
                 let params = match nav2_params {

@@ -46,6 +46,22 @@ pub(crate) struct RecordArgs {
     /// QoS ROS 2 tools subscribe with (docs/ros2.md).
     #[arg(long, value_name = "TRANSPORT", value_enum)]
     pub ros2_live: Option<Ros2Transport>,
+    #[command(flatten)]
+    pub node: Ros2NodeArgs,
+    /// Let `/cmd_vel` (`geometry_msgs/Twist`: a teleop, nav2's controller) drive the formation as
+    /// one robot, V: from the first twist on the plan is paused; every robot's limits apply, and V
+    /// stops 0.5 s after the last twist. `/initialpose` is taken whenever `--ros2-live` is on.
+    #[arg(long, requires = "ros2_live")]
+    pub ros2_cmd_vel: bool,
+    /// nav2_amcl localises V from `/virtual/scan` (the paper's mode; `ros2/nav2/v_amcl.yaml`): our
+    /// `map` → `V/odom` is not published, nav2_amcl publishes it.
+    #[arg(long, requires = "ros2_live")]
+    pub ros2_nav2_amcl: bool,
+}
+
+/// Where a ROS 2 node joins the graph.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub(crate) struct Ros2NodeArgs {
     /// The ROS 2 domain (`ROS_DOMAIN_ID`).
     #[arg(long, env = "ROS_DOMAIN_ID", default_value_t = 0, value_name = "ID")]
     pub ros2_domain: u32,
@@ -59,15 +75,6 @@ pub(crate) struct RecordArgs {
     /// connect to it), instead of joining one.
     #[arg(long, value_name = "ENDPOINT")]
     pub ros2_router: Option<String>,
-    /// Let `/cmd_vel` (`geometry_msgs/Twist`: a teleop, nav2's controller) drive the formation as
-    /// one robot, V: from the first twist on the plan is paused; every robot's limits apply, and V
-    /// stops 0.5 s after the last twist. `/initialpose` is taken whenever `--ros2-live` is on.
-    #[arg(long, requires = "ros2_live")]
-    pub ros2_cmd_vel: bool,
-    /// nav2_amcl localises V from `/virtual/scan` (the paper's mode; `ros2/nav2/v_amcl.yaml`): our
-    /// `map` → `V/odom` is not published, nav2_amcl publishes it.
-    #[arg(long, requires = "ros2_live")]
-    pub ros2_nav2_amcl: bool,
 }
 
 /// A ROS 2 transport for `--ros2-live`.
@@ -113,7 +120,7 @@ impl RecordArgs {
         };
         let flush = amr_record::FlushPolicy { lz4: !self.record_uncompressed, ..Default::default() };
         let node = match self.ros2_live {
-            Some(t) => Some(Arc::new(self.ros2_node(t).await?)),
+            Some(t) => Some(Arc::new(self.node.open(t, "amr").await?)),
             None => None,
         };
         let ros2_live = node.as_ref().map(|n| {
@@ -131,12 +138,16 @@ impl RecordArgs {
     }
 }
 
-impl RecordArgs {
-    /// The live ROS 2 output's node.
-    async fn ros2_node(&self, transport: Ros2Transport) -> anyhow::Result<amr_ros2::transport::Ros2Node> {
+impl Ros2NodeArgs {
+    /// A ROS 2 node named `name` over `transport`.
+    pub(crate) async fn open(
+        &self,
+        transport: Ros2Transport,
+        name: &str,
+    ) -> anyhow::Result<amr_ros2::transport::Ros2Node> {
         use amr_ros2::node::{Mode, NodeOptions};
         use amr_ros2::transport::{Ros2Node, Transport};
-        let mut o = NodeOptions::new("amr");
+        let mut o = NodeOptions::new(name);
         o.domain = self.ros2_domain;
         o.distro = self.ros2_distro;
         match &self.ros2_router {
@@ -152,7 +163,7 @@ impl RecordArgs {
             Ros2Transport::Dds => Transport::Dds,
         };
         let node = Ros2Node::open(t, &o).await.context("opening the ROS 2 node")?;
-        tracing::info!(domain = o.domain, node = %node.describe(), "ROS 2 live output");
+        tracing::info!(domain = o.domain, node = %node.describe(), "ROS 2 node");
         Ok(node)
     }
 }

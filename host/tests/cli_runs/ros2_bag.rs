@@ -41,16 +41,16 @@ const BEAMS: usize = 329;
 const SCANS: usize = 120;
 const ODOM_PER_SCAN: usize = 10;
 
-struct Run {
+pub(crate) struct Run {
     /// Scan stamps and the base's true pose then.
-    truth: Vec<(f64, Se2)>,
+    pub truth: Vec<(f64, Se2)>,
     /// What the bag writer gets.
-    data: Value,
+    pub data: Value,
 }
 
 /// Writes map.yaml + map.pgm into `dir`; drives the robot and returns the truth and the bags'
 /// contents (scans as the laser saw them, odometry at 50 Hz).
-fn simulate(dir: &Path) -> Run {
+pub(crate) fn simulate(dir: &Path) -> Run {
     let (room, walls) = world();
     let grid = rasterize_outlines(&walls, &room, 0.05, Se2::new(-0.5, -0.5, 0.0), 180, 120);
     let (yaml, image) = save_map(&grid, MapMode::Trinary, 0.65, 0.196, "map.pgm").unwrap();

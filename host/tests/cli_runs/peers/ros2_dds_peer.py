@@ -1,6 +1,6 @@
 """A ROS 2 user of `amr sim --ros2-live dds --ros2-cmd-vel` on DDS, as Eclipse Cyclone DDS's Python
 binding sees it (the PyPI `cyclonedds` wheel bundles the C library): ROS 2's DDS names (`rt/...`,
-`pkg::msg::dds_::Type_`) and the message types declared here from their .msg files. It joins
+`pkg::msg::dds_::Type_`) and the message types of cyclone_types.py. It joins
 after the fleet started (so `/map` reaches it only as a late joiner), reads scans, /tf and V's
 estimate, gives V's pose on /initialpose, then drives V on /cmd_vel for DRIVE_S seconds. Prints one JSON object.
 
@@ -10,140 +10,17 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass, field
 
 from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.annotations import final
-from cyclonedds.idl.types import array, float32, float64, int8, int32, sequence, uint32
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
+from cyclone_types import (Header, LaserScan, OccupancyGrid, Point, Pose, PoseWithCovariance,
+                           PoseWithCovarianceStamped, Quaternion, TFMessage, Twist, Vector3)
+
 domain, drive_s, w_cmd = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
-
-
-@dataclass
-@final
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32 = 0
-    nanosec: uint32 = 0
-
-
-@dataclass
-@final
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time = field(default_factory=Time)
-    frame_id: str = ""
-
-
-@dataclass
-@final
-class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
-    header: Header = field(default_factory=Header)
-    angle_min: float32 = 0.0
-    angle_max: float32 = 0.0
-    angle_increment: float32 = 0.0
-    time_increment: float32 = 0.0
-    scan_time: float32 = 0.0
-    range_min: float32 = 0.0
-    range_max: float32 = 0.0
-    ranges: sequence[float32] = field(default_factory=list)
-    intensities: sequence[float32] = field(default_factory=list)
-
-
-@dataclass
-@final
-class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-
-
-@dataclass
-@final
-class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-
-
-@dataclass
-@final
-class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
-    x: float64 = 0.0
-    y: float64 = 0.0
-    z: float64 = 0.0
-    w: float64 = 1.0
-
-
-@dataclass
-@final
-class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
-    position: Point = field(default_factory=Point)
-    orientation: Quaternion = field(default_factory=Quaternion)
-
-
-@dataclass
-@final
-class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
-    pose: Pose = field(default_factory=Pose)
-    covariance: array[float64, 36] = field(default_factory=lambda: [0.0] * 36)
-
-
-@dataclass
-@final
-class PoseWithCovarianceStamped(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovarianceStamped_"):
-    header: Header = field(default_factory=Header)
-    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
-
-
-@dataclass
-@final
-class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
-    linear: Vector3 = field(default_factory=Vector3)
-    angular: Vector3 = field(default_factory=Vector3)
-
-
-@dataclass
-@final
-class Transform(IdlStruct, typename="geometry_msgs::msg::dds_::Transform_"):
-    translation: Vector3 = field(default_factory=Vector3)
-    rotation: Quaternion = field(default_factory=Quaternion)
-
-
-@dataclass
-@final
-class TransformStamped(IdlStruct, typename="geometry_msgs::msg::dds_::TransformStamped_"):
-    header: Header = field(default_factory=Header)
-    child_frame_id: str = ""
-    transform: Transform = field(default_factory=Transform)
-
-
-@dataclass
-@final
-class TFMessage(IdlStruct, typename="tf2_msgs::msg::dds_::TFMessage_"):
-    transforms: sequence[TransformStamped] = field(default_factory=list)
-
-
-@dataclass
-@final
-class MapMetaData(IdlStruct, typename="nav_msgs::msg::dds_::MapMetaData_"):
-    map_load_time: Time = field(default_factory=Time)
-    resolution: float32 = 0.0
-    width: uint32 = 0
-    height: uint32 = 0
-    origin: Pose = field(default_factory=Pose)
-
-
-@dataclass
-@final
-class OccupancyGrid(IdlStruct, typename="nav_msgs::msg::dds_::OccupancyGrid_"):
-    header: Header = field(default_factory=Header)
-    info: MapMetaData = field(default_factory=MapMetaData)
-    data: sequence[int8] = field(default_factory=list)
-
 
 dp = DomainParticipant(domain)
 sensor = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(5))
