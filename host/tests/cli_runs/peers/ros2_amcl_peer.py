@@ -8,9 +8,9 @@ JSON object. Messages are built and decoded by rosbags; on DDS, Eclipse Cyclone 
 (its types in cyclone_types.py: rosbags' CDR bytes and Cyclone's are the same bytes), on Zenoh,
 eclipse-zenoh as rmw_zenoh's design document says (rmw_zenoh_wire.py).
 
-usage: ros2_amcl_peer.py zenoh PORT DOMAIN SIM_JSON MAP_YAML INITIAL SPEED
-       ros2_amcl_peer.py dds - DOMAIN SIM_JSON MAP_YAML INITIAL SPEED
-INITIAL is x,y,theta or `none`.
+usage: ros2_amcl_peer.py zenoh PORT DOMAIN RUN MAP_YAML INITIAL SPEED
+       ros2_amcl_peer.py dds - DOMAIN RUN MAP_YAML INITIAL SPEED
+RUN is the test's simulated run (JSON) or a CARMEN log (`.log`); INITIAL is x,y,theta or `none`.
 """
 import json
 import math
@@ -26,8 +26,35 @@ sys.path.insert(0, str(HERE.parents[3] / "ros2" / "tests" / "peers"))
 from rmw_zenoh_wire import TYPESTORE as ts  # noqa: E402
 from rosbags.typesys import get_types_from_msg  # noqa: E402
 
+
+
+def carmen(path):
+    """A CARMEN log's FLASER scans (180 degrees from -90, readings of 80 m and more: no return) and
+    its odometry (ODOM lines, and each FLASER's own odometry at the scan's stamp), laser at the
+    robot's origin, as the run this peer plays."""
+    scans, odometry = [], []
+    for line in open(path):
+        f = line.split()
+        if not f:
+            continue
+        if f[0] == "ODOM" and len(f) >= 8:
+            odometry.append({"stamp": float(f[7]), "x": float(f[1]), "y": float(f[2]), "theta": float(f[3])})
+        elif f[0] == "FLASER":
+            n = int(f[1])
+            ranges = [float(r) for r in f[2:2 + n]]
+            ox, oy, oth, ts_ = (float(v) for v in f[5 + n:9 + n])
+            scans.append({"stamp": ts_, "ranges": [r if r < 80.0 else "inf" for r in ranges]})
+            odometry.append({"stamp": ts_, "x": ox, "y": oy, "theta": oth})
+    odometry.sort(key=lambda o: o["stamp"])
+    n = len(scans[0]["ranges"])
+    inc = math.pi / (n - 1) if n in (181, 361, 721) else math.pi / n
+    return {"angle_min": -math.pi / 2, "angle_increment": inc, "angle_max": -math.pi / 2 + (n - 1) * inc,
+            "range_min": 0.0, "range_max": 79.99, "scans": scans, "odometry": odometry,
+            "mount": {"x": 0.0, "y": 0.0, "theta": 0.0}}
+
+
 transport, port, domain = sys.argv[1], sys.argv[2], int(sys.argv[3])
-sim = json.load(open(sys.argv[4]))
+sim = carmen(sys.argv[4]) if sys.argv[4].endswith(".log") else json.load(open(sys.argv[4]))
 map_yaml = Path(sys.argv[5])
 initial = None if sys.argv[6] == "none" else [float(v) for v in sys.argv[6].split(",")]
 speed = float(sys.argv[7])
@@ -261,7 +288,7 @@ for t, kind, e in events:
     if kind == "odom":
         put_tf(cdr(tf(e["stamp"], "odom", "base_link", e["x"], e["y"], e["theta"]), TF))
     else:
-        ranges = np.array([float(r) for r in e["ranges"]], dtype=np.float32)
+        ranges = np.array([float(r) for r in e["ranges"]], dtype=np.float32)  # "nan", "inf" too
         put_scan(cdr(T[SCAN](header=header(e["stamp"], "laser"), angle_min=sim["angle_min"],
                              angle_max=sim["angle_max"], angle_increment=sim["angle_increment"], time_increment=0.0,
                              scan_time=0.2, range_min=sim["range_min"], range_max=sim["range_max"], ranges=ranges,
