@@ -7,7 +7,6 @@ use serde::Deserialize;
 use amr_settings::value::Backoff;
 use amr_settings::{DeviceSource, Violation, join, rule};
 
-use super::diff_drive::DrivesConfig;
 use super::frame::NodeId;
 
 /// How the CAN bus is reached.
@@ -99,6 +98,102 @@ impl BusConfig {
         }
         self.reconnect.check(&join(path, "reconnect"))
     }
+}
+
+/// Reaction of a drive to a communication loss, object 0x6007 (CiA 402). A robot file spells it
+/// `fault | disable-voltage | quick-stop`; "no action" is not offered there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CommLossReaction {
+    /// 0: no action.
+    #[serde(skip)]
+    None,
+    /// 1: fault signal.
+    Fault,
+    /// 2: disable voltage.
+    DisableVoltage,
+    /// 3: quick stop.
+    QuickStop,
+}
+
+impl CommLossReaction {
+    /// The 0x6007 value.
+    pub fn code(self) -> i16 {
+        match self {
+            CommLossReaction::None => 0,
+            CommLossReaction::Fault => 1,
+            CommLossReaction::DisableVoltage => 2,
+            CommLossReaction::QuickStop => 3,
+        }
+    }
+}
+
+/// One wheel's drive: `left`/`right` of `[devices.drives]`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WheelDriveConfig {
+    /// The drive's node id.
+    #[serde(deserialize_with = "node_id")]
+    pub node_id: NodeId,
+    /// The motor is mounted mirrored: positive drive velocity moves this wheel backwards.
+    pub inverted: bool,
+}
+
+/// The two TECO wheel drives (CiA 402, profile velocity): `[devices.drives]` of a robot file. The
+/// drive-specific values the research could not pin down are all here, never constants in code.
+/// Cross-field rules: [`DrivesConfig::validate`].
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DrivesConfig {
+    /// Left wheel.
+    pub left: WheelDriveConfig,
+    /// Right wheel.
+    pub right: WheelDriveConfig,
+    /// Encoder counts per motor revolution, after quadrature (0x6064 units).
+    #[serde(deserialize_with = "amr_settings::value::count")]
+    pub encoder_counts_per_rev: u32,
+    /// Motor revolutions per wheel revolution.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
+    pub gear_ratio: f64,
+    /// 0x60FF/0x606C units per motor revolution per second.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
+    pub velocity_units_per_rps: f64,
+    /// Each drive's heartbeat producer period, written to its 0x1017 (16 bits).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub heartbeat_producer_ms: u32,
+    /// The master declares a drive lost after this long without its heartbeat.
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub heartbeat_consumer_ms: u32,
+    /// Each drive stops (see `comm_loss_reaction`) after this long without the master's heartbeat,
+    /// written to its 0x1016 (16 bits).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub master_consumer_ms: u32,
+    /// Each drive's 0x6007.
+    pub comm_loss_reaction: CommLossReaction,
+    /// Longest wait for a drive to reach Operation enabled (or to leave Fault after a reset).
+    #[serde(deserialize_with = "amr_settings::value::ms")]
+    pub enable_timeout_ms: u32,
+    /// How often 0x6061 is read back to confirm profile velocity mode before giving up
+    /// (python-canopen #131: it may lag).
+    #[serde(deserialize_with = "amr_settings::value::count")]
+    pub mode_confirm_attempts: u32,
+    /// Wheel-surface deceleration of a quick stop (0x6085), m/s²: an emergency stop, so at least the
+    /// robot's normal acceleration limit.
+    #[serde(deserialize_with = "amr_settings::value::positive")]
+    pub quick_stop_decel_mps2: f64,
+    /// The bit of either drive's digital inputs (0x60FD, 0–31; CiA 402 leaves 16–31 to the
+    /// manufacturer) that the robot's e-stop chain is wired to, if any: the master maps 0x60FD into
+    /// TPDO2 and the robot latches its e-stop when the input reads pressed.
+    #[serde(default)]
+    pub estop_input_bit: Option<u8>,
+    /// The e-stop input reads 0 when pressed (a normally-closed chain: a broken wire stops the
+    /// robot too). Default true.
+    #[serde(default = "yes")]
+    pub estop_input_active_low: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 impl DrivesConfig {
@@ -221,7 +316,7 @@ quick_stop_decel_mps2 = 0.5
         );
         assert_eq!((f.can.master_node_id, f.can.sync_period_ms), (127, 20));
         assert_eq!((f.drives.left.node_id, f.drives.right.inverted), (1, true));
-        assert_eq!(f.drives.comm_loss_reaction, super::super::master::CommLossReaction::QuickStop);
+        assert_eq!(f.drives.comm_loss_reaction, CommLossReaction::QuickStop);
         assert_eq!((f.drives.enable_timeout_ms, f.drives.mode_confirm_attempts), (1000, 5));
     }
 

@@ -8,6 +8,8 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
+pub use super::config::CommLossReaction;
+
 use super::cia402::{Goal, State402, controlword, next_controlword};
 use super::config::BusConfig;
 use super::emcy::{EMCY_HEARTBEAT, Emcy};
@@ -26,34 +28,6 @@ const SDO_RETRIES: u32 = 2;
 
 /// Profile velocity mode (0x6060 value 3, python-canopen `OperationMode`).
 pub const MODE_PROFILE_VELOCITY: i8 = 3;
-
-/// Reaction of a drive to a communication loss, object 0x6007 (CiA 402). A robot file spells it
-/// `fault | disable-voltage | quick-stop`; "no action" is not offered there.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CommLossReaction {
-    /// 0: no action.
-    #[serde(skip)]
-    None,
-    /// 1: fault signal.
-    Fault,
-    /// 2: disable voltage.
-    DisableVoltage,
-    /// 3: quick stop.
-    QuickStop,
-}
-
-impl CommLossReaction {
-    /// The 0x6007 value.
-    pub fn code(self) -> i16 {
-        match self {
-            CommLossReaction::None => 0,
-            CommLossReaction::Fault => 1,
-            CommLossReaction::DisableVoltage => 2,
-            CommLossReaction::QuickStop => 3,
-        }
-    }
-}
 
 /// What the master writes into one drive at start-up, and how it watches it.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -5,8 +5,8 @@
 //! - [`nmt`], [`sdo`], [`pdo`], [`emcy`], [`heartbeat`]: the CiA 301 services, sans-IO.
 //! - [`cia402`]: statusword states, controlword commands, the transition table.
 //! - [`master`]: the sans-IO master (NMT, SYNC, heartbeats, SDO, PDO remap, 402 enable/recover).
-//! - [`config`]: `[devices.can]` ([`config::BusConfig`]); `[devices.drives]` is
-//!   [`diff_drive::DrivesConfig`].
+//! - [`config`]: `[devices.can]` ([`config::BusConfig`]) and `[devices.drives]`
+//!   ([`config::DrivesConfig`]).
 //! - [`diff_drive`]: (v, ω) → wheel targets in drive units, wheel odometry by arc integration.
 //! - [`transport`]: the frame transport trait and its three implementations.
 //! - [`shell`]: the tokio task running the master over a transport.
