@@ -1,6 +1,7 @@
 //! The bridge actors: one per process, owning its Zenoh session. A robot's bridge hands the robot
-//! tree a [`RobotEnd`]; the server's bridge hands the server tree a [`ServerEnd`]: the same ends as
-//! the in-process link, so the trees do not know which link they are on.
+//! tree a [`RobotEnd`](amr_actors::link::RobotEnd); the server's bridge hands the server tree a
+//! [`ServerEnd`](amr_actors::link::ServerEnd): the same ends as the in-process link, so the trees
+//! do not know which link they are on.
 //!
 //! | key | from → to | what |
 //! |---|---|---|
