@@ -4,14 +4,18 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::time::Duration;
 
+use amr_actors::robot::RobotTree;
 use amr_actors::server::ServerTree;
 use amr_actors::server::formation::{FormationStatus, Phase};
 use amr_core::se2::{Se2, angle_diff};
 use amr_msgs::{Estimate, EstimateSource};
 use amr_msgs::{Health, HealthReport};
 use ractor::{Actor, ActorProcessingErr, ActorRef};
+use tokio::task::JoinHandle;
 
+use crate::options::SimError;
 use crate::report;
 use crate::truth::TruthLog;
 use crate::world::v_of;
@@ -41,6 +45,53 @@ pub(crate) fn observe_server(server: &ServerTree, observer: &ActorRef<ObserverMs
     server.formation.subscribe(observer.clone(), |s| Some(ObserverMsg::Formation(s)));
 }
 
+/// Start the observer on `server` and the robots `trees`, scoring V against `truth`: what it
+/// collects, the observer itself, and the task that samples the robots' health boards into it.
+pub(crate) async fn start(
+    truth: &TruthLog,
+    server: &ServerTree,
+    trees: &[RobotTree],
+) -> Result<(Arc<std::sync::Mutex<Observed>>, ActorRef<ObserverMsg>, JoinHandle<()>), SimError> {
+    let observed = Arc::new(std::sync::Mutex::new(Observed::default()));
+    let (observer, _) = Observer::spawn(
+        None,
+        Observer { observed: Arc::clone(&observed), truth: truth.clone(), weights_equal: true },
+        (),
+    )
+    .await
+    .map_err(|e| SimError::Mock("observer", e.to_string()))?;
+    observe_server(server, &observer);
+    for t in trees {
+        let id = t.id.clone();
+        t.ports.odom.subscribe(observer.clone(), move |m| Some(ObserverMsg::Odom(id.clone(), m.pose)));
+    }
+    let health_task = sample_health(trees, &observer);
+    Ok((observed, observer, health_task))
+}
+
+/// The task that hands every device's state on the robots' health boards to the observer, every
+/// 50 ms, until the observer is gone.
+fn sample_health(trees: &[RobotTree], observer: &ActorRef<ObserverMsg>) -> JoinHandle<()> {
+    // Health: the boards hold every device's state; sampling them misses nothing that lasts.
+    let boards: Vec<(String, Arc<amr_actors::robot::ports::RobotPorts>)> =
+        trees.iter().map(|t| (t.id.clone(), Arc::clone(&t.ports))).collect();
+    let obs = observer.clone();
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(Duration::from_millis(50));
+        loop {
+            every.tick().await;
+            for (id, ports) in &boards {
+                let board: Vec<HealthReport> = ports.health_board.borrow().values().cloned().collect();
+                for report in board {
+                    if obs.cast(ObserverMsg::Health(id.clone(), report)).is_err() {
+                        return;
+                    }
+                }
+            }
+        }
+    })
+}
+
 /// Messages of the observer.
 #[derive(Debug)]
 pub(crate) enum ObserverMsg {
@@ -52,10 +103,10 @@ pub(crate) enum ObserverMsg {
 }
 
 #[derive(Debug)]
-pub(crate) struct Observer {
-    pub(crate) observed: Arc<std::sync::Mutex<Observed>>,
-    pub(crate) truth: TruthLog,
-    pub(crate) weights_equal: bool,
+struct Observer {
+    observed: Arc<std::sync::Mutex<Observed>>,
+    truth: TruthLog,
+    weights_equal: bool,
 }
 
 impl Observer {

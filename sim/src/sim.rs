@@ -5,23 +5,24 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use amr_actors::clock::FleetClock;
-use amr_actors::config::Config;
-use amr_actors::link::{LinkControl, in_process};
+use amr_actors::config::{Config, RobotConfig};
+use amr_actors::link::{LinkControl, RobotEnd, in_process};
 use amr_actors::robot::ports::AbortOnDrop;
 use amr_actors::robot::{RobotOptions, RobotTree, start_robot};
 use amr_actors::server::formation::{FormationStatus, Phase};
 use amr_actors::server::{ServerSetup, ServerTree, formation_robots, start_server};
 use amr_actors::supervisor::RestartPolicy;
 use amr_core::config::Configuration;
+use amr_core::map::OccupancyGrid;
 use amr_core::metrics::ErrorStats;
 use amr_core::se2::Se2;
-use amr_msgs::{Health, HealthReport};
+use amr_msgs::Health;
 use hil_mocks::world::SharedWorld;
-use ractor::{Actor, ActorRef};
+use ractor::ActorRef;
 use tokio::time::{Instant, MissedTickBehavior};
 
 use crate::mocks::{RobotMocks, start_mocks};
-use crate::observer::{Observed, Observer, ObserverMsg, observe_server};
+use crate::observer::{self, Observed, ObserverMsg, observe_server};
 use crate::options::{SimCan, SimError, SimOptions};
 use crate::report::{SimReport, latency_table};
 use crate::survey;
@@ -54,13 +55,7 @@ impl Sim {
     /// Start the world, the mocks, the server and every robot of the server's formation.
     pub async fn start(config: &Config, options: SimOptions) -> Result<Sim, SimError> {
         let sc = &options.scenario;
-        let (map_name, map) = match &options.map {
-            Some(m) => m.clone(),
-            None => (
-                sc.map.clone(),
-                config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone(),
-            ),
-        };
+        let (map_name, map) = scenario_map(config, &options)?;
         let robots = formation_robots(&config.server, &config.robots)?;
         let site = site_for(&map_name, &map)?;
         check_formation(&site, sc, &robots)?;
@@ -82,70 +77,13 @@ impl Sim {
         // The link, the server, the robots.
         let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
         let (server_end, robot_ends, link) = in_process(&ids);
-        let mut server_cfg = config.server.clone();
-        if let Some(c) = options.configuration {
-            server_cfg.configuration = c;
-        }
-        let configuration = server_cfg.configuration;
-        let setup = ServerSetup {
-            server: server_cfg,
-            vamr: config.vamr.clone(),
-            amcl: config.amcl.clone(),
-            map,
-            robots: robots.clone(),
-            scenario: sc.clone(),
-            seed: options.seed,
-            auto_arm: amr_actors::server::AutoArm::Mock,
-            policy: RestartPolicy::default(),
-            progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
-        };
+        let setup = server_setup(config, &options, map, &robots);
+        let configuration = setup.server.configuration;
         let server = start_server(setup.clone(), server_end, clock).await?;
-        let mut trees = Vec::new();
-        for ((r, end), m) in robots.iter().zip(robot_ends).zip(&mocks) {
-            trees.push(
-                start_robot(
-                    r,
-                    m.overrides(),
-                    end,
-                    clock,
-                    RobotOptions { mock: true, ..RobotOptions::default() },
-                )
-                .await?,
-            );
-        }
+        let trees = start_robots(&robots, robot_ends, &mocks, clock).await?;
 
         // The observer scores estimates and records health.
-        let observed = Arc::new(std::sync::Mutex::new(Observed::default()));
-        let (observer, _) = Observer::spawn(
-            None,
-            Observer { observed: Arc::clone(&observed), truth: truth.clone(), weights_equal: true },
-            (),
-        )
-        .await
-        .map_err(|e| SimError::Mock("observer", e.to_string()))?;
-        observe_server(&server, &observer);
-        for t in &trees {
-            let id = t.id.clone();
-            t.ports.odom.subscribe(observer.clone(), move |m| Some(ObserverMsg::Odom(id.clone(), m.pose)));
-        }
-        // Health: the boards hold every device's state; sampling them misses nothing that lasts.
-        let boards: Vec<(String, Arc<amr_actors::robot::ports::RobotPorts>)> =
-            trees.iter().map(|t| (t.id.clone(), Arc::clone(&t.ports))).collect();
-        let obs = observer.clone();
-        let health_task = tokio::spawn(async move {
-            let mut every = tokio::time::interval(Duration::from_millis(50));
-            loop {
-                every.tick().await;
-                for (id, ports) in &boards {
-                    let board: Vec<HealthReport> = ports.health_board.borrow().values().cloned().collect();
-                    for report in board {
-                        if obs.cast(ObserverMsg::Health(id.clone(), report)).is_err() {
-                            return;
-                        }
-                    }
-                }
-            }
-        });
+        let (observed, observer, health_task) = observer::start(&truth, &server, &trees).await?;
 
         Ok(Sim {
             clock,
@@ -360,6 +298,61 @@ impl Sim {
             m.imu.shutdown();
         }
     }
+}
+
+/// The scenario's map, its name and its grid: the scenario file's own, else the configuration's
+/// map that the scenario names.
+fn scenario_map(config: &Config, options: &SimOptions) -> Result<(String, OccupancyGrid), SimError> {
+    let sc = &options.scenario;
+    Ok(match &options.map {
+        Some(m) => m.clone(),
+        None => {
+            (sc.map.clone(), config.maps.get(&sc.map).ok_or_else(|| SimError::NoMap(sc.map.clone()))?.clone())
+        }
+    })
+}
+
+/// What the server starts with: the configuration's server (with the run's T1–T4 when it names
+/// them), AMCL on `map`, the formation's `robots`, the scenario and the seed; it arms by itself.
+fn server_setup(
+    config: &Config,
+    options: &SimOptions,
+    map: OccupancyGrid,
+    robots: &[RobotConfig],
+) -> ServerSetup {
+    let mut server_cfg = config.server.clone();
+    if let Some(c) = options.configuration {
+        server_cfg.configuration = c;
+    }
+    ServerSetup {
+        server: server_cfg,
+        vamr: config.vamr.clone(),
+        amcl: config.amcl.clone(),
+        map,
+        robots: robots.to_vec(),
+        scenario: options.scenario.clone(),
+        seed: options.seed,
+        auto_arm: amr_actors::server::AutoArm::Mock,
+        policy: RestartPolicy::default(),
+        progress: std::sync::Arc::new(amr_actors::server::progress::PlanProgress::in_memory()),
+    }
+}
+
+/// Every robot of the formation, each on its end of the link and its own mocks.
+async fn start_robots(
+    robots: &[RobotConfig],
+    ends: Vec<RobotEnd>,
+    mocks: &[RobotMocks],
+    clock: FleetClock,
+) -> Result<Vec<RobotTree>, SimError> {
+    let mut trees = Vec::new();
+    for ((r, end), m) in robots.iter().zip(ends).zip(mocks) {
+        trees.push(
+            start_robot(r, m.overrides(), end, clock, RobotOptions { mock: true, ..RobotOptions::default() })
+                .await?,
+        );
+    }
+    Ok(trees)
 }
 
 /// Distance helper for the final formation check.
