@@ -190,7 +190,7 @@ impl Server {
         Some(uplink)
     }
 
-    /// The server's bridge on a sample (`start_server_bridge` in net/src/bridge.rs).
+    /// The server's bridge on a sample (`start_server_bridge` in net/src/bridge/server.rs).
     fn bridge(
         &mut self,
         bytes: &[u8],
@@ -293,7 +293,7 @@ impl Server {
             odom,
             odom_frame,
         });
-        // The robot's bridge (`Stamper::encode` in net/src/bridge.rs).
+        // The robot's bridge (`Stamper::encode` in net/src/bridge/mod.rs).
         if flags & 0x10 == 0 {
             self.seq += 1;
         }
