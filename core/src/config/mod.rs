@@ -27,7 +27,10 @@ pub use amr_settings::{ConfigError, ConfigFileType, Violation, join, key_line, p
 pub use amcl::{AmclParams, InitialPose, LaserModel};
 pub use robot::{ChassisConfig, KinematicsConfig, MotionLimits, MountConfig, RobotId, SafetyConfig};
 pub use scenario::{ScenarioConfig, ScenarioLimits, Segment, StartPose};
-pub use server::{Configuration, FormationMember, IntegrityChecks, OnRobotLost, ServerConfig, SyncGates};
+pub use server::{
+    Configuration, FormationMember, HeadingFrom, IntegrityChecks, OnRobotLost, PositionFrom, ServerConfig,
+    SyncGates,
+};
 pub use vamr::{
     AmclMotion, ContourParams, FusionParams, HeadingParams, PreprocessParams, TrackerParams, VamrParams,
 };

@@ -18,6 +18,48 @@ pub enum Configuration {
     T4,
 }
 
+/// Where a configuration takes the relative position from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PositionFrom {
+    /// The two robots' own AMCL poses.
+    Amcl,
+    /// The contour tracker, in the observer's scan.
+    Tracker,
+}
+
+/// Where a configuration takes the relative heading from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeadingFrom {
+    /// The two robots' own AMCL poses.
+    Amcl,
+    /// The heading search against the observer's scan.
+    Search,
+}
+
+impl Configuration {
+    /// What the configuration means: the sources of the relative position and heading.
+    #[must_use]
+    pub fn sources(self) -> (PositionFrom, HeadingFrom) {
+        match self {
+            Configuration::T1 => (PositionFrom::Amcl, HeadingFrom::Amcl),
+            Configuration::T2 => (PositionFrom::Amcl, HeadingFrom::Search),
+            Configuration::T3 => (PositionFrom::Tracker, HeadingFrom::Amcl),
+            Configuration::T4 => (PositionFrom::Tracker, HeadingFrom::Search),
+        }
+    }
+
+    /// The configuration of these sources (T1–T4 are names for the four).
+    #[must_use]
+    pub fn of(position: PositionFrom, heading: HeadingFrom) -> Configuration {
+        match (position, heading) {
+            (PositionFrom::Amcl, HeadingFrom::Amcl) => Configuration::T1,
+            (PositionFrom::Amcl, HeadingFrom::Search) => Configuration::T2,
+            (PositionFrom::Tracker, HeadingFrom::Amcl) => Configuration::T3,
+            (PositionFrom::Tracker, HeadingFrom::Search) => Configuration::T4,
+        }
+    }
+}
+
 /// One robot of the formation.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -133,5 +175,20 @@ impl ConfigFileType for ServerConfig {
             ),
         )?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn t1_to_t4_name_the_four_choices_of_sources() {
+        for c in [Configuration::T1, Configuration::T2, Configuration::T3, Configuration::T4] {
+            let (p, h) = c.sources();
+            assert_eq!(Configuration::of(p, h), c);
+        }
+        assert_eq!(Configuration::T4.sources(), (PositionFrom::Tracker, HeadingFrom::Search));
+        assert_eq!(Configuration::T2.sources(), (PositionFrom::Amcl, HeadingFrom::Search));
     }
 }
