@@ -1,6 +1,6 @@
-//! The robot's latched stops on disk, so that a restart of `amr robot` (a crash, `kill -9`, a
-//! power cycle of its computer) is not a reset (ISO 13850: an e-stop is cleared only by a
-//! deliberate reset).
+//! The e-stop latch in memory ([`EStopLatch`]: which sources hold it) and the robot's latched
+//! stops on disk, so that a restart of `amr robot` (a crash, `kill -9`, a power cycle of its
+//! computer) is not a reset (ISO 13850: an e-stop is cleared only by a deliberate reset).
 //!
 //! The file holds which e-stop sources hold the latch, whether a fault is latched, and a count
 //! reserved above every stop count used so far (an arm must carry the count, so it must never go
@@ -13,8 +13,73 @@
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 
-use super::ports::EStopSource;
+/// Where an e-stop came from. A reset clears only the sources at its own place (ISO 13850: a
+/// reset is a manual action where the stop was initiated): the server's or an operator's reset
+/// over the network clears a network e-stop, never one pressed on the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EStopSource {
+    /// Over the link (the server's `estop`, an operator's `amr estop`).
+    Network = 1,
+    /// On the robot's computer (SIGUSR1 to `amr robot`, the in-process control).
+    Local = 2,
+    /// The e-stop chain on a drive's digital input.
+    Input = 4,
+}
+
+/// The e-stop latch: which sources hold it. It lives in the ports, not in the safety actor, so
+/// that it survives the actor's restart and an e-stop that arrives while no safety actor runs is
+/// not lost.
+#[derive(Debug, Default)]
+pub struct EStopLatch {
+    sources: AtomicU8,
+    /// The drive input reads pressed now (a local reset cannot clear it until it is released).
+    input_pressed: AtomicBool,
+}
+
+impl EStopLatch {
+    /// A latch held by `sources` ([`EStopSource`] bits), as restored from the file.
+    #[must_use]
+    pub(crate) fn holding(sources: u8) -> Self {
+        EStopLatch { sources: AtomicU8::new(sources), input_pressed: AtomicBool::new(false) }
+    }
+
+    /// Latch from `source`.
+    pub fn set(&self, source: EStopSource) {
+        self.sources.fetch_or(source as u8, Ordering::SeqCst);
+    }
+
+    /// The sources that hold it ([`EStopSource`] bits).
+    #[must_use]
+    pub fn sources(&self) -> u8 {
+        self.sources.load(Ordering::SeqCst)
+    }
+
+    /// Whether any source holds it.
+    #[must_use]
+    pub fn is_set(&self) -> bool {
+        self.sources.load(Ordering::SeqCst) != 0
+    }
+
+    /// The e-stop input's state now (set by the drive actor on every change).
+    pub fn input(&self, pressed: bool) {
+        self.input_pressed.store(pressed, Ordering::SeqCst);
+        if pressed {
+            self.set(EStopSource::Input);
+        }
+    }
+
+    /// A reset from the network (`local` false) or on the robot (`local` true): clears the sources
+    /// of its place (a pressed input stays); true if nothing holds the latch any more.
+    pub fn reset(&self, local: bool) -> bool {
+        let mut mask = if local { EStopSource::Local as u8 } else { EStopSource::Network as u8 };
+        if local && !self.input_pressed.load(Ordering::SeqCst) {
+            mask |= EStopSource::Input as u8;
+        }
+        self.sources.fetch_and(!mask, Ordering::SeqCst) & !mask == 0
+    }
+}
 
 /// What is latched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -5,7 +5,7 @@
 //! disarm, e-stop, reset, health changes) goes through [`SafetyInbox`] instead, which loses nothing.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use amr_drivers::canopen::master::MasterEvent;
@@ -24,6 +24,7 @@ pub struct ImuReading {
     pub yaw_rate_radps: f64,
 }
 
+pub use super::latches::{EStopLatch, EStopSource};
 /// Wheel travel since the previous cycle, from the encoders: what the odometer folds in.
 pub use amr_core::odometry::Travel as WheelTravel;
 
@@ -41,66 +42,6 @@ pub struct WheelCommand {
 pub enum SafetyControl {
     EStop,
     ResetEStop,
-}
-
-/// Where an e-stop came from. A reset clears only the sources at its own place (ISO 13850: a
-/// reset is a manual action where the stop was initiated): the server's or an operator's reset
-/// over the network clears a network e-stop, never one pressed on the robot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EStopSource {
-    /// Over the link (the server's `estop`, an operator's `amr estop`).
-    Network = 1,
-    /// On the robot's computer (SIGUSR1 to `amr robot`, the in-process control).
-    Local = 2,
-    /// The e-stop chain on a drive's digital input.
-    Input = 4,
-}
-
-/// The e-stop latch: which sources hold it. It lives in the ports, not in the safety actor, so
-/// that it survives the actor's restart and an e-stop that arrives while no safety actor runs is
-/// not lost.
-#[derive(Debug, Default)]
-pub struct EStopLatch {
-    sources: AtomicU8,
-    /// The drive input reads pressed now (a local reset cannot clear it until it is released).
-    input_pressed: AtomicBool,
-}
-
-impl EStopLatch {
-    /// Latch from `source`.
-    pub fn set(&self, source: EStopSource) {
-        self.sources.fetch_or(source as u8, Ordering::SeqCst);
-    }
-
-    /// The sources that hold it ([`EStopSource`] bits).
-    #[must_use]
-    pub fn sources(&self) -> u8 {
-        self.sources.load(Ordering::SeqCst)
-    }
-
-    /// Whether any source holds it.
-    #[must_use]
-    pub fn is_set(&self) -> bool {
-        self.sources.load(Ordering::SeqCst) != 0
-    }
-
-    /// The e-stop input's state now (set by the drive actor on every change).
-    pub fn input(&self, pressed: bool) {
-        self.input_pressed.store(pressed, Ordering::SeqCst);
-        if pressed {
-            self.set(EStopSource::Input);
-        }
-    }
-
-    /// A reset from the network (`local` false) or on the robot (`local` true): clears the sources
-    /// of its place (a pressed input stays); true if nothing holds the latch any more.
-    pub fn reset(&self, local: bool) -> bool {
-        let mut mask = if local { EStopSource::Local as u8 } else { EStopSource::Network as u8 };
-        if local && !self.input_pressed.load(Ordering::SeqCst) {
-            mask |= EStopSource::Input as u8;
-        }
-        self.sources.fetch_and(!mask, Ordering::SeqCst) & !mask == 0
-    }
 }
 
 /// One input of the safety layer.
@@ -278,8 +219,7 @@ impl RobotPorts {
         latched: super::latches::Latched,
         mock: bool,
     ) -> Arc<Self> {
-        let estop_latch = EStopLatch::default();
-        estop_latch.sources.store(latched.estop, Ordering::SeqCst);
+        let estop_latch = EStopLatch::holding(latched.estop);
         Arc::new(RobotPorts {
             robot: robot.into(),
             clock,
