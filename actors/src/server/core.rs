@@ -16,15 +16,14 @@
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use amr_core::amcl::IntegrityState;
 use amr_core::amcl::{Amcl, LikelihoodField, UpdateOutcome, scan_points};
 use amr_core::config::{AmclMotion, AmclParams, Configuration, IntegrityChecks, VamrParams};
 use amr_core::geometry::Polygon;
 use amr_core::se2::Se2;
-use amr_core::vamr::frame::{PacketTimes, virtual_frame};
-use amr_core::vamr::pipeline::{Oracle, Pipeline, RobotPacket, Source, Stage, UpdateError};
+use amr_core::vamr::frame::virtual_frame;
+use amr_core::vamr::pipeline::{Oracle, Pipeline, Stage, UpdateError};
 use amr_msgs::{
-    Anchored, Estimate, EstimateIntegrity, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, StageTimes, Uplink,
+    Anchored, Estimate, EstimateIntegrity, EstimateSource, FusedFrame, MAX_BEAMS, ScanMsg, Uplink,
 };
 
 /// Scans kept per robot for pairing.
@@ -522,171 +521,6 @@ impl ServerCore {
         }
         Some(set)
     }
-
-    fn fuse(&mut self, set: &[Held], now_s: f64, lap: &mut dyn FnMut(Lap), step: &mut Step) {
-        for (i, h) in set.iter().enumerate() {
-            self.fused_stamp[i] = h.stamp_s;
-        }
-        // Each robot's own estimate at its scan of the set, when its filter is tracking.
-        let own: Vec<Option<Se2>> = set
-            .iter()
-            .enumerate()
-            .map(|(i, h)| {
-                let tracking = self
-                    .robot_filters
-                    .get(i)
-                    .is_some_and(|f| f.integrity_state() == IntegrityState::Tracking);
-                self.corrections.get(i).copied().flatten().filter(|_| tracking).map(|c| c * h.odom)
-            })
-            .collect();
-        let oldest = set.iter().map(|h| h.stamp_s).fold(f64::INFINITY, f64::min);
-        let packets: Vec<RobotPacket<'_>> = set
-            .iter()
-            .zip(&self.members)
-            .enumerate()
-            .map(|(i, (h, m))| RobotPacket {
-                scan: &h.scan,
-                times: PacketTimes { stamp_s: h.stamp_s, received_s: h.rx_s },
-                lidar_to_base: m.lidar_to_base,
-                chassis: &m.chassis,
-                weight: m.weight,
-                amcl_pose: self.corrections.get(i).copied().flatten().map(|c| c * h.odom),
-                truth: h.truth,
-                odom: Some(h.odom),
-            })
-            .collect();
-        let (first, first_odom) = set.first().map_or((oldest, Se2::IDENTITY), |h| (h.stamp_s, h.odom));
-        // The oracle's V in robot 0's frame, from the true relative poses.
-        let true_v_in_reference = self.oracle.odometry.then(|| true_v_in_first(set, &self.members)).flatten();
-        // Where each robot stands in its observer's frame by the two robots' own tracking
-        // estimates: where a lost track is looked for again (the slots say where it should be,
-        // but a formation that stopped, coasted or was pushed may stand elsewhere, and holding
-        // for a verified V it would never move back).
-        let relative: Vec<Option<Se2>> = (0..self.members.len())
-            .map(|i| {
-                let o = observer(&self.members, i);
-                if i == 0 {
-                    return None;
-                }
-                Some(own.get(o).copied().flatten()?.inverse() * own.get(i).copied().flatten()?)
-            })
-            .collect();
-        let restart_after_s = self.checks.restart_after_ms / 1000.0;
-        for ch in &mut self.channels {
-            let c = ch.configuration;
-            for (i, r) in relative.iter().enumerate() {
-                if let Some(r) = r {
-                    ch.pipeline.set_expected(i, [r.x, r.y], 0.5);
-                    ch.pipeline.set_expected_heading(i, r.theta);
-                }
-            }
-            // After a gap in fusion V's filter starts again from the robots' own estimates: what
-            // it carried across the gap on V's odometry alone is not trusted.
-            if ch.last_fused_s.is_some_and(|t| now_s - t > restart_after_s) {
-                ch.started = false;
-                ch.last_fused_s = None;
-            }
-            let result = ch.pipeline.update_with_laps(&packets, &mut |stage| lap(Lap::Pipeline(c, stage)));
-            if result.is_ok() {
-                ch.last_fused_s = Some(now_s);
-            }
-            let u = match result {
-                Ok(u) => u,
-                Err(e) => {
-                    let heading_failed = matches!(e, UpdateError::NoHeading { .. });
-                    step.fusions.push(Fusion {
-                        configuration: ch.configuration,
-                        result: Err(e),
-                        full_search: false,
-                        heading_failed,
-                    });
-                    continue;
-                }
-            };
-            ch.seq += 1;
-            let full_search = u.pairs.iter().any(|p| p.full_search);
-            let heading_failed = u.pairs.iter().any(|p| p.heading_source == Source::PreviousHeading);
-            let points = u
-                .virtual_scan
-                .as_ref()
-                .map(|v| Arc::new(v.points.iter().map(|(p, _)| *p).collect::<Vec<[f64; 2]>>()));
-            let frame = FusedFrame {
-                seq: ch.seq,
-                configuration: ch.configuration,
-                stamp_s: first,
-                oldest_stamp_s: oldest,
-                v_odom: first_odom * true_v_in_reference.unwrap_or(u.v_in_reference),
-                points,
-                robots: u.bases_in_v.iter().zip(set).map(|(b, h)| (*b, h.odom)).collect(),
-                times: StageTimes { acquisition_sync_s: now_s - oldest, ..StageTimes::default() },
-            };
-            let bases_in_v: Vec<Se2> = frame.robots.iter().map(|(b, _)| *b).collect();
-            if let Some(filter) = ch.filter.as_mut().filter(|_| !ch.started) {
-                // V where the robots' own tracking estimates put it (their mean); none tracking
-                // yet: V waits, with no estimate.
-                let start =
-                    mean_pose(own.iter().zip(&bases_in_v).filter_map(|(o, b)| o.map(|o| o * b.inverse())));
-                if let Some(v0) = start {
-                    tracing::info!(configuration = ?c, x = v0.x, y = v0.y, theta = v0.theta, "V's filter starts where the robots' own estimates put it");
-                    filter.init_pose(v0, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
-                    ch.started = true;
-                }
-            }
-            let v = match (&frame.points, ch.filter.as_mut()) {
-                (Some(_), Some(_)) if !ch.started => None,
-                (Some(points), Some(filter)) => {
-                    if self.amcl_motion == AmclMotion::Reference {
-                        // The reference robot stands where V's odometry was composed from.
-                        filter.set_motion_body(true_v_in_reference.unwrap_or(u.v_in_reference).inverse());
-                    }
-                    let before = filter.integrity_state();
-                    if matches!(filter.update(frame.v_odom, points, false), UpdateOutcome::Updated { .. }) {
-                        step.updated.push(EstimateSource::Fused(ch.configuration));
-                    }
-                    if let Some(now) = filter.integrity().filter(|n| n.state != before) {
-                        tracing::info!(
-                            configuration = ?c, from = %before, to = %now.state, explained = now.explained,
-                            level = now.level, "V's localisation changed state"
-                        );
-                    }
-                    filter.pose_at(&frame.v_odom)
-                }
-                // T1: V from the reference robot's own AMCL (the relative poses came from AMCL).
-                _ => self.corrections.first().copied().flatten().map(|c| c * frame.v_odom),
-            };
-            lap(Lap::VirtualAmcl(c));
-            if let Some(v) = v {
-                let robots = frame
-                    .robots
-                    .iter()
-                    .map(|(base_in_v, odom)| {
-                        Some(Anchored { map: v * *base_in_v, odom: *odom, stamp_s: first })
-                    })
-                    .collect();
-                let judged = match ch.filter.as_ref() {
-                    Some(f) => f.integrity(),
-                    None => self.robot_filters.first().and_then(Amcl::integrity),
-                };
-                let mut integrity = EstimateIntegrity::of(judged);
-                integrity.disagrees = disagreeing(v, &bases_in_v, &own, &self.checks);
-                step.estimates.push(Estimate {
-                    source: EstimateSource::Fused(ch.configuration),
-                    stamp_s: first,
-                    v: Some(v),
-                    robots,
-                    integrity,
-                    // V's filter's; T1 has none (V comes from the reference robot's estimate).
-                    covariance: ch.filter.as_ref().and_then(Amcl::estimate).map(|e| e.covariance),
-                });
-            }
-            step.fusions.push(Fusion {
-                configuration: ch.configuration,
-                result: Ok(frame),
-                full_search,
-                heading_failed,
-            });
-        }
-    }
 }
 
 /// AMCL's parameters for a virtual scan fused from `robots` robots: each robot's beams keep their
@@ -760,6 +594,8 @@ fn true_v_in_first(set: &[Held], members: &[Member]) -> Option<Se2> {
         set.iter().zip(members).map(|(h, m)| h.truth.map(|t| (first.inverse() * t, m.weight))).collect();
     Some(virtual_frame(&rel?))
 }
+
+mod fuse;
 
 #[cfg(test)]
 mod tests;
