@@ -241,6 +241,20 @@ fn finite(p: &Se2) -> bool {
     p.x.is_finite() && p.y.is_finite() && p.theta.is_finite()
 }
 
+/// What one tick checks before the phase decides.
+#[derive(Debug)]
+struct Checks {
+    now: f64,
+    /// Every robot's devices are Ok.
+    healthy: bool,
+    /// Every robot localised and healthy, none lost.
+    ready: bool,
+    /// The first robot whose pose is not verified, and why.
+    unverified: Option<String>,
+    /// The first robot that stopped by itself (e-stop, fault, disarmed), and how.
+    stopped_by_robot: Option<(usize, SafetyState)>,
+}
+
 impl FormationActor {
     fn send(&self, robot: usize, state: &mut FormationState, msg: impl FnOnce(u64) -> Downlink) {
         let r = &mut state.robots[robot];
@@ -276,158 +290,24 @@ impl FormationActor {
 
     fn tick(&self, state: &mut FormationState) {
         let now = self.ports.clock.now_s();
-        let dt = self.params.period_s;
         let localised = state.robots.iter().all(|r| r.pose_now(now).is_some());
         let healthy = state.robots.iter().all(RobotView::devices_ok);
-        let ready = localised && healthy && state.lost.is_none();
-        // The first robot whose pose is not verified, and why.
-        let unverified = state.robots.iter().find_map(|r| r.verified(now, &self.ports.robots).err());
-        let stopped_by_robot = state.robots.iter().enumerate().find_map(|(i, r)| match r.safety {
-            Some(s @ (SafetyState::EStop | SafetyState::Fault | SafetyState::Disarmed(_))) => Some((i, s)),
-            _ => None,
-        });
+        let checks = Checks {
+            now,
+            healthy,
+            ready: localised && healthy && state.lost.is_none(),
+            unverified: state.robots.iter().find_map(|r| r.verified(now, &self.ports.robots).err()),
+            stopped_by_robot: state.robots.iter().enumerate().find_map(|(i, r)| match r.safety {
+                Some(s @ (SafetyState::EStop | SafetyState::Fault | SafetyState::Disarmed(_))) => {
+                    Some((i, s))
+                }
+                _ => None,
+            }),
+        };
         match state.phase.clone() {
-            Phase::Waiting => {
-                // A formation that has run before (this one, or an earlier one on this plan, as
-                // the progress record says: a restarted server) may arm on its robots' own
-                // verified estimates alone: it then holds, closing up on its slots (the plan
-                // paused) until V is verified. After faults the robots may stand where the fusion
-                // cannot find one of them again, and disarmed they would never move back. A fresh
-                // job, its robots placed in their slots, waits for V.
-                let own_verified = state.robots.iter().all(|r| r.own_verified_now(now).is_some());
-                let has_run = state.plan_s > 0.0 || state.record_s.is_some();
-                let may_reform = has_run && own_verified;
-                // `--auto-arm` moves only robots that say they drive mock devices.
-                let mock: Vec<bool> = state.robots.iter().map(|r| r.mock).collect();
-                let auto_may = arm_authorised(self.params.auto_arm, state.by_operator, &mock);
-                // No arm while a robot is latched in e-stop or fault: it would refuse it, and the
-                // others would be armed beside it.
-                let latched = state
-                    .robots
-                    .iter()
-                    .any(|r| matches!(r.safety, Some(SafetyState::EStop | SafetyState::Fault)));
-                if latched && state.arm_allowed {
-                    // A reset of the latch must not start the formation (ISO 13850): a re-arm
-                    // given before it lapses, and the operator gives a new one after the reset.
-                    tracing::warn!("formation: a robot is e-stopped or faulted; the re-arm lapses");
-                    state.arm_allowed = false;
-                    state.by_operator = false;
-                }
-                let may_arm = ready && !latched && (unverified.is_none() || may_reform) && state.arm_allowed;
-                if may_arm && !auto_may {
-                    if !state.auto_refused {
-                        let real: Vec<&String> = state
-                            .robots
-                            .iter()
-                            .zip(self.ports.robots.iter())
-                            .filter(|(r, _)| !r.mock)
-                            .map(|(_, n)| n)
-                            .collect();
-                        tracing::warn!(
-                            ?real,
-                            "auto-arm: these robots drive real hardware; waiting for the operator's rearm"
-                        );
-                        state.auto_refused = true;
-                    }
-                } else if may_arm {
-                    if state.teleop.is_some() {
-                        // Teleoperated: no plan point to resume at.
-                    } else if state.plan_s > 0.0 {
-                        self.resync_plan(state, now);
-                    } else if state.record_s.is_some() || self.away_from_start(state, now) {
-                        self.resume_where_v_is(state, now);
-                    }
-                    for i in 0..state.robots.len() {
-                        let stops = state.robots[i].stops;
-                        self.send(i, state, |seq| Downlink::Arm { seq: seq + 1, stops, stamp_s: now });
-                    }
-                    state.phase = Phase::Arming { since_s: now };
-                }
-            }
-            Phase::Arming { since_s } => {
-                if state.robots.iter().all(|r| r.safety == Some(SafetyState::Armed)) {
-                    tracing::info!(plan_s = state.plan_s, "formation running");
-                    self.params.auto_armed.store(true, std::sync::atomic::Ordering::SeqCst);
-                    state.phase = Phase::Running;
-                } else if now - since_s > ARM_TIMEOUT_S {
-                    state.phase = Phase::Waiting;
-                } else {
-                    self.command_all_zero(state, now);
-                }
-            }
-            Phase::Running | Phase::Holding { .. } => {
-                if let Some((i, s)) = stopped_by_robot {
-                    let reason = format!("{} is {s:?}", self.ports.robots[i]);
-                    self.stop(state, reason);
-                } else if !ready {
-                    let reason = match state.lost {
-                        Some(i) => format!("{}'s scans stopped", self.ports.robots[i]),
-                        None if !healthy => "a robot's devices are not all Ok".to_owned(),
-                        None => "a robot is not localised".to_owned(),
-                    };
-                    match self.params.on_robot_lost {
-                        OnRobotLost::Stop => self.stop(state, reason),
-                        OnRobotLost::Hold => {
-                            if !matches!(state.phase, Phase::Holding { .. }) {
-                                tracing::warn!(%reason, "formation holding");
-                            }
-                            self.command_all_zero(state, now);
-                            state.phase = Phase::Holding { reason };
-                        }
-                    }
-                } else if let Some(why) = unverified {
-                    // Never on an unverified pose: hold (zero twist, robots armed, the plan
-                    // paused) whatever `on_robot_lost` says, and resume by itself once verified.
-                    let reason = format!("localisation not verified: {why}");
-                    if state.phase != (Phase::Holding { reason: reason.clone() }) {
-                        tracing::warn!(%reason, "formation holding");
-                    }
-                    // With no fused estimate at all but every robot's own estimate verified, the
-                    // robots close up on their slots around the paused plan point (on those
-                    // verified poses, the plan not advancing): a formation that stopped, coasted
-                    // or was pushed out of shape may stand where the fusion cannot find a robot
-                    // again, and holding there it never would.
-                    if !self.reform(state, now) {
-                        self.command_all_zero(state, now);
-                    }
-                    state.phase = Phase::Holding { reason };
-                } else if let Some(why) = self.out_of_shape(state, now) {
-                    // On a verified V, but a robot is far from its slot: the plan waits while
-                    // every robot drives to its slot around the plan's point.
-                    let (who, detail) = why;
-                    let reason = format!("re-forming: {who} is out of its slot");
-                    if state.phase != (Phase::Holding { reason: reason.clone() }) {
-                        tracing::warn!(%reason, %detail, "formation holding");
-                    }
-                    let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
-                    if !poses.is_some_and(|p| self.reform_around_plan(state, now, &p)) {
-                        self.command_all_zero(state, now);
-                    }
-                    state.phase = Phase::Holding { reason };
-                } else if let Some((_, _, at)) = state.teleop {
-                    self.teleoperate(state, now, at);
-                } else {
-                    if matches!(state.phase, Phase::Holding { .. }) {
-                        self.resync_plan(state, now);
-                    }
-                    state.phase = Phase::Running;
-                    let k = (state.plan_s / dt).round() as usize;
-                    let Some(r) = self.params.plan.get(k).copied() else {
-                        tracing::info!("formation: plan finished");
-                        self.params.progress.clear();
-                        self.command_all_zero(state, now);
-                        self.disarm_all(state);
-                        state.phase = Phase::Finished;
-                        return;
-                    };
-                    for i in 0..state.robots.len() {
-                        let Some(pose) = state.robots[i].pose_now(now) else { continue };
-                        self.steer(state, i, &r, pose, (r.v_mps, r.w_radps), now);
-                    }
-                    state.plan_s += dt;
-                    self.params.progress.note(&self.params.plan_id, state.plan_s);
-                }
-            }
+            Phase::Waiting => self.wait(state, &checks),
+            Phase::Arming { since_s } => self.arming(state, since_s, now),
+            Phase::Running | Phase::Holding { .. } => self.drive(state, checks),
             Phase::Stopped { .. } => {
                 if state.arm_allowed {
                     state.phase = Phase::Waiting;
@@ -435,6 +315,161 @@ impl FormationActor {
             }
             Phase::Finished => {}
         }
+    }
+
+    /// Waiting: arm when every check allows it (and the operator or `--auto-arm` does).
+    fn wait(&self, state: &mut FormationState, checks: &Checks) {
+        let (now, ready, unverified) = (checks.now, checks.ready, &checks.unverified);
+        // A formation that has run before (this one, or an earlier one on this plan, as
+        // the progress record says: a restarted server) may arm on its robots' own
+        // verified estimates alone: it then holds, closing up on its slots (the plan
+        // paused) until V is verified. After faults the robots may stand where the fusion
+        // cannot find one of them again, and disarmed they would never move back. A fresh
+        // job, its robots placed in their slots, waits for V.
+        let own_verified = state.robots.iter().all(|r| r.own_verified_now(now).is_some());
+        let has_run = state.plan_s > 0.0 || state.record_s.is_some();
+        let may_reform = has_run && own_verified;
+        // `--auto-arm` moves only robots that say they drive mock devices.
+        let mock: Vec<bool> = state.robots.iter().map(|r| r.mock).collect();
+        let auto_may = arm_authorised(self.params.auto_arm, state.by_operator, &mock);
+        // No arm while a robot is latched in e-stop or fault: it would refuse it, and the
+        // others would be armed beside it.
+        let latched =
+            state.robots.iter().any(|r| matches!(r.safety, Some(SafetyState::EStop | SafetyState::Fault)));
+        if latched && state.arm_allowed {
+            // A reset of the latch must not start the formation (ISO 13850): a re-arm
+            // given before it lapses, and the operator gives a new one after the reset.
+            tracing::warn!("formation: a robot is e-stopped or faulted; the re-arm lapses");
+            state.arm_allowed = false;
+            state.by_operator = false;
+        }
+        let may_arm = ready && !latched && (unverified.is_none() || may_reform) && state.arm_allowed;
+        if may_arm && !auto_may {
+            if !state.auto_refused {
+                let real: Vec<&String> = state
+                    .robots
+                    .iter()
+                    .zip(self.ports.robots.iter())
+                    .filter(|(r, _)| !r.mock)
+                    .map(|(_, n)| n)
+                    .collect();
+                tracing::warn!(
+                    ?real,
+                    "auto-arm: these robots drive real hardware; waiting for the operator's rearm"
+                );
+                state.auto_refused = true;
+            }
+        } else if may_arm {
+            if state.teleop.is_some() {
+                // Teleoperated: no plan point to resume at.
+            } else if state.plan_s > 0.0 {
+                self.resync_plan(state, now);
+            } else if state.record_s.is_some() || self.away_from_start(state, now) {
+                self.resume_where_v_is(state, now);
+            }
+            for i in 0..state.robots.len() {
+                let stops = state.robots[i].stops;
+                self.send(i, state, |seq| Downlink::Arm { seq: seq + 1, stops, stamp_s: now });
+            }
+            state.phase = Phase::Arming { since_s: now };
+        }
+    }
+
+    /// Arming: running once every robot is armed, waiting again after [`ARM_TIMEOUT_S`].
+    fn arming(&self, state: &mut FormationState, since_s: f64, now: f64) {
+        if state.robots.iter().all(|r| r.safety == Some(SafetyState::Armed)) {
+            tracing::info!(plan_s = state.plan_s, "formation running");
+            self.params.auto_armed.store(true, std::sync::atomic::Ordering::SeqCst);
+            state.phase = Phase::Running;
+        } else if now - since_s > ARM_TIMEOUT_S {
+            state.phase = Phase::Waiting;
+        } else {
+            self.command_all_zero(state, now);
+        }
+    }
+
+    /// Running or holding: stop on a robot's stop, hold while a check fails (saying which), else
+    /// follow the teleoperator or the plan.
+    fn drive(&self, state: &mut FormationState, checks: Checks) {
+        let Checks { now, healthy, ready, unverified, stopped_by_robot } = checks;
+        if let Some((i, s)) = stopped_by_robot {
+            let reason = format!("{} is {s:?}", self.ports.robots[i]);
+            self.stop(state, reason);
+        } else if !ready {
+            let reason = match state.lost {
+                Some(i) => format!("{}'s scans stopped", self.ports.robots[i]),
+                None if !healthy => "a robot's devices are not all Ok".to_owned(),
+                None => "a robot is not localised".to_owned(),
+            };
+            match self.params.on_robot_lost {
+                OnRobotLost::Stop => self.stop(state, reason),
+                OnRobotLost::Hold => {
+                    if !matches!(state.phase, Phase::Holding { .. }) {
+                        tracing::warn!(%reason, "formation holding");
+                    }
+                    self.command_all_zero(state, now);
+                    state.phase = Phase::Holding { reason };
+                }
+            }
+        } else if let Some(why) = unverified {
+            // Never on an unverified pose: hold (zero twist, robots armed, the plan
+            // paused) whatever `on_robot_lost` says, and resume by itself once verified.
+            let reason = format!("localisation not verified: {why}");
+            if state.phase != (Phase::Holding { reason: reason.clone() }) {
+                tracing::warn!(%reason, "formation holding");
+            }
+            // With no fused estimate at all but every robot's own estimate verified, the
+            // robots close up on their slots around the paused plan point (on those
+            // verified poses, the plan not advancing): a formation that stopped, coasted
+            // or was pushed out of shape may stand where the fusion cannot find a robot
+            // again, and holding there it never would.
+            if !self.reform(state, now) {
+                self.command_all_zero(state, now);
+            }
+            state.phase = Phase::Holding { reason };
+        } else if let Some(why) = self.out_of_shape(state, now) {
+            // On a verified V, but a robot is far from its slot: the plan waits while
+            // every robot drives to its slot around the plan's point.
+            let (who, detail) = why;
+            let reason = format!("re-forming: {who} is out of its slot");
+            if state.phase != (Phase::Holding { reason: reason.clone() }) {
+                tracing::warn!(%reason, %detail, "formation holding");
+            }
+            let poses: Option<Vec<Se2>> = state.robots.iter().map(|r| r.pose_now(now)).collect();
+            if !poses.is_some_and(|p| self.reform_around_plan(state, now, &p)) {
+                self.command_all_zero(state, now);
+            }
+            state.phase = Phase::Holding { reason };
+        } else if let Some((_, _, at)) = state.teleop {
+            self.teleoperate(state, now, at);
+        } else {
+            self.follow_plan(state, now);
+        }
+    }
+
+    /// On a verified V in shape: the plan's next point, every robot steered to its slot around it;
+    /// at the plan's end the formation stops, disarmed, finished.
+    fn follow_plan(&self, state: &mut FormationState, now: f64) {
+        let dt = self.params.period_s;
+        if matches!(state.phase, Phase::Holding { .. }) {
+            self.resync_plan(state, now);
+        }
+        state.phase = Phase::Running;
+        let k = (state.plan_s / dt).round() as usize;
+        let Some(r) = self.params.plan.get(k).copied() else {
+            tracing::info!("formation: plan finished");
+            self.params.progress.clear();
+            self.command_all_zero(state, now);
+            self.disarm_all(state);
+            state.phase = Phase::Finished;
+            return;
+        };
+        for i in 0..state.robots.len() {
+            let Some(pose) = state.robots[i].pose_now(now) else { continue };
+            self.steer(state, i, &r, pose, (r.v_mps, r.w_radps), now);
+        }
+        state.plan_s += dt;
+        self.params.progress.note(&self.params.plan_id, state.plan_s);
     }
 
     /// Teleoperated, on a verified V in shape: every robot follows V's last twist (received at
