@@ -230,49 +230,8 @@ impl Encoder {
         };
         let mut v = Vec::new();
         match event {
-            Event::Uplink(u, rx_s) => {
-                v.push(exact(
-                    "/amr/uplink",
-                    wire::UPLINK_SCHEMA,
-                    u.stamp_s(),
-                    wire::encode_uplink(*rx_s, u)?,
-                ));
-                match u {
-                    Uplink::Scan(s) => v.push(out(
-                        format!("/{}/scan", s.robot),
-                        fg::LASER_SCAN,
-                        s.stamp_s,
-                        fg::laser_scan(s.stamp_s, &format!("{}/laser", s.robot), &s.scan),
-                    )),
-                    Uplink::Odom { robot, msg } => v.extend(self.odom(&out, robot, msg)),
-                    Uplink::Health { robot, stamp_s, report, .. } => {
-                        v.extend(self.health(&out, robot, *stamp_s, report));
-                    }
-                    Uplink::Safety { robot, stamp_s, state, .. } => {
-                        v.extend(self.safety(&out, robot, *stamp_s, *state))
-                    }
-                }
-            }
-            Event::Truth { stamp_s, v: vt, robots } => {
-                v.push(out(
-                    "/truth/V".into(),
-                    fg::POSE_IN_FRAME,
-                    *stamp_s,
-                    fg::pose_in_frame(*stamp_s, "map", vt),
-                ));
-                let mut tf = vec![fg::transform(*stamp_s, "map", "truth/V", vt)];
-                for (i, p) in robots.iter().enumerate() {
-                    let name = self.robot_name(i);
-                    v.push(out(
-                        format!("/truth/{name}"),
-                        fg::POSE_IN_FRAME,
-                        *stamp_s,
-                        fg::pose_in_frame(*stamp_s, "map", p),
-                    ));
-                    tf.push(fg::transform(*stamp_s, "map", &format!("truth/{name}"), p));
-                }
-                v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, *stamp_s, fg::transforms(tf)));
-            }
+            Event::Uplink(u, rx_s) => v.extend(self.uplink(&out, &exact, u, *rx_s)?),
+            Event::Truth { stamp_s, v: vt, robots } => v.extend(self.truth(&out, *stamp_s, vt, robots)),
             Event::EvalEstimate { stamp_s, configuration, v: vm } => {
                 let c = format!("{configuration:?}");
                 v.push(out(
@@ -293,73 +252,9 @@ impl Encoder {
                     fg::points_scan(*stamp_s, &format!("eval/{c}/V"), points),
                 ));
             }
-            Event::Fused(f) => {
-                let record = FusedRecord::of(f);
-                v.push(exact("/amr/fused", wire::FUSED_SCHEMA, f.stamp_s, wire::encode_fused(&record)?));
-                if let Some(points) = &f.points {
-                    v.push(out(
-                        "/virtual/scan".into(),
-                        fg::LASER_SCAN,
-                        f.stamp_s,
-                        fg::points_scan(f.stamp_s, "V", points),
-                    ));
-                }
-            }
-            Event::Estimate(e) => {
-                v.push(exact("/amr/estimates", wire::ESTIMATE_SCHEMA, e.stamp_s, wire::encode_estimate(e)?));
-                match e.source {
-                    EstimateSource::Fused(_) => {
-                        let mut tf = Vec::new();
-                        if let Some(vm) = &e.v {
-                            v.push(out(
-                                "/amcl/V".into(),
-                                fg::POSE_IN_FRAME,
-                                e.stamp_s,
-                                fg::pose_in_frame(e.stamp_s, "map", vm),
-                            ));
-                            tf.push(fg::transform(e.stamp_s, "map", "V", vm));
-                        }
-                        for (i, a) in e.robots.iter().enumerate() {
-                            let Some(a) = a else { continue };
-                            let name = self.robot_name(i);
-                            v.push(out(
-                                format!("/amcl/{name}"),
-                                fg::POSE_IN_FRAME,
-                                e.stamp_s,
-                                fg::pose_in_frame(e.stamp_s, "map", &a.map),
-                            ));
-                            tf.push(fg::transform(
-                                e.stamp_s,
-                                "map",
-                                &format!("{name}/odom"),
-                                &(a.map * a.odom.inverse()),
-                            ));
-                        }
-                        v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, e.stamp_s, fg::transforms(tf)));
-                    }
-                    EstimateSource::Robot(i) => {
-                        let name = self.robot_name(i);
-                        if let Some(Some(a)) = e.robots.get(i) {
-                            v.push(out(
-                                format!("/amcl/{name}/own"),
-                                fg::POSE_IN_FRAME,
-                                e.stamp_s,
-                                fg::pose_in_frame(e.stamp_s, "map", &a.map),
-                            ));
-                        }
-                    }
-                }
-            }
-            Event::Status(s) => {
-                v.push(exact("/amr/status", wire::STATUS_SCHEMA, now_s, wire::encode_status(*s)?));
-                let (level, text) = match s {
-                    FusionStatus::Fusing => (Level::Info, "fusion: fusing".to_owned()),
-                    FusionStatus::RobotLost(i) => {
-                        (Level::Error, format!("fusion: {} lost", self.robot_name(*i)))
-                    }
-                };
-                v.push(out("/health".into(), fg::LOG, now_s, fg::log(now_s, level, "fusion", &text, "", 0)));
-            }
+            Event::Fused(f) => v.extend(self.fused(&out, &exact, f)?),
+            Event::Estimate(e) => v.extend(self.estimate(&out, &exact, e)?),
+            Event::Status(s) => v.extend(self.status(&out, &exact, now_s, s)?),
             Event::Formation(f) => {
                 let (level, text) = formation_line(f);
                 v.push(out(
@@ -369,28 +264,7 @@ impl Encoder {
                     fg::log(now_s, level, "formation", &text, "", 0),
                 ));
             }
-            Event::Particles(p) => {
-                let (topic, frame) = match p.source {
-                    EstimateSource::Fused(_) => ("/amcl/particles".to_owned(), "map"),
-                    EstimateSource::Robot(i) => (format!("/amcl/{}/particles", self.robot_name(i)), "map"),
-                };
-                let due = self
-                    .last_particles
-                    .get(&topic)
-                    .is_none_or(|l| t.saturating_sub(*l) >= PARTICLES_EVERY_NS);
-                if due {
-                    self.last_particles.insert(topic.clone(), t);
-                    let n = p.poses.len();
-                    let step = n.div_ceil(PARTICLES_MAX).max(1);
-                    let poses: Vec<Se2> = p.poses.iter().step_by(step).copied().collect();
-                    v.push(out(
-                        topic,
-                        fg::POSES_IN_FRAME,
-                        p.stamp_s,
-                        fg::poses_in_frame(p.stamp_s, frame, &poses),
-                    ));
-                }
-            }
+            Event::Particles(p) => v.extend(self.particles(&out, t, p)),
             Event::Command(i, d) => v.push(self.command(&out, &self.robot_name(*i), now_s, d)),
             Event::Downlink(robot, d) => v.push(self.command(&out, robot, now_s, d)),
             Event::Scan(s) => v.push(out(
@@ -427,6 +301,176 @@ impl Encoder {
             }
         }
         Ok(v)
+    }
+
+    /// A fused frame: its exact record and the virtual scan.
+    fn fused(
+        &self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        exact: &impl Fn(&str, &'static str, f64, Vec<u8>) -> Out,
+        f: &FusedFrame,
+    ) -> Result<Vec<Out>, wire::WireError> {
+        let mut v = Vec::new();
+        let record = FusedRecord::of(f);
+        v.push(exact("/amr/fused", wire::FUSED_SCHEMA, f.stamp_s, wire::encode_fused(&record)?));
+        if let Some(points) = &f.points {
+            v.push(out(
+                "/virtual/scan".into(),
+                fg::LASER_SCAN,
+                f.stamp_s,
+                fg::points_scan(f.stamp_s, "V", points),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// The fusion's status: its exact record and a line in `/health`.
+    fn status(
+        &self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        exact: &impl Fn(&str, &'static str, f64, Vec<u8>) -> Out,
+        now_s: f64,
+        s: &FusionStatus,
+    ) -> Result<Vec<Out>, wire::WireError> {
+        let mut v = Vec::new();
+        v.push(exact("/amr/status", wire::STATUS_SCHEMA, now_s, wire::encode_status(*s)?));
+        let (level, text) = match s {
+            FusionStatus::Fusing => (Level::Info, "fusion: fusing".to_owned()),
+            FusionStatus::RobotLost(i) => (Level::Error, format!("fusion: {} lost", self.robot_name(*i))),
+        };
+        v.push(out("/health".into(), fg::LOG, now_s, fg::log(now_s, level, "fusion", &text, "", 0)));
+        Ok(v)
+    }
+
+    /// An uplink message: its exact record, and what it shows (a scan, odometry, health, safety).
+    fn uplink(
+        &mut self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        exact: &impl Fn(&str, &'static str, f64, Vec<u8>) -> Out,
+        u: &Uplink,
+        rx_s: f64,
+    ) -> Result<Vec<Out>, wire::WireError> {
+        let mut v = Vec::new();
+        v.push(exact("/amr/uplink", wire::UPLINK_SCHEMA, u.stamp_s(), wire::encode_uplink(rx_s, u)?));
+        match u {
+            Uplink::Scan(s) => v.push(out(
+                format!("/{}/scan", s.robot),
+                fg::LASER_SCAN,
+                s.stamp_s,
+                fg::laser_scan(s.stamp_s, &format!("{}/laser", s.robot), &s.scan),
+            )),
+            Uplink::Odom { robot, msg } => v.extend(self.odom(&out, robot, msg)),
+            Uplink::Health { robot, stamp_s, report, .. } => {
+                v.extend(self.health(&out, robot, *stamp_s, report));
+            }
+            Uplink::Safety { robot, stamp_s, state, .. } => {
+                v.extend(self.safety(&out, robot, *stamp_s, *state))
+            }
+        }
+        Ok(v)
+    }
+
+    /// The simulation's truth: V and each robot in the map, and their frames.
+    fn truth(
+        &self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        stamp_s: f64,
+        vt: &Se2,
+        robots: &[Se2],
+    ) -> Vec<Out> {
+        let mut v = Vec::new();
+        v.push(out("/truth/V".into(), fg::POSE_IN_FRAME, stamp_s, fg::pose_in_frame(stamp_s, "map", vt)));
+        let mut tf = vec![fg::transform(stamp_s, "map", "truth/V", vt)];
+        for (i, p) in robots.iter().enumerate() {
+            let name = self.robot_name(i);
+            v.push(out(
+                format!("/truth/{name}"),
+                fg::POSE_IN_FRAME,
+                stamp_s,
+                fg::pose_in_frame(stamp_s, "map", p),
+            ));
+            tf.push(fg::transform(stamp_s, "map", &format!("truth/{name}"), p));
+        }
+        v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, stamp_s, fg::transforms(tf)));
+        v
+    }
+
+    /// An estimate: its exact record; V's (and each robot's place in it, with map → odom), or a
+    /// robot's own.
+    fn estimate(
+        &self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        exact: &impl Fn(&str, &'static str, f64, Vec<u8>) -> Out,
+        e: &Estimate,
+    ) -> Result<Vec<Out>, wire::WireError> {
+        let mut v = Vec::new();
+        v.push(exact("/amr/estimates", wire::ESTIMATE_SCHEMA, e.stamp_s, wire::encode_estimate(e)?));
+        match e.source {
+            EstimateSource::Fused(_) => {
+                let mut tf = Vec::new();
+                if let Some(vm) = &e.v {
+                    v.push(out(
+                        "/amcl/V".into(),
+                        fg::POSE_IN_FRAME,
+                        e.stamp_s,
+                        fg::pose_in_frame(e.stamp_s, "map", vm),
+                    ));
+                    tf.push(fg::transform(e.stamp_s, "map", "V", vm));
+                }
+                for (i, a) in e.robots.iter().enumerate() {
+                    let Some(a) = a else { continue };
+                    let name = self.robot_name(i);
+                    v.push(out(
+                        format!("/amcl/{name}"),
+                        fg::POSE_IN_FRAME,
+                        e.stamp_s,
+                        fg::pose_in_frame(e.stamp_s, "map", &a.map),
+                    ));
+                    tf.push(fg::transform(
+                        e.stamp_s,
+                        "map",
+                        &format!("{name}/odom"),
+                        &(a.map * a.odom.inverse()),
+                    ));
+                }
+                v.push(out("/tf".into(), fg::FRAME_TRANSFORMS, e.stamp_s, fg::transforms(tf)));
+            }
+            EstimateSource::Robot(i) => {
+                let name = self.robot_name(i);
+                if let Some(Some(a)) = e.robots.get(i) {
+                    v.push(out(
+                        format!("/amcl/{name}/own"),
+                        fg::POSE_IN_FRAME,
+                        e.stamp_s,
+                        fg::pose_in_frame(e.stamp_s, "map", &a.map),
+                    ));
+                }
+            }
+        }
+        Ok(v)
+    }
+
+    /// A filter's particles, at most every [`PARTICLES_EVERY_NS`] per topic and thinned to
+    /// [`PARTICLES_MAX`].
+    fn particles(
+        &mut self,
+        out: &impl Fn(String, &'static str, f64, Value) -> Out,
+        t: u64,
+        p: &ParticleCloud,
+    ) -> Option<Out> {
+        let (topic, frame) = match p.source {
+            EstimateSource::Fused(_) => ("/amcl/particles".to_owned(), "map"),
+            EstimateSource::Robot(i) => (format!("/amcl/{}/particles", self.robot_name(i)), "map"),
+        };
+        let due = self.last_particles.get(&topic).is_none_or(|l| t.saturating_sub(*l) >= PARTICLES_EVERY_NS);
+        if !due {
+            return None;
+        }
+        self.last_particles.insert(topic.clone(), t);
+        let n = p.poses.len();
+        let step = n.div_ceil(PARTICLES_MAX).max(1);
+        let poses: Vec<Se2> = p.poses.iter().step_by(step).copied().collect();
+        Some(out(topic, fg::POSES_IN_FRAME, p.stamp_s, fg::poses_in_frame(p.stamp_s, frame, &poses)))
     }
 
     fn odom(

@@ -203,23 +203,7 @@ impl Ros2Encoder {
                 b.emit(&format!("/{}/scan", s.robot), s.stamp_s, &laser_scan(s.stamp_s, &frame, &s.scan));
             }
             Event::Uplink(Uplink::Odom { robot, msg: o }, _) | Event::Odom(robot, o) => {
-                let frame = format!("{robot}/odom");
-                let odom = Odometry {
-                    header: Header::new(o.stamp_s, &frame),
-                    child_frame_id: robot.clone(),
-                    pose: PoseWithCovariance {
-                        pose: Pose::planar(o.pose.x, o.pose.y, o.pose.theta),
-                        covariance: [0.0; 36],
-                    },
-                    twist: TwistWithCovariance {
-                        linear: [o.twist.0, 0.0, 0.0],
-                        angular: [0.0, 0.0, o.twist.1],
-                        covariance: [0.0; 36],
-                    },
-                };
-                b.emit(&format!("/{robot}/odom"), o.stamp_s, &odom);
-                let transforms = vec![tf(o.stamp_s, &frame, robot, &o.pose)];
-                b.emit("/tf", o.stamp_s, &TfMessage { transforms });
+                Self::odom(&mut b, robot, o)
             }
             Event::Fused(f) => {
                 if let Some(points) = &f.points {
@@ -236,51 +220,7 @@ impl Ros2Encoder {
                 b.emit("/tf", f.stamp_s, &TfMessage { transforms });
             }
             Event::Estimate(e) => match e.source {
-                EstimateSource::Fused(_) => {
-                    let mut transforms = Vec::new();
-                    if let Some(vm) = &e.v {
-                        b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm, e.covariance));
-                        // `map` → `V/odom` at the frame of the same stamp (here, or when it comes).
-                        if self.v_map_tf {
-                            match self.v_odoms.iter().find(|(t, _)| *t == e.stamp_s) {
-                                Some((_, vo)) => {
-                                    transforms.push(tf(e.stamp_s, "map", "V/odom", &(*vm * vo.inverse())))
-                                }
-                                None => push_bounded(&mut self.v_pending, (e.stamp_s, *vm)),
-                            }
-                        }
-                    }
-                    for (i, a) in e.robots.iter().enumerate() {
-                        let Some(a) = a else { continue };
-                        let name = self.robot_name(i);
-                        let cov =
-                            e.v.zip(e.covariance)
-                                .map(|(v, c)| offset_covariance(c, &v, &(v.inverse() * a.map)));
-                        b.emit(
-                            &format!("/amcl/{name}"),
-                            e.stamp_s,
-                            &pose_stamped(e.stamp_s, "map", &a.map, cov),
-                        );
-                        let map_odom = a.map * a.odom.inverse();
-                        transforms.push(tf(e.stamp_s, "map", &format!("{name}/odom"), &map_odom));
-                    }
-                    if !transforms.is_empty() {
-                        b.emit("/tf", e.stamp_s, &TfMessage { transforms });
-                    }
-                    let i = e.integrity;
-                    let changed = self.v_diag.is_none_or(|(t, st, d)| {
-                        st != i.state || d != i.disagrees || e.stamp_s - t >= 1.0 || e.stamp_s < t
-                    });
-                    if changed {
-                        self.v_diag = Some((e.stamp_s, i.state, i.disagrees));
-                        let status = self.v_integrity_status(&i);
-                        b.emit(
-                            "/diagnostics",
-                            e.stamp_s,
-                            &DiagnosticArray { header: Header::new(e.stamp_s, ""), status: vec![status] },
-                        );
-                    }
-                }
+                EstimateSource::Fused(_) => self.v_estimate(&mut b, e),
                 EstimateSource::Robot(i) => {
                     if let Some(Some(a)) = e.robots.get(i) {
                         let topic = format!("/amcl/{}/own", self.robot_name(i));
@@ -298,28 +238,7 @@ impl Ros2Encoder {
                 }
                 b.emit("/tf", *stamp_s, &TfMessage { transforms });
             }
-            Event::Formation(f) => {
-                let (level, text) = crate::encode::formation_line(f);
-                let mut values = vec![
-                    ("plan_s".to_owned(), format!("{:.2}", f.plan_s)),
-                    ("plan_len_s".to_owned(), format!("{:.2}", f.plan_len_s)),
-                ];
-                if let Some(i) = f.v_integrity {
-                    values.push(("v_integrity".to_owned(), i.state.as_str().to_owned()));
-                }
-                let status = DiagnosticStatus {
-                    level: diagnostic_level(level),
-                    name: "amr: formation".into(),
-                    message: text,
-                    hardware_id: "V".into(),
-                    values,
-                };
-                b.emit(
-                    "/diagnostics",
-                    now_s,
-                    &DiagnosticArray { header: Header::new(now_s, ""), status: vec![status] },
-                );
-            }
+            Event::Formation(f) => Self::formation(&mut b, now_s, f),
             Event::Map(g) => b.emit("/map", now_s, &occupancy_grid(now_s, g)),
             Event::Mounts(mounts) => {
                 let transforms = mounts.iter().map(|(r, p)| tf(now_s, r, &format!("{r}/laser"), p)).collect();
@@ -340,6 +259,92 @@ impl Ros2Encoder {
             | Event::EvalVirtualScan { .. } => {}
         }
         b.out
+    }
+
+    /// A robot's odometry, and `<robot>/odom` → `<robot>` on `/tf`.
+    fn odom(b: &mut Batch, robot: &str, o: &amr_msgs::OdomMsg) {
+        let frame = format!("{robot}/odom");
+        let odom = Odometry {
+            header: Header::new(o.stamp_s, &frame),
+            child_frame_id: robot.to_owned(),
+            pose: PoseWithCovariance {
+                pose: Pose::planar(o.pose.x, o.pose.y, o.pose.theta),
+                covariance: [0.0; 36],
+            },
+            twist: TwistWithCovariance {
+                linear: [o.twist.0, 0.0, 0.0],
+                angular: [0.0, 0.0, o.twist.1],
+                covariance: [0.0; 36],
+            },
+        };
+        b.emit(&format!("/{robot}/odom"), o.stamp_s, &odom);
+        let transforms = vec![tf(o.stamp_s, &frame, robot, &o.pose)];
+        b.emit("/tf", o.stamp_s, &TfMessage { transforms });
+    }
+
+    /// V's estimate with its covariance, each robot's place in it, `map` → `V/odom` and each
+    /// robot's `map` → `<robot>/odom`, and V's integrity on `/diagnostics` (on a change, else once
+    /// a second).
+    fn v_estimate(&mut self, b: &mut Batch, e: &amr_msgs::Estimate) {
+        let mut transforms = Vec::new();
+        if let Some(vm) = &e.v {
+            b.emit("/amcl/V", e.stamp_s, &pose_stamped(e.stamp_s, "map", vm, e.covariance));
+            // `map` → `V/odom` at the frame of the same stamp (here, or when it comes).
+            if self.v_map_tf {
+                match self.v_odoms.iter().find(|(t, _)| *t == e.stamp_s) {
+                    Some((_, vo)) => transforms.push(tf(e.stamp_s, "map", "V/odom", &(*vm * vo.inverse()))),
+                    None => push_bounded(&mut self.v_pending, (e.stamp_s, *vm)),
+                }
+            }
+        }
+        for (i, a) in e.robots.iter().enumerate() {
+            let Some(a) = a else { continue };
+            let name = self.robot_name(i);
+            let cov = e.v.zip(e.covariance).map(|(v, c)| offset_covariance(c, &v, &(v.inverse() * a.map)));
+            b.emit(&format!("/amcl/{name}"), e.stamp_s, &pose_stamped(e.stamp_s, "map", &a.map, cov));
+            let map_odom = a.map * a.odom.inverse();
+            transforms.push(tf(e.stamp_s, "map", &format!("{name}/odom"), &map_odom));
+        }
+        if !transforms.is_empty() {
+            b.emit("/tf", e.stamp_s, &TfMessage { transforms });
+        }
+        let i = e.integrity;
+        let changed = self.v_diag.is_none_or(|(t, st, d)| {
+            st != i.state || d != i.disagrees || e.stamp_s - t >= 1.0 || e.stamp_s < t
+        });
+        if changed {
+            self.v_diag = Some((e.stamp_s, i.state, i.disagrees));
+            let status = self.v_integrity_status(&i);
+            b.emit(
+                "/diagnostics",
+                e.stamp_s,
+                &DiagnosticArray { header: Header::new(e.stamp_s, ""), status: vec![status] },
+            );
+        }
+    }
+
+    /// The formation's phase, its reason and the plan's progress on `/diagnostics`.
+    fn formation(b: &mut Batch, now_s: f64, f: &amr_actors::server::formation::FormationStatus) {
+        let (level, text) = crate::encode::formation_line(f);
+        let mut values = vec![
+            ("plan_s".to_owned(), format!("{:.2}", f.plan_s)),
+            ("plan_len_s".to_owned(), format!("{:.2}", f.plan_len_s)),
+        ];
+        if let Some(i) = f.v_integrity {
+            values.push(("v_integrity".to_owned(), i.state.as_str().to_owned()));
+        }
+        let status = DiagnosticStatus {
+            level: diagnostic_level(level),
+            name: "amr: formation".into(),
+            message: text,
+            hardware_id: "V".into(),
+            values,
+        };
+        b.emit(
+            "/diagnostics",
+            now_s,
+            &DiagnosticArray { header: Header::new(now_s, ""), status: vec![status] },
+        );
     }
 }
 
