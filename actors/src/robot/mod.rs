@@ -165,25 +165,7 @@ pub async fn start_robot(
     options: RobotOptions,
 ) -> Result<RobotTree, RobotError> {
     let id = cfg.id.as_str().to_owned();
-    let file = options.latch_file.as_ref().map(latches::LatchFile::new);
-    let latched = match &file {
-        None => latches::Latched::default(),
-        Some(f) => match f.load() {
-            Ok(l) => {
-                if l.estop != 0 || l.fault {
-                    tracing::warn!(robot = %id, file = %f.path().display(), estop = l.estop, fault = l.fault,
-                        "starting latched: the stop from before the restart holds until it is reset");
-                }
-                l
-            }
-            Err(e) => {
-                // Unknown is latched: only a reset on the robot clears it (and writes a good file).
-                tracing::error!(robot = %id, error = %e,
-                    "counting the e-stop as latched; reset it on the robot (SIGUSR2 to `amr robot`), which rewrites the file");
-                latches::Latched { estop: ports::EStopSource::Local as u8, fault: false, stops: 0 }
-            }
-        },
-    };
+    let (file, latched) = restore_latches(&id, options.latch_file.as_ref());
     let ports = RobotPorts::restored(id.clone(), clock, file, latched, options.mock);
     let counters = Counters::default();
     let events = EventLog::default();
@@ -196,14 +178,7 @@ pub async fn start_robot(
     if let Some(path) = overrides.imu_path {
         imu_cfg.path = path;
     }
-    let can = match (overrides.can, &cfg.devices.can.transport) {
-        (Some(c), _) => c,
-        (None, BusTransport::Socketcan { interface }) => CanLink::SocketCan { interface: interface.clone() },
-        (None, BusTransport::Socketcand { address, channel }) => {
-            CanLink::Socketcand { address: address.clone(), channel: channel.clone() }
-        }
-        (None, BusTransport::InProcess) => return Err(RobotError::NoInProcessBus),
-    };
+    let can = can_link(overrides.can, &cfg.devices.can.transport)?;
     let reconnect = &cfg.devices.can.reconnect;
 
     let lidar = LidarActor {
@@ -262,10 +237,59 @@ pub async fn start_robot(
     };
     let (supervisor, join) = Supervisor::spawn(None, Supervisor, top).await?;
 
-    // What comes down the link goes to whichever safety actor is running.
-    let (mut down, missed) = (link.down, link.missed);
-    let p = Arc::clone(&ports);
-    let pump = tokio::spawn(async move {
+    let pump = downlink_pump(link.down, link.missed, Arc::clone(&ports));
+    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let join =
+        watch_tree(join, Arc::clone(&ports), link.up.clone(), supervisor.clone(), Arc::clone(&stopping));
+    Ok(RobotTree { id, supervisor, ports, events, counters, stopping, join, _tasks: vec![AbortOnDrop(pump)] })
+}
+
+/// The latches from before a restart (none without a latch file). A file that cannot be read
+/// counts as a latched local e-stop: only a reset on the robot clears it (and writes a good file).
+fn restore_latches(
+    id: &str,
+    path: Option<&std::path::PathBuf>,
+) -> (Option<latches::LatchFile>, latches::Latched) {
+    let file = path.map(latches::LatchFile::new);
+    let latched = match &file {
+        None => latches::Latched::default(),
+        Some(f) => match f.load() {
+            Ok(l) => {
+                if l.estop != 0 || l.fault {
+                    tracing::warn!(robot = %id, file = %f.path().display(), estop = l.estop, fault = l.fault,
+                        "starting latched: the stop from before the restart holds until it is reset");
+                }
+                l
+            }
+            Err(e) => {
+                tracing::error!(robot = %id, error = %e,
+                    "counting the e-stop as latched; reset it on the robot (SIGUSR2 to `amr robot`), which rewrites the file");
+                latches::Latched { estop: ports::EStopSource::Local as u8, fault: false, stops: 0 }
+            }
+        },
+    };
+    (file, latched)
+}
+
+/// The CAN link: an override (tests, mocks), else the configured transport.
+fn can_link(over: Option<CanLink>, transport: &BusTransport) -> Result<CanLink, RobotError> {
+    Ok(match (over, transport) {
+        (Some(c), _) => c,
+        (None, BusTransport::Socketcan { interface }) => CanLink::SocketCan { interface: interface.clone() },
+        (None, BusTransport::Socketcand { address, channel }) => {
+            CanLink::Socketcand { address: address.clone(), channel: channel.clone() }
+        }
+        (None, BusTransport::InProcess) => return Err(RobotError::NoInProcessBus),
+    })
+}
+
+/// What comes down the link goes to whichever safety actor is running.
+fn downlink_pump(
+    mut down: tokio::sync::mpsc::Receiver<amr_msgs::Downlink>,
+    missed: Arc<crate::link::Missed>,
+    p: Arc<RobotPorts>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
         while let Some(msg) = down.recv().await {
             p.deliver(msg);
             // The link's queue was full for a safety message (it is not empty then, so this runs).
@@ -277,13 +301,19 @@ pub async fn start_robot(
                 p.safety_inbox.push(SafetyInput::Missed);
             }
         }
-    });
-    // The top supervisor ending on its own means it escalated: report Fault, and keep reporting
-    // it (the server may not be listening yet) until the tree is dropped.
-    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let (p, up, sup, asked) =
-        (Arc::clone(&ports), link.up.clone(), supervisor.clone(), Arc::clone(&stopping));
-    let join = tokio::spawn(async move {
+    })
+}
+
+/// The top supervisor ending on its own means it escalated: report Fault, and keep reporting it
+/// (the server may not be listening yet) until the tree is dropped. `asked`: a stop was asked for.
+fn watch_tree(
+    join: tokio::task::JoinHandle<()>,
+    p: Arc<RobotPorts>,
+    up: UplinkSender,
+    sup: ractor::ActorRef<SupervisorMsg>,
+    asked: Arc<std::sync::atomic::AtomicBool>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
         let _ = join.await;
         if asked.load(std::sync::atomic::Ordering::SeqCst) {
             tracing::info!(robot = %p.robot, "robot stopped");
@@ -292,8 +322,7 @@ pub async fn start_robot(
             report_fault(&p, &up);
         }
         drop(sup);
-    });
-    Ok(RobotTree { id, supervisor, ports, events, counters, stopping, join, _tasks: vec![AbortOnDrop(pump)] })
+    })
 }
 
 fn report_fault(ports: &RobotPorts, up: &UplinkSender) {
