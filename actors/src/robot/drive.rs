@@ -271,71 +271,7 @@ impl DriveActor {
                     }
                 }
             }
-            DriveMsg::Master(ev) => match ev {
-                MasterEvent::Cycle { positions, inputs } => {
-                    self.odometry(state, &positions);
-                    // The inputs' level every cycle: a lost change event cannot hide a press.
-                    for (node, bits) in inputs {
-                        self.on_inputs(state, node, bits, false);
-                    }
-                }
-                MasterEvent::Enabled { node } => {
-                    state.enabled.insert(node);
-                    state.resets.remove(&node);
-                }
-                MasterEvent::StateChanged { node, state: s } => {
-                    state.states.insert(node, s);
-                    if s != State402::OperationEnabled {
-                        state.enabled.remove(&node);
-                    }
-                    if s.is_fault() {
-                        let n = state.resets.entry(node).or_default();
-                        *n += 1;
-                        if *n <= MAX_FAULT_RESETS {
-                            tracing::warn!(robot = %self.ports.robot, node, attempt = *n, "drive fault: resetting");
-                            self.send(state, MasterCommand::Recover(node));
-                        }
-                    }
-                }
-                MasterEvent::Recovered { node } => {
-                    tracing::info!(robot = %self.ports.robot, node, "drive fault reset confirmed");
-                    if !state.quick_stopped {
-                        self.send(state, MasterCommand::Enable);
-                    }
-                }
-                MasterEvent::BootUp { node } => {
-                    // A reboot: the encoder may restart anywhere; the master reconfigures the drive
-                    // before it is enabled again.
-                    state.enabled.remove(&node);
-                    state.last_positions = None;
-                    self.counters.count("drives.boot_up");
-                }
-                MasterEvent::Error(CanopenError::Link(LinkError::HeartbeatLost { node })) => {
-                    self.counters.count("drives.heartbeat_lost");
-                    state.enabled.remove(&node);
-                    state.health.set(&self.ports, Health::Lost, format!("drive {node}: heartbeat lost"));
-                }
-                MasterEvent::Error(e) => {
-                    self.counters.count("drives.error");
-                    tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
-                }
-                MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
-                MasterEvent::Inputs { node, bits } => self.on_inputs(state, node, bits, true),
-                MasterEvent::EventsLost { count } => {
-                    tracing::error!(robot = %self.ports.robot, count, "CANopen events lost: drives degraded");
-                    self.counters.count("drives.events_lost");
-                    state.enabled.clear();
-                    state.health.set(&self.ports, Health::Degraded, "CANopen events lost");
-                    if !state.quick_stopped {
-                        self.send(state, MasterCommand::Enable);
-                    }
-                }
-                // The bus's error state is the CAN bus actor's health.
-                MasterEvent::Configured { .. }
-                | MasterEvent::EmcyReset { .. }
-                | MasterEvent::SdoDone { .. }
-                | MasterEvent::BusError { .. } => {}
-            },
+            DriveMsg::Master(ev) => self.on_master(state, ev),
             DriveMsg::Wheels(c) => {
                 if c.quick_stop != state.quick_stopped {
                     self.set_quick_stop(state, c.quick_stop);
@@ -347,6 +283,76 @@ impl DriveActor {
                 };
                 self.send(state, MasterCommand::SetTargets(targets.to_vec()));
             }
+        }
+    }
+
+    /// One event of the CANopen master: odometry and inputs each cycle, the drives' states (a
+    /// fault reset up to [`MAX_FAULT_RESETS`] times), reboots, lost heartbeats and events.
+    fn on_master(&self, state: &mut DriveState, ev: MasterEvent) {
+        match ev {
+            MasterEvent::Cycle { positions, inputs } => {
+                self.odometry(state, &positions);
+                // The inputs' level every cycle: a lost change event cannot hide a press.
+                for (node, bits) in inputs {
+                    self.on_inputs(state, node, bits, false);
+                }
+            }
+            MasterEvent::Enabled { node } => {
+                state.enabled.insert(node);
+                state.resets.remove(&node);
+            }
+            MasterEvent::StateChanged { node, state: s } => {
+                state.states.insert(node, s);
+                if s != State402::OperationEnabled {
+                    state.enabled.remove(&node);
+                }
+                if s.is_fault() {
+                    let n = state.resets.entry(node).or_default();
+                    *n += 1;
+                    if *n <= MAX_FAULT_RESETS {
+                        tracing::warn!(robot = %self.ports.robot, node, attempt = *n, "drive fault: resetting");
+                        self.send(state, MasterCommand::Recover(node));
+                    }
+                }
+            }
+            MasterEvent::Recovered { node } => {
+                tracing::info!(robot = %self.ports.robot, node, "drive fault reset confirmed");
+                if !state.quick_stopped {
+                    self.send(state, MasterCommand::Enable);
+                }
+            }
+            MasterEvent::BootUp { node } => {
+                // A reboot: the encoder may restart anywhere; the master reconfigures the drive
+                // before it is enabled again.
+                state.enabled.remove(&node);
+                state.last_positions = None;
+                self.counters.count("drives.boot_up");
+            }
+            MasterEvent::Error(CanopenError::Link(LinkError::HeartbeatLost { node })) => {
+                self.counters.count("drives.heartbeat_lost");
+                state.enabled.remove(&node);
+                state.health.set(&self.ports, Health::Lost, format!("drive {node}: heartbeat lost"));
+            }
+            MasterEvent::Error(e) => {
+                self.counters.count("drives.error");
+                tracing::warn!(robot = %self.ports.robot, error = %e, "drive error");
+            }
+            MasterEvent::TargetsExpired => self.counters.count("drives.targets_expired"),
+            MasterEvent::Inputs { node, bits } => self.on_inputs(state, node, bits, true),
+            MasterEvent::EventsLost { count } => {
+                tracing::error!(robot = %self.ports.robot, count, "CANopen events lost: drives degraded");
+                self.counters.count("drives.events_lost");
+                state.enabled.clear();
+                state.health.set(&self.ports, Health::Degraded, "CANopen events lost");
+                if !state.quick_stopped {
+                    self.send(state, MasterCommand::Enable);
+                }
+            }
+            // The bus's error state is the CAN bus actor's health.
+            MasterEvent::Configured { .. }
+            | MasterEvent::EmcyReset { .. }
+            | MasterEvent::SdoDone { .. }
+            | MasterEvent::BusError { .. } => {}
         }
     }
 }
