@@ -116,7 +116,31 @@ fn distance(rig: &RobotRig, from: Option<(f64, f64)>) -> f64 {
 /// Run the checks on `iface` with the configuration's first robot in the `straight` scenario.
 pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) -> Vec<CheckLine> {
     let mut out = Lines::default();
-    // The transport asks the kernel for every error frame (its default mask is 0).
+    if !check_transport(iface, &mut out) {
+        return out.0;
+    }
+    let mut rig = match start_rig(config, seed, iface).await {
+        Ok(r) => r,
+        Err(e) => {
+            out.check("setup", false, e);
+            return out.0;
+        }
+    };
+    let n0 = rig.tree.events.len();
+    if !bring_up(&rig, &mut out).await {
+        rig.tree.shutdown().await;
+        return out.0;
+    }
+    velocity_move_and_quick_stop(&mut rig, &mut out).await;
+    malformed_frames(&rig, &mut out, cansend_bin, iface, n0).await;
+    error_passive(&rig, &mut out, cansend_bin, iface).await;
+    bus_off(&rig, &mut out, cansend_bin, iface).await;
+    rig.tree.shutdown().await;
+    out.0
+}
+
+/// The transport asks the kernel for every error frame (its default mask is 0).
+fn check_transport(iface: &str, out: &mut Lines) -> bool {
     match SocketCan::open(iface) {
         Ok(s) => {
             let mask = s.error_mask();
@@ -128,12 +152,17 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
         }
         Err(e) => {
             out.check("transport: open", false, format!("{iface}: {e}"));
-            return out.0;
+            return false;
         }
     }
+    true
+}
+
+/// The robot with its CAN link on the interface, the mock drives on it through a socket of
+/// their own.
+async fn start_rig(config: &Config, seed: u64, iface: &str) -> Result<RobotRig, String> {
     let Some(scenario) = config.scenarios.get("straight").cloned() else {
-        out.check("setup", false, "the configuration has no `straight` scenario");
-        return out.0;
+        return Err("the configuration has no `straight` scenario".to_owned());
     };
     let mut bridge_err = None;
     let started =
@@ -155,23 +184,18 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
             o.can = Some(CanLink::SocketCan { interface: iface.to_owned() });
         })
         .await;
-    let mut rig = match (started, bridge_err) {
-        (Ok(r), None) => r,
-        (Err(e), _) => {
-            out.check("setup", false, e.to_string());
-            return out.0;
-        }
-        (_, Some(e)) => {
-            out.check("setup", false, format!("the drives' socket: {e}"));
-            return out.0;
-        }
-    };
-    let n0 = rig.tree.events.len();
+    match (started, bridge_err) {
+        (Ok(r), None) => Ok(r),
+        (Err(e), _) => Err(e.to_string()),
+        (_, Some(e)) => Err(format!("the drives' socket: {e}")),
+    }
+}
 
-    // NMT, SDO configuration, heartbeats, the CiA 402 enable: the drives report Ok only when both
-    // are enabled.
+/// NMT, SDO configuration, heartbeats, the CiA 402 enable: the drives report Ok only when both
+/// are enabled.
+async fn bring_up(rig: &RobotRig, out: &mut Lines) -> bool {
     let up = until(Duration::from_secs(30), || {
-        [Device::CanBus, Device::Drives].iter().all(|d| health(&rig, *d) == Some(Health::Ok))
+        [Device::CanBus, Device::Drives].iter().all(|d| health(rig, *d) == Some(Health::Ok))
     })
     .await;
     let consumer = rig.robot.devices.drives.master_consumer_ms;
@@ -182,7 +206,7 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
             && s.master_consumer & 0xFFFF == consumer
             && s.enables_unconfigured == 0
     });
-    let ok = out.check(
+    out.check(
         "bring-up: NMT, SDO configuration, heartbeats, enable",
         up.is_some() && configured,
         format!(
@@ -190,21 +214,19 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
             ms(up),
             snaps.iter().map(|s| (s.state, s.mode_display, s.master_consumer)).collect::<Vec<_>>()
         ),
-    );
-    if !ok {
-        rig.tree.shutdown().await;
-        return out.0;
-    }
+    )
+}
 
-    // A velocity move: RPDO targets applied at each SYNC, TPDO positions back as the robot's
-    // odometry, which must agree with the world's truth (the comfort ramp, 0.05 m/s², takes 2 s
-    // to reach 0.1 m/s).
+/// A velocity move: RPDO targets applied at each SYNC, TPDO positions back as the robot's
+/// odometry, which must agree with the world's truth (the comfort ramp, 0.05 m/s², takes 2 s to
+/// reach 0.1 m/s); then a quick stop by the robot's e-stop, and the reset.
+async fn velocity_move_and_quick_stop(rig: &mut RobotRig, out: &mut Lines) {
     let from = rig.truth.latest().and_then(|(_, p)| p.first().map(|p| (p.x, p.y)));
-    let (odometry, _reader) = watch_odometry(&mut rig);
+    let (odometry, _reader) = watch_odometry(rig);
     until(Duration::from_secs(2), || now_of(&odometry).is_some()).await;
     let odo0 = now_of(&odometry);
-    let feed = drive_from(&rig, 0.1, 1);
-    let turning = until(Duration::from_secs(10), || wheels_turning(&rig, 1000.0)).await;
+    let feed = drive_from(rig, 0.1, 1);
+    let turning = until(Duration::from_secs(10), || wheels_turning(rig, 1000.0)).await;
     tokio::time::sleep(Duration::from_secs(3)).await;
 
     // Quick stop by the robot's e-stop.
@@ -217,10 +239,10 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
         })
     })
     .await;
-    let still = until(Duration::from_secs(2), || wheels_still(&rig)).await;
+    let still = until(Duration::from_secs(2), || wheels_still(rig)).await;
     // At rest: the odometry has caught up with the wheels.
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let moved = distance(&rig, from);
+    let moved = distance(rig, from);
     let odo_moved = match (odo0, now_of(&odometry)) {
         (Some(a), Some(b)) => (b.x - a.x).hypot(b.y - a.y),
         _ => f64::NAN,
@@ -245,10 +267,12 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
         matches!(*rig.tree.ports.safety_now.borrow(), Some(SafetyState::Disarmed(_)))
     })
     .await;
-    until(Duration::from_secs(10), || health(&rig, Device::Drives) == Some(Health::Ok)).await;
+    until(Duration::from_secs(10), || health(rig, Device::Drives) == Some(Health::Ok)).await;
+}
 
-    // Malformed frames from a third party: a one-byte SDO response, a remote frame, an empty
-    // heartbeat, a heartbeat of an unknown state. Nothing restarts; the bus and drives stay Ok.
+/// Malformed frames from a third party: a one-byte SDO response, a remote frame, an empty
+/// heartbeat, a heartbeat of an unknown state. Nothing restarts; the bus and drives stay Ok.
+async fn malformed_frames(rig: &RobotRig, out: &mut Lines, cansend_bin: &Path, iface: &str, n0: usize) {
     let mut sent = Vec::new();
     for f in ["581#FF", "123#R", "701#", "702#7E", "181#0102"] {
         sent.push(cansend(cansend_bin, iface, f));
@@ -258,23 +282,25 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
     out.check(
         "malformed frames survived",
         errors.is_empty()
-            && health(&rig, Device::CanBus) == Some(Health::Ok)
-            && health(&rig, Device::Drives) == Some(Health::Ok)
+            && health(rig, Device::CanBus) == Some(Health::Ok)
+            && health(rig, Device::Drives) == Some(Health::Ok)
             && rig.tree.events.len() == n0,
         format!(
             "cansend errors {errors:?}; CAN bus {:?}, drives {:?}; supervision events {}",
-            health(&rig, Device::CanBus),
-            health(&rig, Device::Drives),
+            health(rig, Device::CanBus),
+            health(rig, Device::Drives),
             rig.tree.events.len() - n0
         ),
     );
+}
 
-    // Error passive (CAN_ERR_CRTL, TX passive), then error active again (CAN_ERR_CRTL_ACTIVE).
+/// Error passive (CAN_ERR_CRTL, TX passive), then error active again (CAN_ERR_CRTL_ACTIVE).
+async fn error_passive(rig: &RobotRig, out: &mut Lines, cansend_bin: &Path, iface: &str) {
     let passive = cansend(cansend_bin, iface, "20000004#0020000000000000");
     let degraded =
-        until(Duration::from_secs(1), || health(&rig, Device::CanBus) == Some(Health::Degraded)).await;
+        until(Duration::from_secs(1), || health(rig, Device::CanBus) == Some(Health::Degraded)).await;
     let active = cansend(cansend_bin, iface, "20000004#0040000000000000");
-    let back = until(Duration::from_secs(1), || health(&rig, Device::CanBus) == Some(Health::Ok)).await;
+    let back = until(Duration::from_secs(1), || health(rig, Device::CanBus) == Some(Health::Ok)).await;
     out.check(
         "error frame: error passive reported, and back",
         passive.is_ok() && active.is_ok() && degraded.is_some() && back.is_some(),
@@ -286,18 +312,19 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
             rig.tree.counters.get("can.error_active")
         ),
     );
+}
 
-    // Bus-off while driving: the connection ends, the robot halts, the link comes back, the
-    // drives are reconfigured and a new arm drives again.
-    let feed = drive_from(&rig, 0.1, 1000);
-    let turning = until(Duration::from_secs(10), || wheels_turning(&rig, 1000.0)).await;
+/// Bus-off while driving: the connection ends, the robot halts, the link comes back, the drives
+/// are reconfigured and a new arm drives again.
+async fn bus_off(rig: &RobotRig, out: &mut Lines, cansend_bin: &Path, iface: &str) {
+    let feed = drive_from(rig, 0.1, 1000);
+    let turning = until(Duration::from_secs(10), || wheels_turning(rig, 1000.0)).await;
     let t0 = Instant::now();
     let sent = cansend(cansend_bin, iface, "20000040#0000000000000000");
     // Each measured from the bus-off frame.
     let since = |d: Option<Duration>| d.map(|_| t0.elapsed());
-    let lost = since(
-        until(Duration::from_millis(1000), || health(&rig, Device::CanBus) == Some(Health::Lost)).await,
-    );
+    let lost =
+        since(until(Duration::from_millis(1000), || health(rig, Device::CanBus) == Some(Health::Lost)).await);
     let halted = since(
         until(Duration::from_millis(1000), || {
             matches!(*rig.tree.ports.safety_now.borrow(), Some(SafetyState::Disarmed(_)))
@@ -315,12 +342,12 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
     );
     drop(feed);
     let recovered = until(Duration::from_secs(20), || {
-        [Device::CanBus, Device::Drives].iter().all(|d| health(&rig, *d) == Some(Health::Ok))
+        [Device::CanBus, Device::Drives].iter().all(|d| health(rig, *d) == Some(Health::Ok))
     })
     .await;
     let recovery = t0.elapsed();
-    let feed = drive_from(&rig, 0.1, 2000);
-    let again = until(Duration::from_secs(10), || wheels_turning(&rig, 1000.0)).await;
+    let feed = drive_from(rig, 0.1, 2000);
+    let again = until(Duration::from_secs(10), || wheels_turning(rig, 1000.0)).await;
     drop(feed);
     out.check(
         "bus-off: halted, reconnected, driving again",
@@ -342,6 +369,4 @@ pub async fn run(config: &Config, seed: u64, iface: &str, cansend_bin: &Path) ->
             rig.tree.counters.get("can.bus_off")
         ),
     );
-    rig.tree.shutdown().await;
-    out.0
 }
