@@ -3,7 +3,10 @@
 //! simulated world with noise lives in `hil-mocks`).
 
 use super::frame::PacketTimes;
-use super::pipeline::RobotPacket;
+use super::heading::{AngleGrid, HeadingProblem, TargetScan};
+use super::pipeline::{Pipeline, RobotPacket, UpdateError};
+use super::preprocess::{Preprocessed, preprocess};
+use crate::config::{Configuration, HeadingParams, VamrParams};
 use crate::geometry::{Polygon, PolygonError, cast_ray};
 use crate::scan::Scan;
 use crate::se2::Se2;
@@ -114,6 +117,59 @@ impl Pair {
     #[must_use]
     pub fn packets(&self) -> Vec<RobotPacket<'_>> {
         packets(&self.site, &self.scans)
+    }
+}
+
+/// The stages of the pipeline prepared on a [`Pair::straight`] scene, for timing them one by one:
+/// both scans preprocessed, robot 0's as the heading search's target (with its surface), and the
+/// full and the refined angle grids (the refined one around the true heading). The criterion
+/// benchmark of amr-core and `amr bench vamr` both time this scene.
+#[derive(Debug, Clone)]
+pub struct PairStages {
+    pub pair: Pair,
+    /// Robot 0's and robot 1's scans, preprocessed.
+    pub preprocessed: [Preprocessed; 2],
+    /// Robot 0's smoothed points with the surface between them.
+    pub target: TargetScan,
+    /// All headings (initialisation and recovery).
+    pub full: AngleGrid,
+    /// The refinement window around the true heading (normal operation).
+    pub refined: AngleGrid,
+}
+
+impl PairStages {
+    /// The straight pair with `beams` beams per scan, prepared with `params`.
+    pub fn new(beams: usize, params: &VamrParams) -> Result<Self, PolygonError> {
+        let pair = Pair::straight(beams)?;
+        let (site, scans, truth) = (&pair.site, &pair.scans, pair.truth());
+        let preprocessed = [0, 1].map(|i| preprocess(&scans[i], &site.mount, &params.preprocess));
+        let h = &params.heading;
+        let target = TargetScan::new(&scans[0], &site.mount, &preprocessed[0].smoothed_points)
+            .with_surface(h.surface_jump_m());
+        let full = AngleGrid::full(h.step_deg.get());
+        let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());
+        Ok(PairStages { pair, preprocessed, target, full, refined })
+    }
+
+    /// Robot 1's smoothed points against [`PairStages::target`], at the true translation.
+    #[must_use]
+    pub fn problem<'a>(&'a self, params: &HeadingParams) -> HeadingProblem<'a> {
+        let truth = self.pair.truth();
+        HeadingProblem::new(&self.preprocessed[1].smoothed_points, &self.target, [truth.x, truth.y], params)
+    }
+
+    /// Robot 0's smoothed points alone: the KD-tree baseline's target.
+    #[must_use]
+    pub fn target_points(&self) -> Vec<[f64; 2]> {
+        self.preprocessed[0].smoothed_points.iter().map(|b| b.p).collect()
+    }
+
+    /// A T4 pipeline (50 ms sync spread, 100 ms age) that has run one update on the pair's packets:
+    /// it already has a heading, so its next updates refine.
+    pub fn primed_pipeline(&self, params: &VamrParams) -> Result<Pipeline, UpdateError> {
+        let mut pipeline = Pipeline::new(2, params.clone(), Configuration::T4, 0.05, 0.1);
+        pipeline.update(&self.pair.packets())?;
+        Ok(pipeline)
     }
 }
 
