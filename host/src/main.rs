@@ -180,7 +180,7 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// T1–T4 (default: server.toml's `configuration`).
-        #[arg(long, value_parser = sim_cmd::parse_configuration)]
+        #[arg(long, value_parser = record_cmd::parse_configuration)]
         configuration: Option<amr_core::config::Configuration>,
         /// Stop after this many seconds even if the plan is not done.
         #[arg(long)]
@@ -228,7 +228,7 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
         /// T1–T4 instead of the recorded configuration.
-        #[arg(long, value_parser = sim_cmd::parse_configuration)]
+        #[arg(long, value_parser = record_cmd::parse_configuration)]
         configuration: Option<amr_core::config::Configuration>,
         /// Configuration directory for the parameters (default: ./config, else the embedded ones).
         #[arg(long)]

@@ -8,6 +8,7 @@ use std::sync::{Arc, OnceLock};
 use amr_actors::config::load;
 use amr_actors::server::{ServerSetup, formation_robots};
 use amr_actors::supervisor::RestartPolicy;
+use amr_core::config::Configuration;
 use amr_record::{Hub, LiveServer, LogTap, RecordOptions, RecordSources, Recorder};
 use anyhow::Context as _;
 
@@ -203,13 +204,25 @@ impl Recording {
     }
 }
 
+/// A configuration by its name, `T1` to `T4` (any case): `--configuration` of `amr sim` and
+/// `amr replay`, and the one a recording's metadata names.
+pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
+    match s.to_ascii_uppercase().as_str() {
+        "T1" => Ok(Configuration::T1),
+        "T2" => Ok(Configuration::T2),
+        "T3" => Ok(Configuration::T3),
+        "T4" => Ok(Configuration::T4),
+        _ => Err(format!("`{s}`: expected T1, T2, T3 or T4")),
+    }
+}
+
 /// `amr replay FILE`: the server pipeline (fusion + AMCL) again on a recording's sensor data.
 pub(crate) fn replay(
     input: &Path,
     out: Option<&Path>,
     config: Option<PathBuf>,
     scenario: Option<String>,
-    configuration: Option<amr_core::config::Configuration>,
+    configuration: Option<Configuration>,
     seed: Option<u64>,
 ) -> anyhow::Result<()> {
     let bytes = std::fs::read(input).with_context(|| format!("reading {}", input.display()))?;
@@ -221,7 +234,7 @@ pub(crate) fn replay(
     let recorded_seed = meta.get("seed").and_then(|s| s.parse::<u64>().ok());
     let seed = seed.or(recorded_seed).unwrap_or(1);
     let mut server = config.server.clone();
-    if let Some(c) = meta.get("configuration").and_then(|c| crate::sim_cmd::parse_configuration(c).ok()) {
+    if let Some(c) = meta.get("configuration").and_then(|c| parse_configuration(c).ok()) {
         server.configuration = c;
     }
     let setup = ServerSetup {

@@ -28,16 +28,6 @@ pub(crate) struct SimArgs {
     pub max_error_cm: f64,
 }
 
-pub(crate) fn parse_configuration(s: &str) -> Result<Configuration, String> {
-    match s.to_ascii_uppercase().as_str() {
-        "T1" => Ok(Configuration::T1),
-        "T2" => Ok(Configuration::T2),
-        "T3" => Ok(Configuration::T3),
-        "T4" => Ok(Configuration::T4),
-        _ => Err(format!("`{s}`: expected T1, T2, T3 or T4")),
-    }
-}
-
 pub(crate) fn parse_can(s: &str) -> Result<SimCan, String> {
     match s {
         "socketcand" => Ok(SimCan::Socketcand),
