@@ -3,14 +3,15 @@
 //! (msgs) only on core, actors on core, msgs and drivers, hil-mocks
 //! on core and drivers (never on the actors or their messages), the simulation on those, the
 //! network link on core, msgs and actors, the ROS 2 layer (ros2) on nothing of ours, the recorder
-//! on core, msgs, actors and ros2, the tests on everything but host, and nothing at all depends on
+//! on core, msgs, actors and ros2, the experiments (lab) on core, msgs, actors, hil-mocks, the
+//! simulation and the recorder, the tests on everything but host, and nothing at all depends on
 //! host.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use std::collections::BTreeSet;
 use std::path::Path;
 
-const OURS: [&str; 12] = [
+const OURS: [&str; 13] = [
     "amr-settings",
     "amr-core",
     "amr-msgs",
@@ -21,6 +22,7 @@ const OURS: [&str; 12] = [
     "amr-net",
     "amr-ros2",
     "amr-record",
+    "amr-lab",
     "host",
     "hil-tests",
 ];
@@ -67,6 +69,9 @@ fn dependencies_point_one_way() {
             // ROS 2's encoding, message types and wire conventions know nothing of the fleet.
             "amr-ros2" => &[],
             "amr-record" => &["amr-core", "amr-msgs", "amr-actors", "amr-ros2"],
+            // The experiments run the simulation's evaluation, record its trials and read
+            // configurations: everything below them but the network link and ROS 2.
+            "amr-lab" => &["amr-core", "amr-msgs", "amr-actors", "hil-mocks", "amr-sim", "amr-record"],
             "hil-tests" => &libraries,
             // host is the wiring: it may use every library, and its tests use the fixtures crate.
             "host" => &not_host,

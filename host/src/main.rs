@@ -1,18 +1,14 @@
 //! `amr`: the one binary of the project. Each subcommand is wiring around the library crates.
 
 mod amcl_cmd;
-mod bench;
-mod bench_localize;
 mod carmen_cmd;
 mod config_cmd;
 mod eval_cmd;
 mod fleet_cmd;
 mod localize;
 mod mock_cmd;
-mod plots;
 mod record_cmd;
 mod sim_cmd;
-mod study_cmd;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -556,17 +552,21 @@ fn main() -> ExitCode {
 
     let result = match cli.command {
         Command::Config(ConfigCommand::Check { dir }) => config_cmd::check(dir),
-        Command::Bench(BenchCommand::Vamr(opts)) => {
-            bench(opts, "the Virtual-AMR pipeline", |c, quick| bench::run(&c.vamr, quick), bench::markdown)
-        }
+        Command::Bench(BenchCommand::Vamr(opts)) => bench(
+            opts,
+            "the Virtual-AMR pipeline",
+            |c, quick| amr_lab::bench::run(&c.vamr, quick),
+            amr_lab::bench::markdown,
+        ),
         Command::Bench(BenchCommand::Localize { logs, only, seeds, nav2, params, config, json, kidnap }) => {
             (|| -> anyhow::Result<()> {
                 let params = localize::load_params(params.as_deref(), config)?;
-                let report = bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref(), kidnap)?;
+                let report =
+                    amr_lab::bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref(), kidnap)?;
                 let text = if json {
                     serde_json::to_string_pretty(&report)? + "\n"
                 } else {
-                    bench_localize::markdown(&report)
+                    amr_lab::bench_localize::markdown(&report)
                 };
                 #[allow(clippy::print_stdout, reason = "the command's report")]
                 {
@@ -576,12 +576,12 @@ fn main() -> ExitCode {
             })()
         }
         Command::Bench(BenchCommand::Amcl { common, log, nav2, no_large_map }) => {
-            let extras = bench::AmclExtras { log, nav2, no_large_map };
+            let extras = amr_lab::bench::AmclExtras { log, nav2, no_large_map };
             bench(
                 common,
                 "AMCL",
-                |c, quick| bench::run_amcl(&c.amcl, &c.vamr, quick, &extras),
-                bench::amcl_markdown,
+                |c, quick| amr_lab::bench::run_amcl(&c.amcl, &c.vamr, quick, &extras),
+                amr_lab::bench::amcl_markdown,
             )
         }
         Command::Mock(MockCommand::Lidar { listen, points, dialect }) => {
@@ -704,27 +704,34 @@ fn main() -> ExitCode {
             foxglove,
         } => (|| {
             let config = amr_actors::config::load(&config_cmd::source_for(config))?;
+            let plan = amr_lab::eval::Plan {
+                config: &config,
+                scenario: &scenario,
+                map: map.into(),
+                robots,
+                trials,
+                seed,
+            };
             let report = match sweep {
                 None if study.is_some() => {
                     let scenarios: Vec<String> = if study_scenarios.is_empty() {
-                        study_cmd::STUDY_SCENARIOS.iter().map(|s| (*s).to_owned()).collect()
+                        amr_lab::study::STUDY_SCENARIOS.iter().map(|s| (*s).to_owned()).collect()
                     } else {
                         study_scenarios
                     };
-                    study_cmd::occlusion(&config, &scenarios, map, trials, confirm_trials, seed, &out)?
+                    let study = amr_lab::study::Occlusion {
+                        config: &config,
+                        scenarios: &scenarios,
+                        map: map.into(),
+                        trials,
+                        confirm_trials,
+                        seed,
+                    };
+                    amr_lab::study::occlusion(&study, &out)?
                 }
-                None if budget => study_cmd::budget(&config, &scenario, map, robots, trials, seed, &out)?,
-                Some(which) => eval_cmd::sweep(&config, &scenario, map, which, trials, seed, &out)?,
-                None => eval_cmd::run(
-                    &config,
-                    &scenario,
-                    map,
-                    robots,
-                    trials,
-                    seed,
-                    eval_cmd::Outputs { dir: &out, record: record.as_deref(), live: foxglove },
-                )?
-                .join("report.md"),
+                None if budget => amr_lab::study::budget(&plan, &out)?,
+                Some(which) => amr_lab::eval::sweep(&plan, which.into(), &out)?,
+                None => eval_cmd::run(&plan, &out, record.as_deref(), foxglove)?.join("report.md"),
             };
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {

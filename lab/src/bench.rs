@@ -11,25 +11,23 @@ use amr_core::config::{Configuration, VamrParams};
 use amr_core::vamr::contour::{ContourInput, recognize};
 use amr_core::vamr::frame::PacketTimes;
 use amr_core::vamr::fusion::{FusionInput, fuse};
-use amr_core::vamr::heading::{
-    AngleGrid, HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search,
-};
+use amr_core::vamr::heading::{HeadingProblem, SearchScratch, TargetScan, kdtree_baseline, search};
 use amr_core::vamr::pipeline::{Pipeline, Source, Stage, UpdateError};
 use amr_core::vamr::preprocess::preprocess;
-use amr_core::vamr::synthetic::{Pair, Team};
+use amr_core::vamr::synthetic::{Pair, PairStages, Team};
 use amr_core::vamr::tracker::Tracker;
 use serde::Serialize;
 
 /// Median and 95th percentile of a stage, in milliseconds.
 #[derive(Debug, Clone, Copy, Serialize)]
-pub(crate) struct Timing {
+pub struct Timing {
     pub median_ms: f64,
     pub p95_ms: f64,
     pub runs: usize,
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct Row {
+pub struct Row {
     pub stage: &'static str,
     /// The paper's range on its Pentium G4400 (Table 4 / §5.2), for comparison.
     pub paper: &'static str,
@@ -38,7 +36,7 @@ pub(crate) struct Row {
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct Report {
+pub struct Report {
     pub rows: Vec<Row>,
     /// Baseline full search ÷ our full search, per point count (medians from the same run).
     pub full_search_speedup: [f64; 2],
@@ -49,11 +47,11 @@ pub(crate) struct Report {
 }
 
 /// The team sizes of the time-per-fused-update table.
-pub(crate) const TEAM_SIZES: [usize; 4] = [2, 3, 4, 8];
+pub const TEAM_SIZES: [usize; 4] = [2, 3, 4, 8];
 
 /// One team size at one beam count: a T4 pipeline's whole updates on [`Team::fan`].
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct TeamRow {
+pub struct TeamRow {
     pub robots: usize,
     pub beams: usize,
     /// The first update: it acquires every track and runs the full heading search for each robot.
@@ -108,12 +106,13 @@ struct Measured {
     agrees: bool,
 }
 
-/// The paper's straight-line layout: side by side, 0.9 m between centres.
+/// The paper's straight-line layout ([`PairStages`]): side by side, 0.9 m between centres.
 fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Measured> {
-    let pair = Pair::straight(beams)?;
+    let stages = PairStages::new(beams, params)?;
+    let pair = &stages.pair;
     let (site, scans, truth) = (&pair.site, &pair.scans, pair.truth());
     let pre = |i: usize| preprocess(&scans[i], &site.mount, &params.preprocess);
-    let (pa, pb) = (pre(0), pre(1));
+    let [pa, pb] = &stages.preprocessed;
     let contour_input = ContourInput {
         scan: &scans[0],
         filtered: &pa.filtered_points,
@@ -123,11 +122,8 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
         jump_m: params.preprocess.segment_jump_m.get(),
     };
     let h = &params.heading;
-    let target =
-        TargetScan::new(&scans[0], &site.mount, &pa.smoothed_points).with_surface(h.surface_jump_m());
-    let problem = HeadingProblem::new(&pb.smoothed_points, &target, [truth.x, truth.y], h);
-    let full = AngleGrid::full(h.step_deg.get());
-    let refined = AngleGrid::around(truth.theta, h.refine_window_deg.get(), h.step_deg.get());
+    let problem = stages.problem(h);
+    let (full, refined) = (stages.full, stages.refined);
     let mut scratch = SearchScratch::default();
     let packets = pair.packets();
     // V midway between them, axes aligned.
@@ -142,7 +138,7 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
             base_in_v: b,
         })
         .collect();
-    let target_pts: Vec<[f64; 2]> = pa.smoothed_points.iter().map(|b| b.p).collect();
+    let target_pts = stages.target_points();
 
     let n = 200 * scale;
     let preprocessing = time(n, || (pre(0), pre(1)));
@@ -164,8 +160,7 @@ fn measure(beams: usize, params: &VamrParams, scale: usize) -> anyhow::Result<Me
     });
     let virtual_scan = time(n, || fuse(&inputs, params.fusion.mask_inflation_m.get(), None));
     // End to end without AMCL, in normal operation: a pipeline that already has a heading refines.
-    let mut pipeline = Pipeline::new(2, params.clone(), Configuration::T4, 0.05, 0.1);
-    pipeline.update(&packets)?;
+    let mut pipeline = stages.primed_pipeline(params)?;
     let end_to_end = time(n, || pipeline.update(&packets));
 
     // The baseline is Eq. 11 against the target's points: the same with our search. (Against the
@@ -296,7 +291,7 @@ fn team_sizes(params: &VamrParams, beams: &[usize], runs: usize) -> anyhow::Resu
     Ok(rows)
 }
 
-pub(crate) fn run(params: &VamrParams, quick: bool) -> anyhow::Result<Report> {
+pub fn run(params: &VamrParams, quick: bool) -> anyhow::Result<Report> {
     let scale = if quick { 1 } else { 5 };
     let small = measure(271, params, scale)?;
     let large = measure(655, params, scale)?;
@@ -322,7 +317,7 @@ pub(crate) fn run(params: &VamrParams, quick: bool) -> anyhow::Result<Report> {
     })
 }
 
-pub(crate) fn markdown(r: &Report) -> String {
+pub fn markdown(r: &Report) -> String {
     let cell =
         |t: Option<Timing>| t.map_or("—".to_owned(), |t| format!("{:.3} ({:.3})", t.median_ms, t.p95_ms));
     let mut out = String::new();
@@ -414,7 +409,7 @@ fn team_markdown(rows: &[TeamRow]) -> String {
 /// `amr bench amcl`: the filter's costs at a fixed 2 000 particles (min = max, so KLD cannot shrink
 /// the set) on the paper's site, with the straight pair's virtual scan as the measurement.
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct AmclReport {
+pub struct AmclReport {
     pub particles: usize,
     /// One update (motion + sensor + resampling + estimate) with `max_beams` = 60.
     pub update_60_beams: Timing,
@@ -435,7 +430,7 @@ pub(crate) struct AmclReport {
 
 /// One size's update time with and without the integrity monitor (`AmclReport::integrity_cost`).
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct IntegrityCost {
+pub struct IntegrityCost {
     pub label: String,
     pub off_ms: f64,
     pub on_ms: f64,
@@ -444,7 +439,7 @@ pub(crate) struct IntegrityCost {
 
 /// The cost of a large map (`LargeMap::measure`).
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct LargeMap {
+pub struct LargeMap {
     pub width: usize,
     pub height: usize,
     /// Reading the PGM/YAML into a grid, and building the likelihood field from it, seconds.
@@ -458,7 +453,7 @@ pub(crate) struct LargeMap {
 
 /// Our update against nav2's on one real log (`amr bench amcl --log DIR/NAME [--nav2 BIN]`).
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct RealLog {
+pub struct RealLog {
     pub log: String,
     /// Ours: a whole update (motion + sensor + resampling + estimate), fixed particle counts.
     pub ours_2000_60: Timing,
@@ -477,10 +472,7 @@ pub(crate) struct RealLog {
 impl LargeMap {
     /// Writes a 4 000 × 12 000-cell warehouse (walls, racks in aisles, unknown around) as PGM row by
     /// row into `dir`, then loads it and builds the field as `amr localize` and the server do.
-    pub(crate) fn measure(
-        dir: &std::path::Path,
-        params: &amr_core::config::AmclParams,
-    ) -> anyhow::Result<LargeMap> {
+    pub fn measure(dir: &std::path::Path, params: &amr_core::config::AmclParams) -> anyhow::Result<LargeMap> {
         use std::io::Write as _;
         let (w, h, res) = (4000usize, 12000usize, 0.05);
         let pgm = dir.join("large.pgm");
@@ -522,7 +514,7 @@ impl LargeMap {
         )?;
         reset_peak_rss();
         let t0 = Instant::now();
-        let grid = crate::localize::read_map(&yaml)?;
+        let grid = amr_actors::config::load_map_path(&yaml)?;
         let load_s = t0.elapsed().as_secs_f64();
         let t1 = Instant::now();
         let field = amr_core::amcl::LikelihoodField::new(&grid, params, 30.0);
@@ -549,7 +541,7 @@ fn peak_rss_kb() -> Option<u64> {
 
 /// Options of `amr bench amcl` beyond the common ones.
 #[derive(Debug, Clone, Default)]
-pub(crate) struct AmclExtras {
+pub struct AmclExtras {
     /// A recorded log's prefix (`DIR/NAME`: `NAME_map.yaml`, `NAME-raw.log`, `NAME-gt.csv`).
     pub log: Option<std::path::PathBuf>,
     /// nav2's reference harness (docs/nav2-reference.md), run on that log.
@@ -628,7 +620,7 @@ fn real_log(
     let name = prefix.file_name().and_then(|n| n.to_str()).unwrap_or("log").to_owned();
     let with = |suffix: &str| prefix.with_file_name(format!("{name}{suffix}"));
     let (map, log, gt) = (with("_map.yaml"), with("-raw.log"), with("-gt.csv"));
-    let grid = crate::localize::read_map(&map)?;
+    let grid = amr_actors::config::load_map_path(&map)?;
     let text = std::fs::read_to_string(&log).map_err(|e| anyhow::anyhow!("{}: {e}", log.display()))?;
     let scan = text
         .lines()
@@ -693,7 +685,7 @@ fn real_log(
     }))
 }
 
-pub(crate) fn run_amcl(
+pub fn run_amcl(
     amcl_params: &amr_core::config::AmclParams,
     vamr: &VamrParams,
     quick: bool,
@@ -786,7 +778,7 @@ fn tempfile_dir() -> anyhow::Result<std::path::PathBuf> {
     Ok(d)
 }
 
-pub(crate) fn amcl_markdown(r: &AmclReport) -> String {
+pub fn amcl_markdown(r: &AmclReport) -> String {
     let row = |name: &str, t: &Timing, goal: &str| {
         format!("| {name} | {:.3} | {:.3} | {goal} |\n", t.median_ms, t.p95_ms)
     };
@@ -885,5 +877,25 @@ mod tests {
             assert!(r["update"]["median_ms"].as_f64().unwrap() > 0.0, "{r}");
             assert_eq!(r["updates"].as_u64(), Some(3), "{r}");
         }
+    }
+
+    /// The median and the 95th percentile are the samples at those ranks (rounded), NaN for none.
+    #[test]
+    fn timings_are_the_median_and_p95_of_the_samples() {
+        let t = summarize(vec![5.0, 1.0, 3.0, 2.0, 4.0]);
+        assert_eq!((t.median_ms, t.p95_ms, t.runs), (3.0, 5.0, 5));
+        let t = summarize((1..=100).map(f64::from).collect());
+        assert_eq!((t.median_ms, t.p95_ms), (51.0, 95.0));
+        let none = summarize(Vec::new());
+        assert!(none.median_ms.is_nan() && none.p95_ms.is_nan());
+        assert_eq!(none.runs, 0);
+    }
+
+    /// On Linux the process's peak resident memory is known, and reading it after a reset works.
+    #[test]
+    fn the_peak_memory_is_read_from_the_process_status() {
+        reset_peak_rss();
+        let kb = peak_rss_kb().unwrap();
+        assert!(kb > 0, "{kb}");
     }
 }

@@ -12,11 +12,11 @@ use amr_sim::eval::{Setup, Trial, run_trial};
 use anyhow::Context as _;
 use serde::Serialize;
 
-use crate::eval_cmd::{MapSource, progress, setup};
+use crate::eval::{MapSource, Plan, progress, setup};
 
 /// Trials `seed, seed + 1, …` of `setup`, on every core (each trial is deterministic in its seed,
 /// so the result does not depend on the number of threads).
-pub(crate) fn run_trials(setup: &Setup, seed: u64, trials: usize, what: &str) -> Vec<Trial> {
+pub fn run_trials(setup: &Setup, seed: u64, trials: usize, what: &str) -> Vec<Trial> {
     let threads =
         std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get).min(trials.max(1));
     let bar = progress(trials as u64, what);
@@ -46,7 +46,7 @@ pub(crate) fn run_trials(setup: &Setup, seed: u64, trials: usize, what: &str) ->
 
 /// One configuration's trial-level figures.
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct Figures {
+pub struct Figures {
     /// Trial-level 2D RMSE against the truth, m: mean and SD over trials.
     pub rmse: Option<MeanSd>,
     /// Per trial, in trial order, its 2D RMSE against the truth, m (none if the trial gave no
@@ -62,9 +62,9 @@ pub(crate) struct Figures {
 }
 
 /// A trial whose estimate strays this far from the truth has diverged, m.
-pub(crate) const DIVERGED_M: f64 = 0.5;
+pub const DIVERGED_M: f64 = 0.5;
 
-pub(crate) fn figures(trials: &[Trial], c: Configuration) -> Figures {
+pub fn figures(trials: &[Trial], c: Configuration) -> Figures {
     let series: Vec<&amr_sim::eval::Series> =
         trials.iter().filter_map(|t| t.series.iter().find(|(k, _)| *k == c).map(|(_, s)| s)).collect();
     let trial_rmse: Vec<Option<f64>> =
@@ -171,15 +171,9 @@ struct BudgetReport<'a> {
 
 /// `amr eval --budget`: T4's error with each of its sources replaced by the truth in turn, on the
 /// same sensor streams (the world is seeded, so every row sees the same scans).
-pub(crate) fn budget(
-    config: &Config,
-    scenario: &str,
-    map: MapSource,
-    robots: usize,
-    trials: usize,
-    seed: u64,
-    out_dir: &Path,
-) -> anyhow::Result<PathBuf> {
+/// Returns the Markdown report's path.
+pub fn budget(plan: &Plan<'_>, out_dir: &Path) -> anyhow::Result<PathBuf> {
+    let Plan { config, scenario, map, robots, trials, seed } = *plan;
     let chosen = config.scenario(scenario)?;
     let base = setup(config, &chosen, robots, map)?;
     let stem = chosen.stem.as_str();
@@ -243,12 +237,12 @@ pub(crate) fn budget(
 /// The occlusion study's scenarios by default: the paper's site, the one-sided hall, the
 /// corridor and the hall with its racks behind the formation (`config/maps/README.md`), straight
 /// and turning where the site allows.
-pub(crate) const STUDY_SCENARIOS: [&str; 6] =
+pub const STUDY_SCENARIOS: [&str; 6] =
     ["straight", "turning", "hall-straight", "hall-turning", "corridor", "short-racks"];
 /// Centre-to-centre spacing between neighbours, m.
-pub(crate) const SPACINGS_M: [f64; 4] = [0.5, 1.0, 1.5, 2.0];
+pub const SPACINGS_M: [f64; 4] = [0.5, 1.0, 1.5, 2.0];
 /// Team sizes.
-pub(crate) const TEAMS: [usize; 3] = [2, 3, 4];
+pub const TEAMS: [usize; 3] = [2, 3, 4];
 /// Laps of a looping scenario in the study (the paper's turning runs 30).
 const STUDY_LAPS: i64 = 2;
 
@@ -362,16 +356,24 @@ fn pct(v: &[f64]) -> String {
     v.iter().map(|x| format!("{:.0}", 100.0 * x)).collect::<Vec<_>>().join("/")
 }
 
-/// `amr eval --study occlusion`: T1–T4 over robot spacing, team size and sites.
-pub(crate) fn occlusion(
-    config: &Config,
-    scenarios: &[String],
-    map: MapSource,
-    trials: usize,
-    confirm_trials: usize,
-    seed: u64,
-    out_dir: &Path,
-) -> anyhow::Result<PathBuf> {
+/// What the occlusion study runs: every scenario of `scenarios` with every team of [`TEAMS`] at
+/// every spacing of [`SPACINGS_M`], `trials` trials each from `seed`, and `confirm_trials` in all
+/// where those leave the never-worse criterion open (0: none).
+#[derive(Debug, Clone, Copy)]
+pub struct Occlusion<'a> {
+    pub config: &'a Config,
+    /// Scenarios (names or files); [`STUDY_SCENARIOS`] by default.
+    pub scenarios: &'a [String],
+    pub map: MapSource,
+    pub trials: usize,
+    pub confirm_trials: usize,
+    pub seed: u64,
+}
+
+/// `amr eval --study occlusion`: T1–T4 over robot spacing, team size and sites. Returns the
+/// Markdown report's path.
+pub fn occlusion(plan: &Occlusion<'_>, out_dir: &Path) -> anyhow::Result<PathBuf> {
+    let Occlusion { config, scenarios, map, trials, confirm_trials, seed } = *plan;
     let mut rows = Vec::new();
     for name in scenarios {
         let chosen = config.scenario(name)?;
@@ -696,5 +698,71 @@ mod tests {
                 .collect()
         });
         assert_eq!(r.trials, 3);
+    }
+
+    /// The criterion is open only while the margin lies within two standard errors of the mean,
+    /// and never on one trial.
+    #[test]
+    fn the_verdict_is_open_only_within_two_standard_errors_of_the_margin() {
+        // SD 0.2 over 4 trials: a standard error of 0.1.
+        let at = |mean: f64| MeanSd { mean, sd: 0.2, n: 4 };
+        assert!(verdict_open(&at(0.6)), "0.4 ≤ 0.5 < 0.8");
+        assert!(verdict_open(&at(0.7)), "0.5 ≤ 0.5 < 0.9");
+        assert!(!verdict_open(&at(0.71)), "missed beyond the noise");
+        assert!(!verdict_open(&at(0.3)), "held beyond the noise: 0.3 + 0.2 is not above 0.5");
+        assert!(!verdict_open(&MeanSd { mean: 0.5, sd: 0.0, n: 1 }), "one trial");
+        assert_eq!(over_margin(&at(0.71)), (true, true));
+        assert_eq!(over_margin(&at(0.6)), (true, false));
+    }
+
+    /// Figures in cm with two decimals, a dash without any; shares in whole percent, per robot.
+    #[test]
+    fn cells_are_written_in_centimetres_and_percent() {
+        let f = |rmse| Figures { rmse, trial_rmse: Vec::new(), diverged: 0, missing: 0, worst_robot: None };
+        assert_eq!(cm(&f(Some(MeanSd { mean: 0.0123, sd: 0.0045, n: 3 }))), "1.23 ± 0.45");
+        assert_eq!(cm(&f(None)), "—");
+        assert_eq!(pct(&[0.125, 0.5, 1.0]), "12/50/100");
+        assert_eq!(pct(&[]), "");
+    }
+
+    /// A trial diverged when V strays more than [`DIVERGED_M`] at some scan; the RMSE is of each
+    /// trial, then mean and SD over trials.
+    #[test]
+    fn figures_count_diverged_trials_and_average_their_rmse() {
+        let trials = [trial(1, [0.01, 0.02, 0.03, 0.04]), trial(2, [0.03, 0.02, 0.6, 0.04])];
+        let t1 = figures(&trials, Configuration::T1);
+        let m = t1.rmse.unwrap();
+        assert!((m.mean - 0.02).abs() < 1e-12, "{m:?}");
+        assert_eq!((m.n, t1.diverged, t1.missing), (2, 0, 0));
+        assert_eq!(figures(&trials, Configuration::T3).diverged, 1);
+        let worst = figures(&trials, Configuration::T4).worst_robot.unwrap();
+        assert!((worst.mean - 0.04).abs() < 1e-12 && worst.sd.abs() < 1e-12, "{worst:?}");
+    }
+
+    /// The study's table starts with its header and names the trials, the seed and the map.
+    #[test]
+    fn the_study_report_heads_its_table() {
+        let rows = [row()];
+        let report = StudyReport {
+            map: MapSource::True,
+            trials: 3,
+            confirm_trials: 0,
+            seed: 7,
+            spacings_m: &SPACINGS_M,
+            teams: &TEAMS,
+            rows: &rows,
+        };
+        let md = study_markdown(&report);
+        assert!(
+            md.starts_with(
+                "# amr eval --study occlusion: 3 trials per configuration from seed 7, AMCL's map true\n"
+            ),
+            "{md}"
+        );
+        assert!(md.contains(
+            "\n| scenario | motion | robots | spacing m | T1 | T2 | T3 | T4 | Δ cm | occluded % | site left % | site % |\n"
+        ));
+        assert!(md.contains("| s | straight | 2 | 1 | — | — | — | — | — |  |  |  |\n"), "{md}");
+        assert!(md.contains("\n1 configurations run, 0 skipped"), "{md}");
     }
 }

@@ -17,7 +17,7 @@ use serde::Serialize;
 
 /// One way of running a log.
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct Run {
+pub struct Run {
     pub score: Score,
     /// Per filter update (motion + sensor + resampling + estimate), milliseconds.
     pub update_median_ms: f64,
@@ -31,7 +31,7 @@ pub(crate) struct Run {
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
-pub(crate) struct KidnapOutcome {
+pub struct KidnapOutcome {
     pub scan: usize,
     pub jump_m: f64,
     pub jump_deg: f64,
@@ -84,7 +84,7 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
 /// more than 0.5 m from the reference; a loss is a run of at least [`DETECT_WITHIN`] off scans
 /// (shorter runs are excursions the filter came back from by itself).
 #[derive(Debug, Clone, Default, Serialize)]
-pub(crate) struct IntegrityCounts {
+pub struct IntegrityCounts {
     /// Scans whose estimate is within 0.5 m.
     pub on: usize,
     /// Times the filter turned `Lost` with its estimate within 0.5 m, and within 0.5 m over the
@@ -107,10 +107,10 @@ pub(crate) struct IntegrityCounts {
 
 /// A loss counts as detected when the filter reports `Lost` within this many scans of its first
 /// off scan; it is also the shortest run of off scans that counts as a loss.
-pub(crate) const DETECT_WITHIN: usize = 3;
+pub const DETECT_WITHIN: usize = 3;
 
 /// The integrity counts of a run: per scan, its error (None: no reference) and the state reported.
-pub(crate) fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
+pub fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
     let mut c = IntegrityCounts { reseeds, ..IntegrityCounts::default() };
     let scored: Vec<(f64, IntegrityState)> =
         per_scan.iter().filter_map(|(e, s)| e.map(|e| (e, *s))).collect();
@@ -145,7 +145,7 @@ pub(crate) fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], resee
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct LogReport {
+pub struct LogReport {
     pub name: String,
     pub scans: usize,
     pub odometry_only: Score,
@@ -165,7 +165,7 @@ pub(crate) struct LogReport {
 /// scans the monitor's thresholds would call uncertain or lost (taking as the tracked level the
 /// mean share at the references, which the monitor's running mean learns).
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct SeparationRow {
+pub struct SeparationRow {
     pub displacement: String,
     pub scans: usize,
     pub median: f64,
@@ -210,7 +210,7 @@ fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRo
 }
 
 #[derive(Debug, Clone, Serialize)]
-pub(crate) struct Report {
+pub struct Report {
     pub seeds: Vec<u64>,
     pub logs: Vec<LogReport>,
     /// Logs not run, and why.
@@ -379,7 +379,7 @@ fn odometry_only(records: &[Record], reference: &[RefPose]) -> Score {
     score(reference, &est)
 }
 
-pub(crate) fn run(
+pub fn run(
     params: &AmclParams,
     dir: &Path,
     only: &[String],
@@ -391,7 +391,7 @@ pub(crate) fn run(
     let mut logs = Vec::new();
     let mut skipped = Vec::new();
     for name in names {
-        let grid = crate::localize::read_map(&dir.join(format!("{name}_map.yaml")))?;
+        let grid = amr_actors::config::load_map_path(&dir.join(format!("{name}_map.yaml")))?;
         let gt_path = dir.join(format!("{name}-gt.csv"));
         let reference =
             parse_reference(&read(&gt_path)?).map_err(|e| anyhow::anyhow!("{}: {e}", gt_path.display()))?;
@@ -493,7 +493,7 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
     );
 }
 
-pub(crate) fn markdown(r: &Report) -> String {
+pub fn markdown(r: &Report) -> String {
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -644,5 +644,29 @@ mod tests {
         assert_eq!(c.on, 8);
         assert_eq!(c.tracking_off, 3);
         assert_eq!(c.reseeds, 7);
+    }
+
+    /// A percentile is the sorted sample at its rank, rounded; NaN for none.
+    #[test]
+    fn percentiles_take_the_rounded_rank() {
+        let v = [1.0, 2.0, 3.0, 4.0];
+        assert_eq!(percentile(&v, 0.5), 3.0);
+        assert_eq!(percentile(&v, 0.05), 1.0);
+        assert_eq!(percentile(&v, 0.95), 4.0);
+        assert!(percentile(&[], 0.5).is_nan());
+    }
+
+    /// Without logs the report is its tables' headers, and a skipped log says why.
+    #[test]
+    fn the_report_heads_its_tables_and_names_skipped_logs() {
+        let r =
+            Report { seeds: vec![1, 2], logs: Vec::new(), skipped: vec![("b".into(), "no odometry".into())] };
+        let md = markdown(&r);
+        assert!(md.starts_with("AMCL on recorded logs against their references (seeds [1, 2];"), "{md}");
+        assert!(
+            md.contains("\n| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms |")
+        );
+        assert!(md.contains("\n| log | pose | scans | median | P5 | P95 | uncertain (%) | lost (%) |\n"));
+        assert!(md.ends_with("\nb: not run, no odometry.\n"), "{md}");
     }
 }

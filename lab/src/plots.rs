@@ -195,7 +195,7 @@ fn draw<DB: DrawingBackend>(
 }
 
 /// Draw every plot of `trial` into `dir` as `<name>.png` and `<name>.svg`.
-pub(crate) fn write_all(dir: &Path, trial: &Trial, site: &[Polygon]) -> anyhow::Result<Vec<PathBuf>> {
+pub fn write_all(dir: &Path, trial: &Trial, site: &[Polygon]) -> anyhow::Result<Vec<PathBuf>> {
     register_font()?;
     let mut written = Vec::new();
     for name in ["trajectories", "error", "particles"] {
@@ -245,7 +245,7 @@ fn lines_chart<DB: DrawingBackend>(
 }
 
 /// A line chart as `<stem>.png` and `<stem>.svg` in `dir`.
-pub(crate) fn write_lines(
+pub fn write_lines(
     dir: &Path,
     stem: &str,
     caption: &str,
