@@ -1,5 +1,8 @@
 //! AMCL in a simulated corridor-and-rooms building: scans ray-cast from the true pose, odometry
 //! with drift, the map rasterised from the same walls.
+//!
+//! It is one file because every scenario runs the filter in the same simulated building, along the
+//! same path with the same drifting odometry and run loop.
 
 use std::sync::Arc;
 
