@@ -60,6 +60,9 @@
 //! * Stopping a child is awaited inside the supervisor's handler, bounded by `STOP_TIMEOUT`
 //!   (then the child is killed, bounded again): a child whose `post_stop` calls back into its
 //!   supervisor delays it by at most that, it cannot deadlock it.
+//!
+//! It is one file because the policy is one state machine: starting, failing, backing off,
+//! escalating and stopping all act on the same `SupervisorState` and its ordered list of children.
 
 use std::collections::{HashSet, VecDeque};
 use std::fmt;
