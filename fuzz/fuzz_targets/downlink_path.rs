@@ -251,7 +251,7 @@ impl Robot {
             sent_s: stamp_s + 0.001,
             body,
         };
-        let bytes = env.encode().expect("an envelope always encodes (net/src/wire.rs)");
+        let bytes = env.encode().expect("an envelope always encodes (net/src/wire/mod.rs)");
         // What was encoded decodes to the same bytes (NaN stamps are refused).
         match Envelope::decode(&bytes) {
             Ok(back) => assert_eq!(back.encode().ok().as_ref(), Some(&bytes), "{env:?} changed on the wire"),

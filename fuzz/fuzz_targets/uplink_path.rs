@@ -308,7 +308,7 @@ impl Server {
             sent_s: received_s + 0.001,
             body,
         };
-        let bytes = env.encode().expect("an envelope always encodes (net/src/wire.rs)");
+        let bytes = env.encode().expect("an envelope always encodes (net/src/wire/mod.rs)");
         (bytes, uplink)
     }
 
