@@ -596,6 +596,5 @@ fn true_v_in_first(set: &[Held], members: &[Member]) -> Option<Se2> {
 }
 
 mod fuse;
-
 #[cfg(test)]
 mod tests;
