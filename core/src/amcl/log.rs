@@ -81,8 +81,17 @@ pub struct Fed {
 impl<'g> LogLocalizer<'g> {
     #[must_use]
     pub fn new(grid: &'g crate::map::OccupancyGrid, params: AmclParams, start: Start, seed: u64) -> Self {
+        Self::on(std::borrow::Cow::Borrowed(grid), params, start, seed)
+    }
+
+    fn on(
+        grid: std::borrow::Cow<'g, crate::map::OccupancyGrid>,
+        params: AmclParams,
+        start: Start,
+        seed: u64,
+    ) -> Self {
         LogLocalizer {
-            grid: std::borrow::Cow::Borrowed(grid),
+            grid,
             params,
             start,
             seed,
@@ -101,16 +110,7 @@ impl<'g> LogLocalizer<'g> {
         start: Start,
         seed: u64,
     ) -> LogLocalizer<'static> {
-        LogLocalizer {
-            grid: std::borrow::Cow::Owned(grid),
-            params,
-            start,
-            seed,
-            amcl: None,
-            last_odom: None,
-            scans: 0,
-            scans_without_odometry: 0,
-        }
+        LogLocalizer::on(std::borrow::Cow::Owned(grid), params, start, seed)
     }
 
     /// Start again from `start` (an operator's initial pose, or global localisation): the filter

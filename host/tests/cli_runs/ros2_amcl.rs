@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 use amr_core::se2::{Se2, angle_diff};
 use serde_json::Value;
 
-use crate::ros2_bag::{Run, simulate};
+use crate::ros2_bag::{Run, ours_in_nav2_names, simulate};
 
 const PEER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/cli_runs/peers/ros2_amcl_peer.py");
 /// The peer plays the run this many times faster than it was taken.
@@ -28,17 +28,7 @@ const TOLERANCE_S: f64 = 0.5;
 
 /// A nav2 params file saying by nav2's names what our amcl.toml says, with the test's frames.
 fn params(dir: &Path) -> std::path::PathBuf {
-    let ours: toml::Table =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/amcl.toml"))
-            .unwrap()
-            .parse()
-            .unwrap();
-    let mut yaml = String::from("amcl:\n  ros__parameters:\n");
-    for (k, v) in &ours {
-        if !v.is_table() && !k.starts_with("odom_slip") {
-            yaml.push_str(&format!("    {k}: {v}\n"));
-        }
-    }
+    let mut yaml = ours_in_nav2_names();
     yaml.push_str(&format!(
         "    base_frame_id: base_link\n    odom_frame_id: odom\n    global_frame_id: map\n    scan_topic: scan\n    \
          transform_tolerance: {TOLERANCE_S}\n    set_initial_pose: false\n"

@@ -198,6 +198,23 @@ for t_ns, topic, typ, data in out:
 w.close()
 "#;
 
+/// A nav2 params file's `amcl` section saying, by nav2's names, what config/amcl.toml says (but
+/// the slip tail, which nav2 has not).
+pub(crate) fn ours_in_nav2_names() -> String {
+    let ours: toml::Table =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/amcl.toml"))
+            .unwrap()
+            .parse()
+            .unwrap();
+    let mut yaml = String::from("amcl:\n  ros__parameters:\n");
+    for (k, v) in &ours {
+        if !v.is_table() && !k.starts_with("odom_slip") {
+            yaml.push_str(&format!("    {k}: {v}\n"));
+        }
+    }
+    yaml
+}
+
 fn write_bag(dir: &Path, run: &Run, bag: &Value) {
     let data = dir.join("sim.json");
     std::fs::write(&data, run.data.to_string()).unwrap();
@@ -307,17 +324,7 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
     // nav2's names, what our amcl.toml says (and the start as nav2 gives it) gives the very same
     // poses; nav2's own defaults give other ones (the file is what drives the filter).
     let nav2 = dir.path().join("nav2_params.yaml");
-    let ours: toml::Table =
-        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/amcl.toml"))
-            .unwrap()
-            .parse()
-            .unwrap();
-    let mut yaml = String::from("amcl:\n  ros__parameters:\n");
-    for (k, v) in &ours {
-        if !v.is_table() && !k.starts_with("odom_slip") {
-            yaml.push_str(&format!("    {k}: {v}\n"));
-        }
-    }
+    let mut yaml = ours_in_nav2_names();
     yaml.push_str("    alpha5: 0.2\n    tf_broadcast: true\n    set_initial_pose: true\n    initial_pose: {x: 1.0, y: 1.0, z: 0.0, yaw: 0.0}\n");
     let nav2_localize = |file: &Path, extra: &[&str]| {
         Command::new(env!("CARGO_BIN_EXE_amr"))

@@ -150,7 +150,7 @@ struct Pair {
     expected: Option<Roi>,
 }
 
-/// The pipeline's state across updates: one [`Pair`] per non-reference robot.
+/// The pipeline's state across updates: one tracker and heading track per non-reference robot.
 #[derive(Debug)]
 pub struct Pipeline {
     params: VamrParams,
