@@ -159,11 +159,7 @@ fn our_amcl_over_dds_localises_globally_and_publishes_once_it_tracks() {
     std::fs::write(&data, run.data.to_string()).unwrap();
     let (err, out) = (dir.path().join("amcl.err"), dir.path().join("peer.json"));
     let script = format!(
-        r#"set -e
-ip link set lo up
-ip link set lo multicast on
-ip route add 224.0.0.0/4 dev lo
-"{amr}" amcl --ros2 dds --params "{params}" --ros2-domain 6 --duration 60 2>"{err}" &
+        r#""{amr}" amcl --ros2 dds --params "{params}" --ros2-domain 6 --duration 60 2>"{err}" &
 AMCL=$!
 set +e
 python3 "{peer}" dds - 6 "{data}" "{map}" none {speed} >"{out}"
@@ -181,11 +177,7 @@ exit $STATUS
         speed = SPEED,
         out = out.display(),
     );
-    let r = Command::new("timeout")
-        .args(["120", "unshare", "-n", "sh", "-c", &script])
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("unshare and ip (util-linux, iproute2)");
+    let r = crate::ros2_dds::in_own_netns(&script);
     let stderr = std::fs::read_to_string(&err).unwrap_or_default();
     assert!(
         r.status.success(),

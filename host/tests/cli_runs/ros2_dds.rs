@@ -11,17 +11,27 @@ use std::process::Command;
 use amr_actors::config::{ConfigSource, load};
 use hil_tests::config_dir;
 
+/// Run the shell script `body` in a network namespace of its own (`unshare -n`) with loopback up
+/// and multicast routed on it (DDS discovers by multicast): nothing leaves the namespace. At most
+/// 120 s. The script stops at the first failing command until it says `set +e`.
+pub(crate) fn in_own_netns(body: &str) -> std::process::Output {
+    let script = format!(
+        "set -e\nip link set lo up\nip link set lo multicast on\nip route add 224.0.0.0/4 dev lo\n{body}"
+    );
+    Command::new("timeout")
+        .args(["120", "unshare", "-n", "sh", "-c", &script])
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("unshare and ip (util-linux, iproute2)")
+}
+
 #[test]
 fn cyclone_dds_sees_the_fleet_and_drives_it_in_a_namespace_of_its_own() {
     let dir = tempfile::tempdir().unwrap();
     let (err, out) = (dir.path().join("sim.err"), dir.path().join("peer.json"));
     let config = config_dir();
     let script = format!(
-        r#"set -e
-ip link set lo up
-ip link set lo multicast on
-ip route add 224.0.0.0/4 dev lo
-"{amr}" sim --quiet --duration 40 --config "{config}" --ros2-live dds --ros2-domain 5 --ros2-cmd-vel >/dev/null 2>"{err}" &
+        r#""{amr}" sim --quiet --duration 40 --config "{config}" --ros2-live dds --ros2-domain 5 --ros2-cmd-vel >/dev/null 2>"{err}" &
 SIM=$!
 sleep 3
 set +e
@@ -37,11 +47,7 @@ exit $STATUS
         peer = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/cli_runs/peers/ros2_dds_peer.py"),
         out = out.display(),
     );
-    let run = Command::new("timeout")
-        .args(["120", "unshare", "-n", "sh", "-c", &script])
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("unshare and ip (util-linux, iproute2)");
+    let run = in_own_netns(&script);
     let sim_err = std::fs::read_to_string(&err).unwrap_or_default();
     assert!(
         run.status.success(),
