@@ -218,13 +218,28 @@ pub fn run(
     if !saw_uplink {
         return Err(ReplayError::NoUplink);
     }
+    compare(&mut report, &produced, recorded, &produced_fused, &recorded_fused)?;
+    if let Some(f) = out {
+        f.finish()?;
+    }
+    Ok(report)
+}
+
+/// The replayed estimates and fused frames against the recorded ones, byte for byte.
+fn compare(
+    report: &mut ReplayReport,
+    produced: &[Estimate],
+    mut recorded: BTreeMap<(String, u64), VecDeque<Vec<u8>>>,
+    produced_fused: &[FusedRecord],
+    recorded_fused: &BTreeMap<u64, Vec<u8>>,
+) -> Result<(), ReplayError> {
     report.fused = produced_fused.len();
     report.fused_identical = produced_fused
         .iter()
         .filter(|f| recorded_fused.get(&f.seq).is_some_and(|r| wire::encode_fused(f).is_ok_and(|b| b == *r)))
         .count();
     report.estimates = produced.len();
-    for e in &produced {
+    for e in produced {
         let bytes = wire::encode_estimate(e)?;
         match recorded.get_mut(&key(e)).and_then(VecDeque::pop_front) {
             Some(r) => {
@@ -243,8 +258,5 @@ pub fn run(
         }
     }
     report.missing = recorded.values().map(VecDeque::len).sum();
-    if let Some(f) = out {
-        f.finish()?;
-    }
-    Ok(report)
+    Ok(())
 }

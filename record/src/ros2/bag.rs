@@ -211,6 +211,30 @@ pub(crate) fn mount(statics: &BTreeMap<String, (String, Se2)>, base: &str, frame
     None
 }
 
+/// The bag's static transforms, child → (parent, transform), the last one of each child winning.
+fn statics(
+    messages: &[Recorded],
+    topics: &BTreeMap<&str, (&str, &str)>,
+    opts: &BagOptions,
+    skipped: &mut Vec<Skipped>,
+) -> BTreeMap<String, (String, Se2)> {
+    let mut statics = BTreeMap::new();
+    if check_type(topics, &opts.tf_static_topic, TF).unwrap_or(false) {
+        for m in decode_all::<TfMessage>(messages, &opts.tf_static_topic, skipped) {
+            for t in &m.transforms {
+                let p = planar(t);
+                if p.x.is_finite() && p.y.is_finite() && p.theta.is_finite() {
+                    statics.insert(
+                        strip(&t.child_frame_id).to_owned(),
+                        (strip(&t.header.frame_id).to_owned(), p),
+                    );
+                }
+            }
+        }
+    }
+    statics
+}
+
 /// Read the scans and odometry of a bag's messages (in file order, as [`crate::read`] gives them).
 pub fn read(messages: &[Recorded], opts: &BagOptions) -> Result<BagLog, BagError> {
     let topics = topics(messages);
@@ -260,21 +284,7 @@ pub fn read(messages: &[Recorded], opts: &BagOptions) -> Result<BagLog, BagError
     samples.retain(|(t, p)| t.is_finite() && p.x.is_finite() && p.y.is_finite() && p.theta.is_finite());
     samples.sort_by(|a, b| a.0.total_cmp(&b.0));
 
-    // Static transforms, the last one of each child winning.
-    let mut statics: BTreeMap<String, (String, Se2)> = BTreeMap::new();
-    if check_type(&topics, &opts.tf_static_topic, TF).unwrap_or(false) {
-        for m in decode_all::<TfMessage>(messages, &opts.tf_static_topic, &mut skipped) {
-            for t in &m.transforms {
-                let p = planar(t);
-                if p.x.is_finite() && p.y.is_finite() && p.theta.is_finite() {
-                    statics.insert(
-                        strip(&t.child_frame_id).to_owned(),
-                        (strip(&t.header.frame_id).to_owned(), p),
-                    );
-                }
-            }
-        }
-    }
+    let statics = statics(messages, &topics, opts, &mut skipped);
 
     let mut mounts: BTreeMap<String, (Se2, bool)> = BTreeMap::new();
     let mut scans: Vec<(f64, Scan, Se2)> = Vec::new();
