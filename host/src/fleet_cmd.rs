@@ -231,18 +231,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
     let (sc, map) = (chosen.scenario, chosen.map);
     let ids: Vec<String> = robots.iter().map(|r| r.id.as_str().to_owned()).collect();
     let settings = args.net.settings(&config)?;
-    let progress_file = match &args.progress_file {
-        Some(f) => f.clone(),
-        None => default_state_dir()
-            .context("no place for the plan's progress: pass --progress-file")?
-            .join(format!("server-{}.progress", args.scenario)),
-    };
-    if args.fresh && progress_file.exists() {
-        std::fs::remove_file(&progress_file)
-            .with_context(|| format!("removing the plan's progress {}", progress_file.display()))?;
-    }
-    let progress = amr_actors::server::progress::PlanProgress::file(&progress_file)?;
-    tracing::info!(file = %progress_file.display(), "plan progress file");
+    let progress = plan_progress(args)?;
     runtime()?.block_on(async move {
         let clock = FleetClock::wall();
         let (end, bridge) = amr_net::start_server_bridge(&settings, &ids, clock).await?;
@@ -284,26 +273,7 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
             tokio::select! {
                 r = &mut stop => { r?; break; }
                 line = lines.recv(), if stdin_open => match line {
-                    Some(l) => match l.trim() {
-                        "rearm" => { tree.rearm().await; }
-                        "stop" => {
-                            if let Some(f) = tree.formation_actor().await { let _ = f.cast(FormationMsg::Stop); }
-                        }
-                        "estop" => {
-                            let refused = tree.estop_all().await;
-                            if refused.is_empty() {
-                                tracing::warn!("e-stop sent to every robot");
-                            } else {
-                                tracing::error!(?refused, "e-stop NOT queued for these robots (link full or closed): stop them locally");
-                            }
-                        }
-                        "reset-estop" => {
-                            let refused = tree.reset_estop_all();
-                            tracing::info!(?refused, "e-stop reset sent (robots stay disarmed until rearm)");
-                        }
-                        "" => {}
-                        other => tracing::warn!(command = other, "unknown command (have: rearm, stop, estop, reset-estop)"),
-                    },
+                    Some(l) => operator_command(&tree, l.trim()).await,
                     None => stdin_open = false,
                 },
                 _ = tick.tick() => {
@@ -328,6 +298,55 @@ pub(crate) fn server(args: &ServerArgs) -> anyhow::Result<()> {
         bridge.bridge.shutdown().await;
         Ok(())
     })
+}
+
+/// The plan's progress file (`--progress-file`, else in the state directory), emptied first with
+/// `--fresh`.
+fn plan_progress(args: &ServerArgs) -> anyhow::Result<amr_actors::server::progress::PlanProgress> {
+    let progress_file = match &args.progress_file {
+        Some(f) => f.clone(),
+        None => default_state_dir()
+            .context("no place for the plan's progress: pass --progress-file")?
+            .join(format!("server-{}.progress", args.scenario)),
+    };
+    if args.fresh && progress_file.exists() {
+        std::fs::remove_file(&progress_file)
+            .with_context(|| format!("removing the plan's progress {}", progress_file.display()))?;
+    }
+    let progress = amr_actors::server::progress::PlanProgress::file(&progress_file)?;
+    tracing::info!(file = %progress_file.display(), "plan progress file");
+    Ok(progress)
+}
+
+/// One operator command from `amr server`'s standard input.
+async fn operator_command(tree: &amr_actors::server::ServerTree, command: &str) {
+    match command {
+        "rearm" => {
+            tree.rearm().await;
+        }
+        "stop" => {
+            if let Some(f) = tree.formation_actor().await {
+                let _ = f.cast(FormationMsg::Stop);
+            }
+        }
+        "estop" => {
+            let refused = tree.estop_all().await;
+            if refused.is_empty() {
+                tracing::warn!("e-stop sent to every robot");
+            } else {
+                tracing::error!(
+                    ?refused,
+                    "e-stop NOT queued for these robots (link full or closed): stop them locally"
+                );
+            }
+        }
+        "reset-estop" => {
+            let refused = tree.reset_estop_all();
+            tracing::info!(?refused, "e-stop reset sent (robots stay disarmed until rearm)");
+        }
+        "" => {}
+        other => tracing::warn!(command = other, "unknown command (have: rearm, stop, estop, reset-estop)"),
+    }
 }
 
 /// `amr fleet certs`'s arguments.
