@@ -76,12 +76,20 @@ fn write_config(dir: &Path) -> PathBuf {
     let creds = dir.join("credentials");
     std::fs::write(&creds, "server:srv-pw\nrobot-a:a-pw\nrobot-b:b-pw\nobserver:obs-pw\noperator:op-pw\n")
         .unwrap();
+    // The robots' command watchdog at 1 s rather than the shipped 200 ms: the four processes here
+    // are debug builds sharing two cores with the other tests, and a server starved for 200 ms
+    // stopped a robot by its watchdog before the plan began (what this test checks is that the
+    // watchdog stops the robots when the server is gone, not how soon; the safety layer's own
+    // tests check the timing).
     for f in &mut files {
-        if f.path == "network.toml" {
-            let text =
-                String::from_utf8(f.bytes.clone()).unwrap().replace("lease_ms = 2000", "lease_ms = 1000");
-            f.bytes = text.into_bytes();
-        }
+        let (from, to) = match f.path.as_str() {
+            "network.toml" => ("lease_ms = 2000", "lease_ms = 1000"),
+            "robot-a.toml" | "robot-b.toml" => ("command_timeout_ms = 200", "command_timeout_ms = 1000"),
+            _ => continue,
+        };
+        let text = String::from_utf8(f.bytes.clone()).unwrap();
+        assert!(text.contains(from), "{}: no `{from}`", f.path);
+        f.bytes = text.replace(from, to).into_bytes();
     }
     let config = dir.join("config");
     hil_tests::write_dir(&files, &config).unwrap();
