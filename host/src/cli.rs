@@ -147,6 +147,11 @@ pub(crate) enum Command {
         /// Configuration directory (default: ./config if present, else the embedded defaults).
         #[arg(long)]
         config: Option<PathBuf>,
+        /// On a virtual clock (tokio's, paused; devices over in-memory pipes): the same outcome,
+        /// timings included, from the same seed, whatever the machine's load. The drills that need
+        /// the wall clock (`amr drill list` marks them) are left out of `all`.
+        #[arg(long)]
+        virtual_time: bool,
     },
     /// One robot's actor tree on its devices, linked to the fusion server over the network
     /// (network.toml: Zenoh with mutual TLS, certificates from `amr fleet certs`), until Ctrl-C or

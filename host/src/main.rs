@@ -116,13 +116,19 @@ fn run(command: Command) -> anyhow::Result<()> {
         Command::Drill { name, .. } if name == "list" => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
             for d in amr_sim::drills::DRILLS {
-                println!("{:16} {}", d.name, d.about);
+                let clock = if d.real_time_only().is_some() { "real time only" } else { "" };
+                println!("{:16} {:14} {}", d.name, clock, d.about);
             }
             Ok(())
         }
         #[cfg(feature = "drills")]
-        Command::Drill { name, seed, soak_seconds, json, config } => {
-            sim_cmd::drill(&name, seed, soak_seconds, json.as_deref(), config)
+        Command::Drill { name, seed, soak_seconds, json, config, virtual_time } => {
+            let clock = if virtual_time {
+                amr_sim::drills::DrillClock::Virtual
+            } else {
+                amr_sim::drills::DrillClock::Real
+            };
+            sim_cmd::drill(&sim_cmd::DrillArgs { name, seed, soak_seconds, json, config, clock })
         }
         Command::Fleet(FleetCommand::Certs(args)) => fleet_cmd::certs(&args),
         Command::Estop { robots, reset, user, config, timeout_ms, net } => {

@@ -117,22 +117,36 @@ pub(crate) fn sim(args: SimArgs) -> anyhow::Result<()> {
     })
 }
 
+/// `amr drill`'s arguments.
+#[cfg(feature = "drills")]
+pub(crate) struct DrillArgs {
+    pub name: String,
+    pub seed: u64,
+    pub soak_seconds: u64,
+    pub json: Option<PathBuf>,
+    pub config: Option<PathBuf>,
+    pub clock: amr_sim::drills::DrillClock,
+}
+
 /// `amr drill NAME|all`: run drills, print the table (and JSON), fail if any failed.
 #[cfg(feature = "drills")]
-pub(crate) fn drill(
-    name: &str,
-    seed: u64,
-    soak_seconds: u64,
-    json: Option<&std::path::Path>,
-    config: Option<PathBuf>,
-) -> anyhow::Result<()> {
-    let config = load(&crate::config_cmd::source_for(config))?;
+pub(crate) fn drill(args: &DrillArgs) -> anyhow::Result<()> {
+    use amr_sim::drills::{DRILLS, DrillClock};
+    let (name, seed, soak_seconds, clock) = (args.name.as_str(), args.seed, args.soak_seconds, args.clock);
+    let config = load(&crate::config_cmd::source_for(args.config.clone()))?;
     let names: Vec<&str> = if name == "all" {
-        amr_sim::drills::DRILLS.iter().map(|d| d.name).collect()
-    } else if amr_sim::drills::DRILLS.iter().any(|d| d.name == name) {
+        DRILLS
+            .iter()
+            .filter(|d| clock == DrillClock::Real || d.real_time_only().is_none())
+            .map(|d| d.name)
+            .collect()
+    } else if let Some(d) = DRILLS.iter().find(|d| d.name == name) {
+        if let (DrillClock::Virtual, Some(why)) = (clock, d.real_time_only()) {
+            anyhow::bail!("drill `{name}` runs in real time only ({why}): run it without --virtual-time");
+        }
         vec![name]
     } else {
-        let known: Vec<&str> = amr_sim::drills::DRILLS.iter().map(|d| d.name).collect();
+        let known: Vec<&str> = DRILLS.iter().map(|d| d.name).collect();
         anyhow::bail!("no drill `{name}` (have: all, {})", known.join(", "));
     };
     let least = amr_sim::drills::SOAK_MIN.as_secs();
@@ -142,13 +156,24 @@ pub(crate) fn drill(
              at least 3 of 3 kinds, so it needs at least {least} s (default 600)"
         );
     }
-    let outcomes = runtime()?.block_on(async {
+    // Virtual time: one thread, its clock paused and advanced only when every task waits.
+    let rt = match clock {
+        DrillClock::Real => runtime()?,
+        DrillClock::Virtual => tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .start_paused(true)
+            .build()
+            .context("starting the virtual-time runtime")?,
+    };
+    let outcomes = rt.block_on(async {
         let mut out = Vec::new();
         for n in names {
             tracing::info!(drill = n, "running");
             if n == "soak" {
-                out.push(amr_sim::drills::soak(&config, seed, Duration::from_secs(soak_seconds)).await);
-            } else if let Some(o) = amr_sim::drills::run(n, &config, seed).await {
+                out.push(
+                    amr_sim::drills::soak(&config, seed, Duration::from_secs(soak_seconds), clock).await,
+                );
+            } else if let Some(o) = amr_sim::drills::run_on(n, &config, seed, clock).await {
                 out.push(o);
             }
         }
@@ -158,7 +183,7 @@ pub(crate) fn drill(
     {
         print!("{}", amr_sim::drills::table(&outcomes));
     }
-    match json {
+    match &args.json {
         Some(path) if path == std::path::Path::new("-") => {
             #[allow(clippy::print_stdout, reason = "the command's report")]
             {

@@ -47,14 +47,15 @@ fn one_leg(config: &Config) -> Option<ScenarioConfig> {
     Some(sc)
 }
 
-/// A drill's simulation of `scenario`: typical noise, CAN in process, no time limit.
-fn drill_options(scenario: ScenarioConfig, seed: u64) -> SimOptions {
+/// A drill's simulation of `scenario`: typical noise, CAN in process (or, on virtual time, every
+/// device in memory), no time limit.
+fn drill_options(scenario: ScenarioConfig, seed: u64, c: &Check) -> SimOptions {
     SimOptions {
         scenario_name: "drill".into(),
         scenario,
         seed,
         noise: Noise::TYPICAL,
-        can: SimCan::InProcess,
+        can: c.can(SimCan::InProcess),
         configuration: None,
         max_duration: None,
         map: None,
@@ -69,7 +70,7 @@ pub(super) async fn moving_sim(
     scenario: ScenarioConfig,
     c: &mut Check,
 ) -> Option<Sim> {
-    let options = drill_options(scenario, seed);
+    let options = drill_options(scenario, seed, c);
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,
         Err(e) => {
@@ -313,7 +314,7 @@ const LATE_FOR: Duration = Duration::from_secs(8);
 /// 10 cm of the truth.
 pub(crate) async fn late_scans(config: &Config, seed: u64, c: &mut Check) {
     let Some(scenario) = one_leg(config) else { return c.fail("no straight scenario") };
-    let options = drill_options(scenario, seed);
+    let options = drill_options(scenario, seed, c);
     let sim = match Sim::start(config, options).await {
         Ok(s) => s,
         Err(e) => return c.fail(format!("setup: {e}")),

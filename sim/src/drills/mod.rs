@@ -1,8 +1,8 @@
 //! Fault-recovery drills: each injects a fault through a mock device's fault plan (or kills an
 //! actor) in a running system and checks, with deadlines, (a) detection, (b) the safe state where
 //! the fault is safety-relevant, (c) recovery, (d) the exact ordered event log and (e) the
-//! counters. Real sockets and ptys are involved, so drills run in real time with short timeouts and
-//! bounded waits.
+//! counters. Every wait is bounded. A drill runs in real time over real sockets and ptys, or on
+//! virtual time over in-memory pipes ([`DrillClock`]).
 //!
 //! A drill never panics on a failed expectation: it records it, so `amr drill all` can print the
 //! whole table; the tests assert that each drill passed and print what failed.
@@ -32,6 +32,38 @@ use crate::{RobotRig, SimCan};
 pub struct Drill {
     pub name: &'static str,
     pub about: &'static str,
+}
+
+impl Drill {
+    /// Why this drill needs the wall clock (`None`: it runs on [`DrillClock::Virtual`] as well).
+    #[must_use]
+    pub fn real_time_only(&self) -> Option<&'static str> {
+        match self.name {
+            "can-link-reset" => Some("it breaks the TCP connection to socketcand"),
+            "absent-at-start" => Some("the LiDAR's address is a TCP port nobody listens on"),
+            "command-burst" | "robot-freeze" | "estop-restart" => {
+                Some("the robot runs on a runtime and thread of its own, frozen or killed")
+            }
+            "scan-flood" => Some("whether the localiser keeps up is a question of the machine's speed"),
+            "slow-consumer" => {
+                Some("a blocked worker of the multi-thread runtime hands its tasks to the other")
+            }
+            _ => None,
+        }
+    }
+}
+
+/// The clock a drill runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DrillClock {
+    /// Wall time: the devices over loopback TCP, a pty and (where the drill says) socketcand, as
+    /// on a robot. What `amr drill` runs.
+    Real,
+    /// tokio's paused clock on a current-thread runtime (the caller's), the LiDAR and the IMU
+    /// over in-memory pipes and CAN on the in-process bus ([`SimCan::VirtualTime`]): the
+    /// machine's speed decides nothing, so a drill gives the same outcome, timings included,
+    /// from the same seed. Drills with [`Drill::real_time_only`] refuse it.
+    Virtual,
 }
 
 /// Every drill, in the order `amr drill all` runs and lists them.
@@ -169,6 +201,7 @@ pub struct DrillOutcome {
 #[derive(Debug)]
 pub struct Check {
     name: String,
+    clock: DrillClock,
     started: Instant,
     injected: Option<Instant>,
     pub detection: Option<Duration>,
@@ -182,8 +215,15 @@ pub struct Check {
 impl Check {
     #[must_use]
     pub fn new(name: &str) -> Self {
+        Self::on(name, DrillClock::Real)
+    }
+
+    /// A check of a drill running on `clock`.
+    #[must_use]
+    pub fn on(name: &str, clock: DrillClock) -> Self {
         Check {
             name: name.to_owned(),
+            clock,
             started: Instant::now(),
             injected: None,
             detection: None,
@@ -192,6 +232,15 @@ impl Check {
             events: Vec::new(),
             counters: BTreeMap::new(),
             failures: Vec::new(),
+        }
+    }
+
+    /// How the robots reach their devices: `wanted` in real time, in-memory pipes on virtual time.
+    #[must_use]
+    pub fn can(&self, wanted: SimCan) -> SimCan {
+        match self.clock {
+            DrillClock::Real => wanted,
+            DrillClock::Virtual => SimCan::VirtualTime,
         }
     }
 
@@ -285,9 +334,20 @@ impl Check {
     }
 }
 
-/// Run drill `name` (`None` for an unknown name).
+/// Run drill `name` in real time (`None` for an unknown name).
 pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome> {
-    let mut c = Check::new(name);
+    run_on(name, config, seed, DrillClock::Real).await
+}
+
+/// Run drill `name` on `clock` (`None` for an unknown name). On [`DrillClock::Virtual`] the
+/// caller's runtime must be a current-thread one with its clock paused; a drill that needs real
+/// time fails saying why.
+pub async fn run_on(name: &str, config: &Config, seed: u64, clock: DrillClock) -> Option<DrillOutcome> {
+    let drill = DRILLS.iter().find(|d| d.name == name)?;
+    let mut c = Check::on(name, clock);
+    if let (DrillClock::Virtual, Some(why)) = (clock, drill.real_time_only()) {
+        return Some(c.aborted(format!("runs in real time only: {why}")));
+    }
     match name {
         "lidar-panic" => devices::lidar_panic(config, seed, &mut c).await,
         "fail-forever" => devices::fail_forever(config, seed, &mut c).await,
@@ -326,16 +386,17 @@ pub async fn run(name: &str, config: &Config, seed: u64) -> Option<DrillOutcome>
 
 pub use soak::SOAK_MIN;
 
-/// The scan-flood drill, flooding for `length` (CI runs a shortened one).
-pub async fn scan_flood(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
-    let mut c = Check::new("scan-flood");
+/// The scan-flood drill on `clock`, flooding for `length` (CI runs a shortened one).
+pub async fn scan_flood(config: &Config, seed: u64, length: Duration, clock: DrillClock) -> DrillOutcome {
+    let mut c = Check::on("scan-flood", clock);
     fleet::scan_flood(config, seed, length, &mut c).await;
     c.finish()
 }
 
-/// The soak drill for `length` (CI runs a shortened one; at least [`SOAK_MIN`] to mean anything).
-pub async fn soak(config: &Config, seed: u64, length: Duration) -> DrillOutcome {
-    let mut c = Check::new("soak");
+/// The soak drill on `clock` for `length` (CI runs a shortened one; at least [`SOAK_MIN`] to mean
+/// anything).
+pub async fn soak(config: &Config, seed: u64, length: Duration, clock: DrillClock) -> DrillOutcome {
+    let mut c = Check::on("soak", clock);
     soak::soak(config, seed, length, &mut c).await;
     c.finish()
 }
@@ -399,6 +460,7 @@ pub(crate) async fn rig_with(
         c.fail("setup: the configuration has no `straight` scenario");
         return None;
     };
+    let can = c.can(can);
     let started = if apart {
         RobotRig::start_apart(config, &scenario, seed, can, options).await
     } else {
