@@ -1,5 +1,6 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code")]
-//! The SOPAS driver (`amr_drivers::sopas::tcp`) against the mock TiM5xx over real loopback TCP.
+//! The SOPAS driver (`amr_drivers::sopas::tcp`) against the mock TiM5xx over real loopback TCP (the
+//! 30 s stream runs on virtual time over an in-memory pipe).
 //! Every wait is bounded by `tokio::time::timeout` and a message count; nothing sleeps to wait.
 
 use std::sync::Arc;
@@ -7,7 +8,7 @@ use std::time::Duration;
 
 use amr_drivers::sopas::{
     Dialect, DialectChoice, ErrorCode, FrameError, Health, LidarConfig, LidarMessage, Mode, Profile,
-    ProtocolError, SopasError, StampedScan, spawn_tcp,
+    ProtocolError, SopasError, StampedScan, spawn_tcp, tcp::spawn_stream,
 };
 use amr_settings::value::Backoff;
 use hil_mocks::tim551::{Fault, MockConfig, RectRoom, Tim551Mock, Variant};
@@ -175,13 +176,21 @@ async fn tim551_dialect_is_detected_and_switched() {
     task.abort();
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+/// The long stream on virtual time: the same driver and mock over an in-memory pipe instead of
+/// TCP (the tests around it keep the socket), 30 s of scans in well under a second, whatever else
+/// the machine does.
+#[tokio::test(start_paused = true)]
 async fn tim551_streams_15hz_for_30s_without_losing_a_scan() {
     // Ticks start just below the 32-bit wrap (~71.6 min), so the wrap happens during the run.
     let initial_tick_us = u32::MAX - 10_000_000;
-    let m = mock(MockConfig { initial_tick_us, ..MockConfig::default() }).await;
+    let config = MockConfig { initial_tick_us, ..MockConfig::default() };
+    let (_m, connector) = Tim551Mock::spawn_in_memory(config, Arc::new(RectRoom::default()));
+    let connect = move |_: String| {
+        let c = connector.clone();
+        async move { c.connect().await }
+    };
     let (task, mut rx) =
-        spawn_tcp(lidar(m.port(), Profile::Minimal, DialectChoice::Fixed(Dialect::ColaB)), 256);
+        spawn_stream(lidar(0, Profile::Minimal, DialectChoice::Fixed(Dialect::ColaB)), connect, 256);
     let mut seen = Vec::new();
     let first = wait_for(&mut rx, Duration::from_secs(5), &mut seen, scan).await;
     let start = Instant::now();
