@@ -54,23 +54,20 @@ drills! {
     late_scans => "late-scans",
 }
 
-/// The chaos soak, shortened from 10 minutes to 60 s: still several faults of several kinds.
+/// The chaos soak, shortened from 10 minutes to 60 s (still several faults of several kinds, a
+/// server crash among them), run twice: it passes, and the same seed gives the same outcome,
+/// events, counters and every timing. (tokio picks at random among the branches of a `select!`
+/// that are ready at the same instant unless it is `biased`, and on a paused clock many are: the
+/// mock devices' and the link's selects have a fixed order, or two runs part, e.g. after the
+/// server's crash.)
 #[tokio::test(start_paused = true)]
-async fn soak_shortened() {
-    let config = load(&ConfigSource::Embedded).unwrap();
-    let outcome = amr_sim::drills::soak(&config, 5, Duration::from_secs(60), DrillClock::Virtual).await;
-    assert!(outcome.passed, "{}\n{outcome:#?}", table(std::slice::from_ref(&outcome)));
-}
-
-/// The same seed, the same outcome: events, counters and every timing, on a drill with a moving
-/// robot, a fault, a safe state and a recovery.
-#[tokio::test(start_paused = true)]
-async fn a_drill_on_virtual_time_gives_the_same_outcome_from_the_same_seed() {
+async fn soak_shortened_passes_the_same_way_twice() {
     let config = load(&ConfigSource::Embedded).unwrap();
     let mut runs = Vec::new();
     for _ in 0..2 {
-        let o = run_on("drive-fault-moving", &config, 7, DrillClock::Virtual).await.unwrap();
-        assert!(o.passed, "{}", table(std::slice::from_ref(&o)));
+        let o = amr_sim::drills::soak(&config, 5, Duration::from_secs(60), DrillClock::Virtual).await;
+        assert!(o.passed, "{}\n{o:#?}", table(std::slice::from_ref(&o)));
+        assert!(o.counters.get("injected.server-crash").is_some_and(|n| *n >= 1), "{o:#?}");
         runs.push(format!("{o:?}"));
     }
     assert_eq!(runs[0], runs[1]);

@@ -1,18 +1,21 @@
-//! A short hardware-in-the-loop run: both robot trees, the server tree and the world,
-//! the devices reached over TCP (SOPAS), socketcand (CANopen) and a pty (LPBUS), in real time.
-//! About 22 s of motion: 2 m forward, then a 45° turn of the whole formation on the spot.
+//! A short hardware-in-the-loop run: both robot trees, the server tree and the world, on virtual
+//! time (tokio's paused clock, the devices over in-memory pipes: the same run from the same seed,
+//! whatever the machine's load). About 22 s of motion: 2 m forward, then a 45° turn of the whole
+//! formation on the spot. The whole system over its real transports (SOPAS over TCP, CANopen
+//! behind socketcand, LPBUS on a pty, the fleet over Zenoh) runs in real time in `host/tests/fleet.rs`.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
 use amr_actors::config::{ConfigSource, load};
 use amr_actors::supervisor::EventKind;
 use amr_sim::{Sim, SimCan, v_of};
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[tokio::test(start_paused = true)]
 async fn both_robots_follow_the_formation_and_v_is_localised() {
     let config = load(&ConfigSource::Embedded).unwrap();
     let scenario = hil_tests::short_scenario("[{ straight_m = 2.0, turn_deg = 45.0 }]");
     let start_v = scenario.start_pose();
-    let sim = Sim::start(&config, hil_tests::sim_options(scenario, 7, SimCan::Socketcand, 60)).await.unwrap();
+    let sim =
+        Sim::start(&config, hil_tests::sim_options(scenario, 7, SimCan::VirtualTime, 60)).await.unwrap();
     sim.run(|_| {}).await;
     let report = sim.report();
     let events: Vec<_> = sim.robots.iter().flat_map(|r| r.events.snapshot()).collect();
@@ -27,10 +30,9 @@ async fn both_robots_follow_the_formation_and_v_is_localised() {
         !events.iter().any(|e| matches!(e.kind, EventKind::Failed { .. } | EventKind::StartFailed { .. })),
         "{events:?}"
     );
-    // The formation moved as planned: V 2 m ahead, turned 45°, each robot at its slot. A real-time
-    // run is not reproducible to the bit, and the controller closes on AMCL (about 5 cm RMSE in
-    // this site, see amr eval): the bounds leave room for that, not for a broken loop (which ends
-    // metres or tens of degrees off).
+    // The formation moved as planned: V 2 m ahead, turned 45°, each robot at its slot. The
+    // controller closes on AMCL (about 5 cm RMSE in this site, see amr eval): the bounds leave room
+    // for that, not for a broken loop (which ends metres or tens of degrees off).
     let v = v_of(&truth).unwrap();
     let moved = start_v.inverse() * v;
     assert!((moved.x - 2.0).abs() < 0.25 && moved.y.abs() < 0.25, "V moved by {moved:?}\n{text}");

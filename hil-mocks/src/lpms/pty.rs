@@ -315,7 +315,11 @@ impl Runner {
         loop {
             let can_read = self.master.is_some() && read_paused_until.is_none();
             let stream_now = streaming && self.master.is_some();
+            // In this order (a fault or a plug, the stream's next packet, the host's bytes, the
+            // pauses, a new pipe): the same order every time, so a virtual-time run is the same
+            // from the same seed; the stream is never starved by a port that is always readable.
             tokio::select! {
+                biased;
                 ctl = control.recv() => match ctl {
                     None => return,
                     Some(c) => {
@@ -327,6 +331,14 @@ impl Runner {
                         }
                     }
                 },
+                _ = interval.tick(), if stream_now => {
+                    let motion = self.motion.motion_at(self.started.elapsed().as_secs_f64());
+                    let packet = self.device.next_data_packet(&motion);
+                    if self.write(&packet).await {
+                        self.stats().packets_written += 1;
+                    }
+                    self.publish_device_stats();
+                }
                 read = async {
                     match self.master.as_mut() {
                         Some(m) => m.read(&mut buf).await,
@@ -365,14 +377,6 @@ impl Runner {
                     Some(refused) => drop(refused),
                     None => self.pipes = None,
                 },
-                _ = interval.tick(), if stream_now => {
-                    let motion = self.motion.motion_at(self.started.elapsed().as_secs_f64());
-                    let packet = self.device.next_data_packet(&motion);
-                    if self.write(&packet).await {
-                        self.stats().packets_written += 1;
-                    }
-                    self.publish_device_stats();
-                }
             }
             // Follow mode and rate changes made by commands.
             let now_streaming = self.device.is_streaming();

@@ -50,7 +50,10 @@ pub fn spawn_drive(mut drive: TecoDrive, mut port: BusPort) -> DriveHandle {
             }
             stx.send_replace(drive.snapshot());
             let deadline = drive.poll_timeout().map(Instant::from_std);
+            // In this order (a frame, an injected fault, a timer that is due): the same order every
+            // time, so a virtual-time run is the same from the same seed.
             tokio::select! {
+                biased;
                 frame = port.recv() => match frame {
                     Ok(f) => drive.handle_frame(now(), &f),
                     Err(_) => return,
