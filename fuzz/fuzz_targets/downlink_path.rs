@@ -37,6 +37,9 @@
 //!
 //! `DOWNLINK_PATH_SEEDS=<dir>` writes a few seeds into `<dir>` at start-up; `DOWNLINK_PATH_STATS=1`
 //! prints what the bridge refused and what the safety layer did every 2^k inputs.
+//!
+//! One file because a fuzz target is one binary: the decoder of its input, the model it checks
+//! against and the checks belong together.
 #![no_main]
 
 use std::collections::BTreeMap;

@@ -38,6 +38,9 @@
 //!
 //! `FORMATION_INPUTS_SEEDS=<dir>` writes seeds into `<dir>` at start-up;
 //! `FORMATION_INPUTS_STATS=1` prints the phases reached and the messages sent every 2^k inputs.
+//!
+//! One file because a fuzz target is one binary: the decoder of its input, the model it checks
+//! against and the checks belong together.
 #![no_main]
 
 use std::collections::BTreeMap;

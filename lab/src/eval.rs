@@ -301,7 +301,47 @@ pub fn sweep(plan: &Plan<'_>, which: Sweep, out_dir: &Path) -> anyhow::Result<Pa
     let chosen = config.scenario(scenario)?;
     let base = setup(config, &chosen, 2, map)?;
     let scenario = chosen.stem.as_str();
-    let (label, settings, paper): (&str, Vec<f64>, Vec<[f64; 4]>) = match which {
+    let (label, settings, paper) = sweep_settings(which);
+    let mut rows = Vec::new();
+    for (value, paper_row) in settings.iter().zip(paper) {
+        let mut s = base.clone();
+        match which {
+            Sweep::Eps => {
+                s.vamr.heading.distance_gate_m =
+                    amr_core::config::value::Positive::new(value / 1000.0).map_err(anyhow::Error::msg)?
+            }
+            Sweep::Step => {
+                s.vamr.heading.step_deg =
+                    amr_core::config::value::Positive::new(*value).map_err(anyhow::Error::msg)?
+            }
+        }
+        let bar = progress(trials as u64, &format!("{label} = {value}"));
+        let results: Vec<Trial> = (0..trials)
+            .map(|k| {
+                let t = run_trial(&s, seed.wrapping_add(k as u64));
+                bar.inc(1);
+                t
+            })
+            .collect();
+        bar.finish_and_clear();
+        rows.push(sweep_row(*value, &results, paper_row));
+    }
+    let name = match which {
+        Sweep::Eps => "sweep-eps",
+        Sweep::Step => "sweep-step",
+    };
+    let md = sweep_markdown(label, scenario, trials, seed, &rows);
+    let dir = out_dir.join(scenario);
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    std::fs::write(dir.join(format!("{name}.json")), serde_json::to_string_pretty(&rows)? + "\n")?;
+    std::fs::write(dir.join(format!("{name}.md")), &md)?;
+    Ok(dir.join(format!("{name}.md")))
+}
+
+/// The settings a sweep runs, its label, and the paper's figures at each (Table 6: ε_d in mm;
+/// Table 7: Δθ in degrees): failure %, 2D RMSE cm, heading RMSE °, search ms.
+fn sweep_settings(which: Sweep) -> (&'static str, Vec<f64>, Vec<[f64; 4]>) {
+    match which {
         // Table 6 (ε_d in mm) and Table 7 (Δθ in degrees) of the paper.
         Sweep::Eps => (
             "ε_d (mm)",
@@ -326,60 +366,40 @@ pub fn sweep(plan: &Plan<'_>, which: Sweep, out_dir: &Path) -> anyhow::Result<Pa
                 [15.0, 5.8, 0.79, 32.0],
             ],
         ),
-    };
-    let mut rows = Vec::new();
-    for (value, paper_row) in settings.iter().zip(paper) {
-        let mut s = base.clone();
-        match which {
-            Sweep::Eps => {
-                s.vamr.heading.distance_gate_m =
-                    amr_core::config::value::Positive::new(value / 1000.0).map_err(anyhow::Error::msg)?
-            }
-            Sweep::Step => {
-                s.vamr.heading.step_deg =
-                    amr_core::config::value::Positive::new(*value).map_err(anyhow::Error::msg)?
-            }
-        }
-        let bar = progress(trials as u64, &format!("{label} = {value}"));
-        let results: Vec<Trial> = (0..trials)
-            .map(|k| {
-                let t = run_trial(&s, seed.wrapping_add(k as u64));
-                bar.inc(1);
-                t
-            })
-            .collect();
-        bar.finish_and_clear();
-        let t4: Vec<&amr_sim::eval::Series> = results
-            .iter()
-            .filter_map(|t| {
-                t.series.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4).map(|(_, x)| x)
-            })
-            .collect();
-        let updates: usize = t4.iter().map(|x| x.updates).sum();
-        let failures: usize = t4.iter().map(|x| x.heading_failures).sum();
-        let heading: Vec<f64> = t4.iter().flat_map(|x| x.heading_errors_rad.iter().copied()).collect();
-        let per_trial: Vec<f64> =
-            t4.iter().filter_map(|x| AxisStats::of(&x.truth).map(|a| a.d2.rmse)).collect();
-        rows.push(SweepRow {
-            setting: format!("{value}"),
-            failure_rate_pct: 100.0 * failures as f64 / updates.max(1) as f64,
-            rmse_2d_cm: 100.0 * amr_core::metrics::MeanSd::of(&per_trial).map_or(f64::NAN, |m| m.mean),
-            heading_rmse_deg: amr_core::metrics::ErrorStats::of(&heading)
-                .map_or(f64::NAN, |e| e.rmse.to_degrees()),
-            pipeline_ms: 1000.0 * t4.iter().map(|x| x.pipeline_s).sum::<f64>() / updates.max(1) as f64,
-            paper: Some(paper_row),
-        });
     }
-    let name = match which {
-        Sweep::Eps => "sweep-eps",
-        Sweep::Step => "sweep-step",
-    };
+}
+
+/// T4's figures over one setting's trials.
+fn sweep_row(value: f64, results: &[Trial], paper_row: [f64; 4]) -> SweepRow {
+    let t4: Vec<&amr_sim::eval::Series> = results
+        .iter()
+        .filter_map(|t| {
+            t.series.iter().find(|(c, _)| *c == amr_core::config::Configuration::T4).map(|(_, x)| x)
+        })
+        .collect();
+    let updates: usize = t4.iter().map(|x| x.updates).sum();
+    let failures: usize = t4.iter().map(|x| x.heading_failures).sum();
+    let heading: Vec<f64> = t4.iter().flat_map(|x| x.heading_errors_rad.iter().copied()).collect();
+    let per_trial: Vec<f64> = t4.iter().filter_map(|x| AxisStats::of(&x.truth).map(|a| a.d2.rmse)).collect();
+    SweepRow {
+        setting: format!("{value}"),
+        failure_rate_pct: 100.0 * failures as f64 / updates.max(1) as f64,
+        rmse_2d_cm: 100.0 * amr_core::metrics::MeanSd::of(&per_trial).map_or(f64::NAN, |m| m.mean),
+        heading_rmse_deg: amr_core::metrics::ErrorStats::of(&heading)
+            .map_or(f64::NAN, |e| e.rmse.to_degrees()),
+        pipeline_ms: 1000.0 * t4.iter().map(|x| x.pipeline_s).sum::<f64>() / updates.max(1) as f64,
+        paper: Some(paper_row),
+    }
+}
+
+/// A sweep's table, ours beside the paper's.
+fn sweep_markdown(label: &str, scenario: &str, trials: usize, seed: u64, rows: &[SweepRow]) -> String {
     let mut md = format!(
         "# amr eval --sweep: {label}, scenario {scenario}, {trials} trials from seed {seed}\n\nT4 (the complete method). Ours in simulation against the truth; the paper's on its robots (Tables 6–7). \
          Our time is the whole T4 pipeline update on this machine; the paper's is its KD-tree + refined search on a Pentium G4400.\n\n\
          | {label} | failure % | 2D RMSE cm | heading RMSE ° | pipeline ms | paper: failure % | 2D RMSE cm | heading RMSE ° | search ms |\n|---|---|---|---|---|---|---|---|---|\n"
     );
-    for r in &rows {
+    for r in rows {
         let p = r.paper.unwrap_or([f64::NAN; 4]);
         let _ = writeln!(
             md,
@@ -395,11 +415,7 @@ pub fn sweep(plan: &Plan<'_>, which: Sweep, out_dir: &Path) -> anyhow::Result<Pa
             p[3]
         );
     }
-    let dir = out_dir.join(scenario);
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    std::fs::write(dir.join(format!("{name}.json")), serde_json::to_string_pretty(&rows)? + "\n")?;
-    std::fs::write(dir.join(format!("{name}.md")), &md)?;
-    Ok(dir.join(format!("{name}.md")))
+    md
 }
 
 /// `--record FILE` with several trials: one file per trial, `FILE-<seed>.mcap`.

@@ -1,5 +1,8 @@
 //! The Zenoh link over loopback: both directions, liveliness, authentication, access control and
 //! replay protection. Every wait is bounded.
+//!
+//! One file because every test here sets up the same way: the fleet's certificates, a server and
+//! its robots over one loopback endpoint, and the bounded waits above.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests")]
 
 use std::path::PathBuf;

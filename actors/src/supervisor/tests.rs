@@ -1,4 +1,7 @@
 //! Supervisor tests: tokio paused time, exact ordered event logs, exact restart delays.
+//!
+//! One file because the tests share one set-up: the toy child actors with their failure switches,
+//! the supervisors built from them and the helpers that read the exact event log.
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "tests fail loudly on a broken set-up")]
 
 use std::sync::atomic::{AtomicU32, Ordering};

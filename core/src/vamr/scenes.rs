@@ -1,5 +1,8 @@
 //! Synthetic two-robot scenes built by ray casting (walls, clutter, two chassis): the pipeline
 //! against the true geometry, noise-free.
+//!
+//! One file because every scene is built by the same ray caster from the same walls, clutter and
+//! chassis outlines, and checked by the same helpers.
 
 use super::contour::{ContourInput, recognize};
 use super::frame::PacketTimes;

@@ -200,28 +200,7 @@ where
     loop {
         // Drain the session's output until it is quiet.
         loop {
-            let mut progressed = false;
-            while let Some(bytes) = session.poll_transmit() {
-                progressed = true;
-                if let Some(p) = port.as_mut() {
-                    // A dead Bluetooth link can block writes: bound them by the reply timeout.
-                    let written = tokio::time::timeout(write_timeout, async {
-                        p.write_all(&bytes).await?;
-                        p.flush().await
-                    });
-                    match written.await {
-                        Ok(Ok(())) => {}
-                        Ok(Err(e)) => session.link_failed(now(), LinkError::io(&e)),
-                        Err(_) => session.link_failed(
-                            now(),
-                            LinkError::Io {
-                                kind: std::io::ErrorKind::TimedOut,
-                                message: "write timed out".into(),
-                            },
-                        ),
-                    }
-                }
-            }
+            let mut progressed = transmit(&mut session, &mut port, write_timeout).await;
             while let Some(event) = session.poll_event() {
                 progressed = true;
                 let msg = match event {
@@ -249,11 +228,7 @@ where
                         ImuMessage::Health(Health::Streaming)
                     }
                     Event::Sample(data) => {
-                        // Never block the reader on a slow consumer: the serial buffer would overflow.
-                        if tx.try_send(ImuMessage::Sample(ImuSample { data, received_at: now() })).is_err() {
-                            dropped_samples += 1;
-                            tracing::warn!(dropped_samples, "LPMS sample dropped: consumer too slow");
-                        }
+                        offer_sample(&tx, ImuSample { data, received_at: now() }, &mut dropped_samples);
                         continue;
                     }
                     Event::DeviceError(e) => ImuMessage::Error(e.into()),
@@ -270,26 +245,69 @@ where
         if tx.is_closed() {
             return;
         }
-        let deadline = session.poll_timeout().map(tokio::time::Instant::from_std);
-        let fallback = tokio::time::Instant::now() + Duration::from_millis(100);
-        // Bytes already waiting are read before a timer is acted on: a driver task that was
-        // starved for a while must not declare the sensor silent while its data sits in the buffer.
-        tokio::select! {
-            biased;
-            read = read_some(&mut port, &mut buf), if port.is_some() => match read {
-                Ok(0) => session.link_failed(now(), LinkError::Io {
-                    kind: std::io::ErrorKind::UnexpectedEof,
-                    message: "port closed".into(),
-                }),
-                Ok(n) => {
-                    session.handle_bytes(now(), buf.get(..n).unwrap_or_default());
-                    // Timers still run when bytes never stop coming (e.g. a flood of garbage).
-                    session.handle_timeout(now());
-                }
-                Err(e) => session.link_failed(now(), LinkError::io(&e)),
-            },
-            () = tokio::time::sleep_until(deadline.unwrap_or(fallback)) => session.handle_timeout(now()),
+        wait(&mut session, &mut port, &mut buf).await;
+    }
+}
+
+/// Write what the session has to send (dropped while the port is closed); whether there was any.
+async fn transmit<T: AsyncWrite + Unpin>(
+    session: &mut Session,
+    port: &mut Option<T>,
+    timeout: Duration,
+) -> bool {
+    let mut any = false;
+    while let Some(bytes) = session.poll_transmit() {
+        any = true;
+        if let Some(p) = port.as_mut() {
+            // A dead Bluetooth link can block writes: bound them by the reply timeout.
+            let written = tokio::time::timeout(timeout, async {
+                p.write_all(&bytes).await?;
+                p.flush().await
+            });
+            match written.await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => session.link_failed(now(), LinkError::io(&e)),
+                Err(_) => session.link_failed(
+                    now(),
+                    LinkError::Io { kind: std::io::ErrorKind::TimedOut, message: "write timed out".into() },
+                ),
+            }
         }
+    }
+    any
+}
+
+/// A sample to the consumer, never blocking the reader on a slow one (the serial buffer would
+/// overflow): dropped and counted when the channel is full.
+fn offer_sample(tx: &mpsc::Sender<ImuMessage>, sample: ImuSample, dropped_samples: &mut u64) {
+    if tx.try_send(ImuMessage::Sample(sample)).is_err() {
+        *dropped_samples += 1;
+        tracing::warn!(dropped_samples = *dropped_samples, "LPMS sample dropped: consumer too slow");
+    }
+}
+
+/// Wait for bytes from the port or the session's next timer (at most 100 ms) and hand either to
+/// the session.
+async fn wait<T: AsyncRead + Unpin>(session: &mut Session, port: &mut Option<T>, buf: &mut [u8]) {
+    let deadline = session.poll_timeout().map(tokio::time::Instant::from_std);
+    let fallback = tokio::time::Instant::now() + Duration::from_millis(100);
+    // Bytes already waiting are read before a timer is acted on: a driver task that was
+    // starved for a while must not declare the sensor silent while its data sits in the buffer.
+    tokio::select! {
+        biased;
+        read = read_some(port, buf), if port.is_some() => match read {
+            Ok(0) => session.link_failed(now(), LinkError::Io {
+                kind: std::io::ErrorKind::UnexpectedEof,
+                message: "port closed".into(),
+            }),
+            Ok(n) => {
+                session.handle_bytes(now(), buf.get(..n).unwrap_or_default());
+                // Timers still run when bytes never stop coming (e.g. a flood of garbage).
+                session.handle_timeout(now());
+            }
+            Err(e) => session.link_failed(now(), LinkError::io(&e)),
+        },
+        () = tokio::time::sleep_until(deadline.unwrap_or(fallback)) => session.handle_timeout(now()),
     }
 }
 

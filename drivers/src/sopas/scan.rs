@@ -128,6 +128,74 @@ fn write_channel_header<T>(w: &mut ArgWriter, c: &Channel<T>) -> Result<u16, Dec
     Ok(n)
 }
 
+/// A count of channels, then each channel: its header, its count of data, the data.
+fn channels<T>(
+    r: &mut ArgReader<'_>,
+    what: &'static str,
+    mut value: impl FnMut(&mut ArgReader<'_>) -> Result<T, DecodeError>,
+) -> Result<Vec<Channel<T>>, DecodeError> {
+    let n = count(r, what, MAX_CHANNELS)?;
+    let mut out = Vec::new();
+    for _ in 0..n {
+        let mut c = channel_header::<T>(r)?;
+        let n = count(r, "number of data", MAX_COUNT)?;
+        for _ in 0..n {
+            c.data.push(value(r)?);
+        }
+        out.push(c);
+    }
+    Ok(out)
+}
+
+/// An optional block: its 16-bit presence flag, then the block when present.
+fn optional<T>(
+    r: &mut ArgReader<'_>,
+    flag: &'static str,
+    block: impl FnOnce(&mut ArgReader<'_>) -> Result<T, DecodeError>,
+) -> Result<Option<T>, DecodeError> {
+    if r.flag16(flag)? { block(r).map(Some) } else { Ok(None) }
+}
+
+impl PositionBlock {
+    fn decode(r: &mut ArgReader<'_>) -> Result<Self, DecodeError> {
+        Ok(PositionBlock {
+            x: r.f32("position x")?,
+            y: r.f32("position y")?,
+            z: r.f32("position z")?,
+            rot_x: r.f32("rotation x")?,
+            rot_y: r.f32("rotation y")?,
+            rot_z: r.f32("rotation z")?,
+            rotation_type: r.u8("rotation type")?,
+            transmit_device_name: r.u8("transmit device name")?,
+        })
+    }
+}
+
+impl DeviceTime {
+    fn decode(r: &mut ArgReader<'_>) -> Result<Self, DecodeError> {
+        Ok(DeviceTime {
+            year: r.u16("year")?,
+            month: r.u8("month")?,
+            day: r.u8("day")?,
+            hour: r.u8("hour")?,
+            minute: r.u8("minute")?,
+            second: r.u8("second")?,
+            microsecond: r.u32("microsecond")?,
+        })
+    }
+}
+
+impl EventInfo {
+    fn decode(r: &mut ArgReader<'_>) -> Result<Self, DecodeError> {
+        Ok(EventInfo {
+            kind: r.fixed("event type", 4)?,
+            encoder_position: r.u32("event encoder position")?,
+            event_time_us: r.u32("event time")?,
+            angle_1e4deg: r.i32("event angle")?,
+        })
+    }
+}
+
 impl ScanTelegram {
     /// Decodes the arguments after `sRA LMDscandata` / `sSN LMDscandata`. Every count is taken
     /// from the telegram and must match the data; bytes left over are an error.
@@ -150,65 +218,13 @@ impl ScanTelegram {
         for _ in 0..n_enc {
             encoders.push(Encoder { position: r.u32("encoder position")?, speed: r.u16("encoder speed")? });
         }
-        let n16 = count(r, "number of 16-bit channels", MAX_CHANNELS)?;
-        let mut channels_16bit = Vec::new();
-        for _ in 0..n16 {
-            let mut c = channel_header::<u16>(r)?;
-            let n = count(r, "number of data", MAX_COUNT)?;
-            for _ in 0..n {
-                c.data.push(r.u16("16-bit data")?);
-            }
-            channels_16bit.push(c);
-        }
-        let n8 = count(r, "number of 8-bit channels", MAX_CHANNELS)?;
-        let mut channels_8bit = Vec::new();
-        for _ in 0..n8 {
-            let mut c = channel_header::<u8>(r)?;
-            let n = count(r, "number of data", MAX_COUNT)?;
-            for _ in 0..n {
-                c.data.push(r.u8("8-bit data")?);
-            }
-            channels_8bit.push(c);
-        }
-        let position = if r.flag16("position present")? {
-            Some(PositionBlock {
-                x: r.f32("position x")?,
-                y: r.f32("position y")?,
-                z: r.f32("position z")?,
-                rot_x: r.f32("rotation x")?,
-                rot_y: r.f32("rotation y")?,
-                rot_z: r.f32("rotation z")?,
-                rotation_type: r.u8("rotation type")?,
-                transmit_device_name: r.u8("transmit device name")?,
-            })
-        } else {
-            None
-        };
-        let device_name = if r.flag16("name present")? { Some(r.string("device name")?) } else { None };
-        let comment = if r.flag16("comment present")? { Some(r.string("comment")?) } else { None };
-        let time = if r.flag16("time present")? {
-            Some(DeviceTime {
-                year: r.u16("year")?,
-                month: r.u8("month")?,
-                day: r.u8("day")?,
-                hour: r.u8("hour")?,
-                minute: r.u8("minute")?,
-                second: r.u8("second")?,
-                microsecond: r.u32("microsecond")?,
-            })
-        } else {
-            None
-        };
-        let event = if r.flag16("event present")? {
-            Some(EventInfo {
-                kind: r.fixed("event type", 4)?,
-                encoder_position: r.u32("event encoder position")?,
-                event_time_us: r.u32("event time")?,
-                angle_1e4deg: r.i32("event angle")?,
-            })
-        } else {
-            None
-        };
+        let channels_16bit = channels(r, "number of 16-bit channels", |r| r.u16("16-bit data"))?;
+        let channels_8bit = channels(r, "number of 8-bit channels", |r| r.u8("8-bit data"))?;
+        let position = optional(r, "position present", PositionBlock::decode)?;
+        let device_name = optional(r, "name present", |r| r.string("device name"))?;
+        let comment = optional(r, "comment present", |r| r.string("comment"))?;
+        let time = optional(r, "time present", DeviceTime::decode)?;
+        let event = optional(r, "event present", EventInfo::decode)?;
         r.finish()?;
         Ok(Self {
             version,

@@ -146,63 +146,17 @@ where
     let mut stream: Option<S> = None;
     let mut buf = vec![0u8; 8192];
     loop {
-        let now = Instant::now().into_std();
-        if stream.is_none() && session.needs_connection(now) {
-            let addr = format!("{}:{}", config.host, config.port);
-            match tokio::time::timeout(config.connect_timeout, connect(addr.clone())).await {
-                Ok(Ok(s)) => {
-                    tracing::info!(%addr, "sopas connected");
-                    stream = Some(s);
-                    session.handle_connected(Instant::now().into_std());
-                    if tx.send(LidarMessage::Health(Health::Starting)).await.is_err() {
-                        return;
-                    }
-                }
-                Ok(Err(e)) => session.handle_connect_failed(
-                    Instant::now().into_std(),
-                    LinkError::Connect { addr, msg: e.to_string() },
-                ),
-                Err(_) => session.handle_connect_failed(
-                    Instant::now().into_std(),
-                    LinkError::Connect { addr, msg: "timed out".into() },
-                ),
-            }
+        if stream.is_none()
+            && session.needs_connection(Instant::now().into_std())
+            && !open(&config, &mut connect, &mut session, &mut stream, &tx).await
+        {
+            return;
         }
         if let Some(s) = stream.as_mut() {
-            while let Some(bytes) = session.poll_transmit() {
-                // Bounded: a device that stops reading must not wedge the shell.
-                let written = tokio::time::timeout(config.reply_timeout, s.write_all(&bytes)).await;
-                let failed = match written {
-                    Ok(Ok(())) => None,
-                    Ok(Err(e)) => Some(e.to_string()),
-                    Err(_) => Some("write timed out".to_string()),
-                };
-                if let Some(msg) = failed {
-                    session.handle_disconnected(Instant::now().into_std(), LinkError::Io(msg));
-                    break;
-                }
-            }
+            transmit(&mut session, s, config.reply_timeout).await;
         }
         while let Some(event) = session.poll_event() {
-            let msg = match event {
-                Event::Scan(scan) => LidarMessage::Scan(scan),
-                Event::Ready(info) => LidarMessage::Health(Health::Ok(info)),
-                Event::DeviceError(e) => LidarMessage::Error(e.into()),
-                Event::ProtocolError(e) => LidarMessage::Error(e.into()),
-                Event::LoginRefused => {
-                    tracing::warn!("sopas login refused (sAN SetAccessMode 0); continuing without it");
-                    continue;
-                }
-                Event::DialectDetected(dialect) => {
-                    tracing::info!(?dialect, "sopas dialect detected");
-                    continue;
-                }
-                Event::Reconnect { reason, delay } => {
-                    tracing::warn!(?reason, "sopas dropping the connection");
-                    stream = None;
-                    LidarMessage::Health(Health::Lost { retry_in: delay })
-                }
-            };
+            let Some(msg) = message(event, &mut stream) else { continue };
             if tx.send(msg).await.is_err() {
                 return;
             }
@@ -243,6 +197,79 @@ where
             }
         }
     }
+}
+
+/// Open the connection (at most `connect_timeout`) and tell the session how it went; `false`
+/// when the receiver is gone.
+async fn open<S, F, Fut>(
+    config: &LidarConfig,
+    connect: &mut F,
+    session: &mut Session,
+    stream: &mut Option<S>,
+    tx: &mpsc::Sender<LidarMessage>,
+) -> bool
+where
+    F: FnMut(String) -> Fut,
+    Fut: Future<Output = std::io::Result<S>>,
+{
+    let addr = format!("{}:{}", config.host, config.port);
+    match tokio::time::timeout(config.connect_timeout, connect(addr.clone())).await {
+        Ok(Ok(s)) => {
+            tracing::info!(%addr, "sopas connected");
+            *stream = Some(s);
+            session.handle_connected(Instant::now().into_std());
+            return tx.send(LidarMessage::Health(Health::Starting)).await.is_ok();
+        }
+        Ok(Err(e)) => session.handle_connect_failed(
+            Instant::now().into_std(),
+            LinkError::Connect { addr, msg: e.to_string() },
+        ),
+        Err(_) => session.handle_connect_failed(
+            Instant::now().into_std(),
+            LinkError::Connect { addr, msg: "timed out".into() },
+        ),
+    }
+    true
+}
+
+/// Write what the session has to send. Bounded: a device that stops reading must not wedge the
+/// shell; a failed or stalled write drops the connection.
+async fn transmit<S: AsyncWrite + Unpin>(session: &mut Session, s: &mut S, timeout: Duration) {
+    while let Some(bytes) = session.poll_transmit() {
+        let failed = match tokio::time::timeout(timeout, s.write_all(&bytes)).await {
+            Ok(Ok(())) => None,
+            Ok(Err(e)) => Some(e.to_string()),
+            Err(_) => Some("write timed out".to_string()),
+        };
+        if let Some(msg) = failed {
+            session.handle_disconnected(Instant::now().into_std(), LinkError::Io(msg));
+            break;
+        }
+    }
+}
+
+/// What the application is told of a session event (`None`: only logged); a reconnect drops the
+/// stream.
+fn message<S>(event: Event, stream: &mut Option<S>) -> Option<LidarMessage> {
+    Some(match event {
+        Event::Scan(scan) => LidarMessage::Scan(scan),
+        Event::Ready(info) => LidarMessage::Health(Health::Ok(info)),
+        Event::DeviceError(e) => LidarMessage::Error(e.into()),
+        Event::ProtocolError(e) => LidarMessage::Error(e.into()),
+        Event::LoginRefused => {
+            tracing::warn!("sopas login refused (sAN SetAccessMode 0); continuing without it");
+            return None;
+        }
+        Event::DialectDetected(dialect) => {
+            tracing::info!(?dialect, "sopas dialect detected");
+            return None;
+        }
+        Event::Reconnect { reason, delay } => {
+            tracing::warn!(?reason, "sopas dropping the connection");
+            *stream = None;
+            LidarMessage::Health(Health::Lost { retry_in: delay })
+        }
+    })
 }
 
 /// Spawns [`run_stream`] and returns its handle with the receiving end of the channel.

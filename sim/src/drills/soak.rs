@@ -128,9 +128,39 @@ struct Soak {
     violations: Vec<String>,
     /// Per robot: since when it has been in Fault or EStop.
     stopped_since: Vec<Option<Instant>>,
+    start: Instant,
+    /// When the next fault is due (once the active one is undone).
+    next_at: Instant,
+    active: Option<Active>,
+    owed: Vec<Owed>,
+    /// Per robot: its last LiDAR panic (at most one in any 12 s).
+    last_panic: Vec<Option<Instant>>,
+    last_rearm: Instant,
+    worst_safe: Duration,
+    /// Recovery: from a fault's injection to the formation running again, for the faults that
+    /// stopped it (whether it has left Running since).
+    since_fault: Option<(Instant, bool)>,
+    worst_recovery: Option<Duration>,
 }
 
 impl Soak {
+    fn new(robots: usize, start: Instant) -> Self {
+        Soak {
+            counters: BTreeMap::new(),
+            violations: Vec::new(),
+            stopped_since: vec![None; robots],
+            start,
+            next_at: start + Duration::from_secs(2),
+            active: None,
+            owed: Vec::new(),
+            last_panic: vec![None; robots],
+            last_rearm: start,
+            worst_safe: Duration::ZERO,
+            since_fault: None,
+            worst_recovery: None,
+        }
+    }
+
     fn count(&mut self, key: String, by: u64) {
         *self.counters.entry(key).or_default() += by;
     }
@@ -190,6 +220,221 @@ impl Soak {
             Kind::EStop => Self::targets_zero(sim, o.robot),
             _ => true,
         }
+    }
+    /// Invariant 3: every owed safe state reached (its time counted) or past its deadline.
+    fn settle_owed(&mut self, sim: &Sim) {
+        let mut k = 0;
+        while k < self.owed.len() {
+            let o = &self.owed[k];
+            let took = o.injected.elapsed();
+            if Self::safe(sim, o) {
+                let kind = o.kind;
+                self.worst_safe = self.worst_safe.max(took);
+                self.max(
+                    format!("safe_ms.max.{}", kind.name()),
+                    u64::try_from(took.as_millis()).unwrap_or(u64::MAX),
+                );
+                self.owed.swap_remove(k);
+            } else if took > o.deadline {
+                let msg = format!(
+                    "{} after {} at {:.2} s: no safe state within {:?}",
+                    sim.robots[o.robot].id,
+                    o.kind.name(),
+                    (o.injected - self.start).as_secs_f64(),
+                    o.deadline
+                );
+                self.violation(msg);
+                self.owed.swap_remove(k);
+            } else {
+                k += 1;
+            }
+        }
+    }
+
+    /// Undo the active fault when its time is up; the next one is drawn 3–6 s later.
+    async fn undo_due(&mut self, sim: &mut Sim, rng: &mut Rng, now: Instant, c: &mut Check) {
+        let Some(a) = self.active.as_ref().filter(|a| now >= a.until) else { return };
+        if a.kind == Kind::ServerCrash {
+            // Its supervision log goes with it: check it first (invariant 2).
+            for v in restart_loops(&sim.server.events, 3, Duration::from_secs(5)) {
+                self.violation(v);
+            }
+            if let Err(e) = sim.restart_server().await {
+                c.fail(format!("server restart: {e}"));
+            }
+        } else if let Err(e) = undo(sim, a).await {
+            c.fail(format!("undo {}: {e}", a.kind.name()));
+        }
+        self.active = None;
+        self.next_at = Instant::now() + Duration::from_secs_f64(rng.range(3.0, 6.0));
+    }
+
+    /// The formation's phase now: recovery times, driving time, and a re-arm (as an operator
+    /// would once the fault is gone) of a stopped formation or a restarted server's waiting one,
+    /// so that the robots drive most of the soak.
+    async fn follow_formation(&mut self, sim: &Sim) {
+        let ph = sim.formation().map(|f| f.phase);
+        match (&ph, self.since_fault.as_mut()) {
+            (Some(Phase::Running), Some((t, true))) => {
+                let d = t.elapsed();
+                self.worst_recovery = Some(self.worst_recovery.map_or(d, |w: Duration| w.max(d)));
+                self.since_fault = None;
+            }
+            (Some(Phase::Running), Some((_, false))) | (_, None) => {}
+            (_, Some((_, left))) => *left = true,
+        }
+        if ph == Some(Phase::Running) && all_turning(sim) {
+            self.count("moving_ms".into(), 10);
+        }
+        if self.active.is_none()
+            && matches!(ph, Some(Phase::Stopped { .. } | Phase::Waiting))
+            && self.last_rearm.elapsed() > Duration::from_secs(3)
+        {
+            self.last_rearm = Instant::now();
+            self.count("rearms".into(), 1);
+            let _ = sim.server.rearm().await;
+        }
+    }
+
+    /// Draw and inject the next fault when it is due, with the safe states it owes.
+    async fn inject_due(&mut self, sim: &Sim, rng: &mut Rng, now: Instant, c: &mut Check) {
+        if self.active.is_some() || now < self.next_at {
+            return;
+        }
+        let n = sim.robots.len();
+        let robot = rng.below(n);
+        let drive = rng.below(sim.mocks[robot].drives.len().max(1));
+        let mut kind = KINDS[rng.below(KINDS.len())];
+        if kind == Kind::LidarPanic
+            && self.last_panic[robot].is_some_and(|t| t.elapsed() < Duration::from_secs(12))
+        {
+            kind = Kind::LidarGarbage;
+        }
+        if kind == Kind::LidarPanic {
+            self.last_panic[robot] = Some(now);
+        }
+        let armed = safety(sim, robot) == Some(SafetyState::Armed);
+        let armed_all: Vec<bool> = (0..n).map(|i| safety(sim, i) == Some(SafetyState::Armed)).collect();
+        let at_s = (now - self.start).as_secs_f64();
+        tracing::info!(fault = kind.name(), robot = %sim.robots[robot].id, at_s, "soak: fault");
+        match inject(sim, kind, robot, drive).await {
+            Ok(()) => self.count(format!("injected.{}", kind.name()), 1),
+            Err(e) => c.fail(format!("inject {}: {e}", kind.name())),
+        }
+        let deadline = match kind {
+            Kind::LinkCut if armed => Some(LINK_DEADLINE),
+            Kind::DriveHeartbeat => Some(HEARTBEAT_DEADLINE),
+            Kind::EStop => Some(ESTOP_DEADLINE),
+            _ => None,
+        };
+        if let Some(deadline) = deadline {
+            self.owed.push(Owed { kind, robot, injected: now, deadline });
+        }
+        if kind == Kind::ServerCrash {
+            // Every armed robot loses its commands.
+            for (i, was) in armed_all.iter().enumerate() {
+                if *was {
+                    self.owed.push(Owed { kind, robot: i, injected: now, deadline: LINK_DEADLINE });
+                }
+            }
+        }
+        if self.since_fault.is_none_or(|(_, left)| !left) {
+            self.since_fault = Some((now, false));
+        }
+        let lasts = match kind {
+            Kind::LidarStall
+            | Kind::ImuUnplug
+            | Kind::DriveHeartbeat
+            | Kind::LinkCut
+            | Kind::EStop
+            | Kind::ServerCrash => FAULT_LENGTH,
+            _ => Duration::ZERO,
+        };
+        self.active = Some(Active { kind, robot, drive, until: now + lasts });
+    }
+
+    /// After the soak: the active fault undone, invariant 2 over the whole run, every robot tree
+    /// running.
+    async fn wind_down(&mut self, sim: &mut Sim, c: &mut Check) {
+        if let Some(a) = self.active.take() {
+            let undone = if a.kind == Kind::ServerCrash {
+                sim.restart_server().await.map_err(|e| e.to_string())
+            } else {
+                undo(sim, &a).await
+            };
+            if let Err(e) = undone {
+                c.fail(format!("undo {}: {e}", a.kind.name()));
+            }
+        }
+        let policy = amr_actors::robot::RobotOptions::default().policy;
+        let max_restarts = usize::try_from(policy.max_restarts).unwrap_or(usize::MAX);
+        for r in &sim.robots {
+            for v in restart_loops(&r.events, max_restarts, policy.window) {
+                self.violation(v);
+            }
+        }
+        for v in restart_loops(&sim.server.events, 3, Duration::from_secs(5)) {
+            self.violation(v);
+        }
+        c.that(
+            sim.robots.iter().all(amr_actors::robot::RobotTree::is_running),
+            "every robot tree still running",
+        );
+    }
+
+    /// The end: every device Ok again, and the formation running after a last re-arm.
+    async fn run_again(&mut self, sim: &Sim, c: &mut Check) {
+        c.within("every device Ok after the soak", Duration::from_secs(15), || all_devices_ok(sim)).await;
+        let rearm_deadline = Instant::now() + Duration::from_secs(20);
+        let mut ran = false;
+        // Bounded by the deadline; re-arms every 3 s while stopped.
+        while Instant::now() < rearm_deadline {
+            let ph = sim.formation().map(|f| f.phase);
+            if ph == Some(Phase::Running) && all_turning(sim) {
+                ran = true;
+                break;
+            }
+            if !matches!(ph, Some(Phase::Running | Phase::Arming { .. }))
+                && self.last_rearm.elapsed() > Duration::from_secs(3)
+            {
+                self.last_rearm = Instant::now();
+                let _ = sim.server.rearm().await;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        c.that(ran, "the formation running after the soak and a re-arm");
+    }
+
+    /// The verdicts on the whole soak and what the outcome reports.
+    fn conclude(mut self, length: Duration, ended: Duration, c: &mut Check) {
+        c.recovery = self.worst_recovery;
+        c.safe_state = (self.worst_safe > Duration::ZERO).then_some(self.worst_safe);
+        // Enough chaos to mean something: several faults of several kinds.
+        let injected: u64 =
+            self.counters.iter().filter(|(k, _)| k.starts_with("injected.")).map(|(_, v)| v).sum();
+        let kinds = self.counters.keys().filter(|k| k.starts_with("injected.")).count();
+        let want = (length.as_secs() / 10).max(3);
+        c.that(
+            injected >= want && kinds >= 3,
+            format!("{injected} faults of {kinds} kinds injected (≥ {want}, ≥ 3 kinds)"),
+        );
+        // The faults met moving robots: the formation drove for a good part of the soak.
+        let moving = self.counters.get("moving_ms").copied().unwrap_or(0);
+        c.that(
+            moving as f64 >= 0.25 * length.as_millis() as f64,
+            format!(
+                "the robots drove {:.0} s of the {:.0} s soak (≥ 25 %)",
+                moving as f64 / 1000.0,
+                length.as_secs_f64()
+            ),
+        );
+        for v in std::mem::take(&mut self.violations) {
+            c.fail(format!("invariant: {v}"));
+        }
+        let violations = self.counters.get("violations").copied().unwrap_or(0);
+        c.eq("invariant violations", violations, 0);
+        self.counters.insert("soak_ms".into(), u64::try_from(ended.as_millis()).unwrap_or(u64::MAX));
+        c.counters = self.counters;
     }
 }
 
@@ -281,223 +526,29 @@ pub(crate) async fn soak(config: &Config, seed: u64, length: Duration, c: &mut C
         return c.fail("no turning scenario");
     };
     let Some(mut sim) = moving_sim(config, seed, scenario, c).await else { return };
-    let policy = amr_actors::robot::RobotOptions::default().policy;
     let mut rng = Rng::seed(seed ^ 0x50a4);
-    let n = sim.robots.len();
-    let mut s = Soak { counters: BTreeMap::new(), violations: Vec::new(), stopped_since: vec![None; n] };
     let p0 = sim.phases().len();
     let marks: Vec<usize> = sim.robots.iter().map(|r| r.events.len()).collect();
     c.inject();
     let start = Instant::now();
     let end = start + length;
-    let mut next_at = start + Duration::from_secs(2);
-    let mut active: Option<Active> = None;
-    let mut owed: Vec<Owed> = Vec::new();
-    let mut last_panic: Vec<Option<Instant>> = vec![None; n];
-    let mut last_rearm = start;
-    let mut worst_safe = Duration::ZERO;
-    // Recovery: from a fault's injection to the formation running again, for the faults that
-    // stopped it (whether it has left Running since).
-    let mut since_fault: Option<(Instant, bool)> = None;
-    let mut worst_recovery: Option<Duration> = None;
+    let mut s = Soak::new(sim.robots.len(), start);
     let mut every = tokio::time::interval(Duration::from_millis(10));
     every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     // Bounded by `length`.
     while Instant::now() < end {
         every.tick().await;
         let now = Instant::now();
-        let at = now - start;
-        s.never_actuate_while_stopped(&sim, at);
-        // Invariant 3.
-        let mut k = 0;
-        while k < owed.len() {
-            let o = &owed[k];
-            let took = o.injected.elapsed();
-            if Soak::safe(&sim, o) {
-                let kind = o.kind;
-                worst_safe = worst_safe.max(took);
-                s.max(
-                    format!("safe_ms.max.{}", kind.name()),
-                    u64::try_from(took.as_millis()).unwrap_or(u64::MAX),
-                );
-                owed.swap_remove(k);
-            } else if took > o.deadline {
-                let msg = format!(
-                    "{} after {} at {:.2} s: no safe state within {:?}",
-                    sim.robots[o.robot].id,
-                    o.kind.name(),
-                    (o.injected - start).as_secs_f64(),
-                    o.deadline
-                );
-                s.violation(msg);
-                owed.swap_remove(k);
-            } else {
-                k += 1;
-            }
-        }
-        // Undo the active fault when its time is up.
-        if let Some(a) = active.as_ref()
-            && now >= a.until
-        {
-            if a.kind == Kind::ServerCrash {
-                // Its supervision log goes with it: check it first (invariant 2).
-                for v in restart_loops(&sim.server.events, 3, Duration::from_secs(5)) {
-                    s.violation(v);
-                }
-                if let Err(e) = sim.restart_server().await {
-                    c.fail(format!("server restart: {e}"));
-                }
-            } else if let Err(e) = undo(&sim, a).await {
-                c.fail(format!("undo {}: {e}", a.kind.name()));
-            }
-            active = None;
-            next_at = Instant::now() + Duration::from_secs_f64(rng.range(3.0, 6.0));
-        }
-        // Recovery.
-        let ph = sim.formation().map(|f| f.phase);
-        match (&ph, since_fault.as_mut()) {
-            (Some(Phase::Running), Some((t, true))) => {
-                let d = t.elapsed();
-                worst_recovery = Some(worst_recovery.map_or(d, |w: Duration| w.max(d)));
-                since_fault = None;
-            }
-            (Some(Phase::Running), Some((_, false))) | (_, None) => {}
-            (_, Some((_, left))) => *left = true,
-        }
-        if ph == Some(Phase::Running) && all_turning(&sim) {
-            s.count("moving_ms".into(), 10);
-        }
-        // A stopped formation, or a restarted server's waiting one, is re-armed (as an operator
-        // would once the fault is gone), so the robots drive most of the soak.
-        if active.is_none()
-            && matches!(ph, Some(Phase::Stopped { .. } | Phase::Waiting))
-            && last_rearm.elapsed() > Duration::from_secs(3)
-        {
-            last_rearm = Instant::now();
-            s.count("rearms".into(), 1);
-            let _ = sim.server.rearm().await;
-        }
-        // The next fault.
-        if active.is_none() && now >= next_at {
-            let robot = rng.below(n);
-            let drive = rng.below(sim.mocks[robot].drives.len().max(1));
-            let mut kind = KINDS[rng.below(KINDS.len())];
-            if kind == Kind::LidarPanic
-                && last_panic[robot].is_some_and(|t| t.elapsed() < Duration::from_secs(12))
-            {
-                kind = Kind::LidarGarbage;
-            }
-            if kind == Kind::LidarPanic {
-                last_panic[robot] = Some(now);
-            }
-            let armed = safety(&sim, robot) == Some(SafetyState::Armed);
-            let armed_all: Vec<bool> = (0..n).map(|i| safety(&sim, i) == Some(SafetyState::Armed)).collect();
-            tracing::info!(fault = kind.name(), robot = %sim.robots[robot].id, at_s = at.as_secs_f64(), "soak: fault");
-            match inject(&sim, kind, robot, drive).await {
-                Ok(()) => s.count(format!("injected.{}", kind.name()), 1),
-                Err(e) => c.fail(format!("inject {}: {e}", kind.name())),
-            }
-            let deadline = match kind {
-                Kind::LinkCut if armed => Some(LINK_DEADLINE),
-                Kind::DriveHeartbeat => Some(HEARTBEAT_DEADLINE),
-                Kind::EStop => Some(ESTOP_DEADLINE),
-                _ => None,
-            };
-            if let Some(deadline) = deadline {
-                owed.push(Owed { kind, robot, injected: now, deadline });
-            }
-            if kind == Kind::ServerCrash {
-                // Every armed robot loses its commands.
-                for (i, was) in armed_all.iter().enumerate() {
-                    if *was {
-                        owed.push(Owed { kind, robot: i, injected: now, deadline: LINK_DEADLINE });
-                    }
-                }
-            }
-            if since_fault.is_none_or(|(_, left)| !left) {
-                since_fault = Some((now, false));
-            }
-            let lasts = match kind {
-                Kind::LidarStall
-                | Kind::ImuUnplug
-                | Kind::DriveHeartbeat
-                | Kind::LinkCut
-                | Kind::EStop
-                | Kind::ServerCrash => FAULT_LENGTH,
-                _ => Duration::ZERO,
-            };
-            active = Some(Active { kind, robot, drive, until: now + lasts });
-        }
+        s.never_actuate_while_stopped(&sim, now - start);
+        s.settle_owed(&sim);
+        s.undo_due(&mut sim, &mut rng, now, c).await;
+        s.follow_formation(&sim).await;
+        s.inject_due(&sim, &mut rng, now, c).await;
     }
-    if let Some(a) = active.take() {
-        let undone = if a.kind == Kind::ServerCrash {
-            sim.restart_server().await.map_err(|e| e.to_string())
-        } else {
-            undo(&sim, &a).await
-        };
-        if let Err(e) = undone {
-            c.fail(format!("undo {}: {e}", a.kind.name()));
-        }
-    }
-    // Invariant 2, over the whole run.
-    let max_restarts = usize::try_from(policy.max_restarts).unwrap_or(usize::MAX);
-    for r in &sim.robots {
-        for v in restart_loops(&r.events, max_restarts, policy.window) {
-            s.violation(v);
-        }
-    }
-    for v in restart_loops(&sim.server.events, 3, Duration::from_secs(5)) {
-        s.violation(v);
-    }
-    c.that(sim.robots.iter().all(amr_actors::robot::RobotTree::is_running), "every robot tree still running");
-    // The end: everything back, and the formation runs after a last re-arm.
+    s.wind_down(&mut sim, c).await;
     let ended = c.since_injection();
-    c.within("every device Ok after the soak", Duration::from_secs(15), || all_devices_ok(&sim)).await;
-    let rearm_deadline = Instant::now() + Duration::from_secs(20);
-    let mut ran = false;
-    // Bounded by the deadline; re-arms every 3 s while stopped.
-    while Instant::now() < rearm_deadline {
-        let ph = sim.formation().map(|f| f.phase);
-        if ph == Some(Phase::Running) && all_turning(&sim) {
-            ran = true;
-            break;
-        }
-        if !matches!(ph, Some(Phase::Running | Phase::Arming { .. }))
-            && last_rearm.elapsed() > Duration::from_secs(3)
-        {
-            last_rearm = Instant::now();
-            let _ = sim.server.rearm().await;
-        }
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-    c.that(ran, "the formation running after the soak and a re-arm");
-    c.recovery = worst_recovery;
-    c.safe_state = (worst_safe > Duration::ZERO).then_some(worst_safe);
-    // Enough chaos to mean something: several faults of several kinds.
-    let injected: u64 = s.counters.iter().filter(|(k, _)| k.starts_with("injected.")).map(|(_, v)| v).sum();
-    let kinds = s.counters.keys().filter(|k| k.starts_with("injected.")).count();
-    let want = (length.as_secs() / 10).max(3);
-    c.that(
-        injected >= want && kinds >= 3,
-        format!("{injected} faults of {kinds} kinds injected (≥ {want}, ≥ 3 kinds)"),
-    );
-    // The faults met moving robots: the formation drove for a good part of the soak.
-    let moving = s.counters.get("moving_ms").copied().unwrap_or(0);
-    c.that(
-        moving as f64 >= 0.25 * length.as_millis() as f64,
-        format!(
-            "the robots drove {:.0} s of the {:.0} s soak (≥ 25 %)",
-            moving as f64 / 1000.0,
-            length.as_secs_f64()
-        ),
-    );
-    for v in std::mem::take(&mut s.violations) {
-        c.fail(format!("invariant: {v}"));
-    }
-    let violations = s.counters.get("violations").copied().unwrap_or(0);
-    c.eq("invariant violations", violations, 0);
-    s.counters.insert("soak_ms".into(), u64::try_from(ended.as_millis()).unwrap_or(u64::MAX));
-    c.counters = std::mem::take(&mut s.counters);
+    s.run_again(&sim, c).await;
+    s.conclude(length, ended, c);
     for r in &sim.robots {
         for (k, v) in r.counters.snapshot() {
             if k.starts_with("safety.") {

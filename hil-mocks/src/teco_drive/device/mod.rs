@@ -478,6 +478,54 @@ impl ObjectDictionary for Objects {
                 self.consumer.reset(Duration::from_millis(u64::from(self.master_consumer_raw & 0xFFFF)));
                 Ok(())
             }
+            (0x1400 | 0x1800 | 0x1801, 1 | 2) | (0x1600 | 0x1A00 | 0x1A01, 0..=8) => {
+                self.write_pdo(addr, data)
+            }
+            (0x6007, 0) => {
+                self.comm_loss = i16::from_le_bytes(le(data)?);
+                Ok(())
+            }
+            (0x6040, 0) => {
+                self.apply_controlword(u16::from_le_bytes(le(data)?));
+                Ok(())
+            }
+            (0x6060, 0) => {
+                let [m] = le::<1>(data)?;
+                if m as i8 != 3 && m != 0 {
+                    return Err(AbortCode::VALUE_RANGE); // only profile velocity is offered
+                }
+                self.set_mode(m as i8);
+                Ok(())
+            }
+            (0x60FF, 0) => {
+                self.target_velocity = i32::from_le_bytes(le(data)?);
+                Ok(())
+            }
+            (0x6083, 0) => {
+                self.accel = u32::from_le_bytes(le(data)?);
+                Ok(())
+            }
+            (0x6084, 0) => {
+                self.decel = u32::from_le_bytes(le(data)?);
+                Ok(())
+            }
+            (0x6085, 0) => {
+                self.quick_stop_decel = u32::from_le_bytes(le(data)?);
+                Ok(())
+            }
+            (0x1016 | 0x1017 | 0x6007 | 0x6040 | 0x6060 | 0x60FF | 0x6083..=0x6085, _) => {
+                Err(AbortCode::NO_SUBINDEX)
+            }
+            _ => Err(AbortCode::NO_OBJECT),
+        }
+    }
+}
+
+impl Objects {
+    /// A write to a PDO's communication (COB-ID, transmission type) or mapping parameters.
+    fn write_pdo(&mut self, addr: ObjectAddr, data: &[u8]) -> Result<(), AbortCode> {
+        let ObjectAddr { index, sub } = addr;
+        match (index, sub) {
             (0x1400 | 0x1800 | 0x1801, 1) => {
                 let cob = u32::from_le_bytes(le(data)?);
                 let Some((p, _)) = self.pdo_mut(index) else { return Err(AbortCode::NO_OBJECT) };
@@ -524,41 +572,6 @@ impl ObjectDictionary for Objects {
                 }
                 p.map[usize::from(sub) - 1] = raw;
                 Ok(())
-            }
-            (0x6007, 0) => {
-                self.comm_loss = i16::from_le_bytes(le(data)?);
-                Ok(())
-            }
-            (0x6040, 0) => {
-                self.apply_controlword(u16::from_le_bytes(le(data)?));
-                Ok(())
-            }
-            (0x6060, 0) => {
-                let [m] = le::<1>(data)?;
-                if m as i8 != 3 && m != 0 {
-                    return Err(AbortCode::VALUE_RANGE); // only profile velocity is offered
-                }
-                self.set_mode(m as i8);
-                Ok(())
-            }
-            (0x60FF, 0) => {
-                self.target_velocity = i32::from_le_bytes(le(data)?);
-                Ok(())
-            }
-            (0x6083, 0) => {
-                self.accel = u32::from_le_bytes(le(data)?);
-                Ok(())
-            }
-            (0x6084, 0) => {
-                self.decel = u32::from_le_bytes(le(data)?);
-                Ok(())
-            }
-            (0x6085, 0) => {
-                self.quick_stop_decel = u32::from_le_bytes(le(data)?);
-                Ok(())
-            }
-            (0x1016 | 0x1017 | 0x6007 | 0x6040 | 0x6060 | 0x60FF | 0x6083..=0x6085, _) => {
-                Err(AbortCode::NO_SUBINDEX)
             }
             _ => Err(AbortCode::NO_OBJECT),
         }

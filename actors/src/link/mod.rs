@@ -398,197 +398,96 @@ pub fn in_process(robots: &[String]) -> (ServerEnd, Vec<RobotEnd>, LinkControl) 
     // The routers' own handle does not keep the switch: once every control is dropped no new
     // server can come, and a router ends with its ends.
     let routers_ctl = LinkControl { server: None, ..control.clone() };
-    for (name, mut up_rx, to_robot, mut queues) in routers {
-        // Robot → router → the current server.
-        let mut server_rx = switch.up.subscribe();
-        let mut to_server = server_rx.borrow_and_update().clone();
-        let ctl = routers_ctl.clone();
-        let robot = name.clone();
-        tokio::spawn(async move {
-            let mut draining = false;
-            while let Some(msg) = up_rx.recv().await {
-                let held = ctl.pass(&robot).await;
-                ctl.count_late(held, &mut draining, up_rx.is_empty());
-                if server_rx.has_changed().unwrap_or(false) {
-                    to_server = server_rx.borrow_and_update().clone();
-                }
-                if ctl.is_cut(&robot) {
-                    ctl.lost.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                }
-                let msg = match msg {
-                    Uplink::Scan(scan) => {
-                        let (slots, delay) = (to_server.1.clone(), ctl.scan_delay(&robot));
-                        if delay.is_zero() {
-                            slots.push(scan);
-                        } else {
-                            // Each scan on its own timer: late, not slower (the others are not
-                            // held up).
-                            tokio::spawn(async move {
-                                tokio::time::sleep(delay).await;
-                                slots.push(scan);
-                            });
-                        }
-                        continue;
-                    }
-                    other => other,
-                };
-                if to_server.0.try_send(msg).is_err() {
-                    ctl.lost.fetch_add(1, Ordering::Relaxed);
-                }
-            }
-        });
-        // The current server → router → robot.
-        let ctl = routers_ctl.clone();
-        tokio::spawn(async move {
-            let mut current: Option<mpsc::Receiver<Downlink>> = None;
-            let mut more = true;
-            let mut draining = false;
-            // Ends when no server is attached and none can come.
-            loop {
-                let event = match current.as_mut() {
-                    Some(rx) => tokio::select! {
-                        biased;
-                        q = queues.recv(), if more => DownEvent::Server(q),
-                        m = rx.recv() => DownEvent::Msg(m),
-                        () = to_robot.closed() => break,
-                    },
-                    None if more => tokio::select! {
-                        q = queues.recv() => DownEvent::Server(q),
-                        () = to_robot.closed() => break,
-                    },
-                    None => break,
-                };
-                match event {
-                    DownEvent::Server(Some(rx)) => current = Some(rx),
-                    DownEvent::Server(None) => more = false,
-                    DownEvent::Msg(None) => current = None,
-                    DownEvent::Msg(Some(msg)) => {
-                        let held = ctl.pass(&name).await;
-                        let empty = current.as_ref().is_none_or(mpsc::Receiver::is_empty);
-                        ctl.count_late(held, &mut draining, empty);
-                        if ctl.is_cut(&name) || !to_robot.send(msg) {
-                            ctl.lost.fetch_add(1, Ordering::Relaxed);
-                        }
-                    }
-                }
-            }
-        });
+    for (name, up_rx, to_robot, queues) in routers {
+        tokio::spawn(route_up(name.clone(), up_rx, switch.up.subscribe(), routers_ctl.clone()));
+        tokio::spawn(route_down(name, queues, to_robot, routers_ctl.clone()));
     }
     (server_end, ends, control)
 }
 
-#[cfg(test)]
-mod tests {
-    #![allow(clippy::unwrap_used, reason = "tests")]
-
-    use super::*;
-    use amr_msgs::Command;
-
-    fn cmd(seq: u64) -> Downlink {
-        Downlink::Command(Command { seq, stamp_s: 0.0, v_mps: 0.1, w_radps: 0.0 })
-    }
-
-    #[test]
-    fn a_full_robot_queue_drops_commands_and_remembers_safety_messages() {
-        let (tx, mut rx, missed) = DownlinkTx::queue();
-        for k in 0..DEPTH as u64 {
-            assert!(tx.send(cmd(k)));
+/// Robot → router → the current server: scans into the server's slots (each on its own timer
+/// when the link delays them), the rest into its queue; what meets a cut or a full queue is lost.
+async fn route_up(
+    robot: String,
+    mut up_rx: mpsc::Receiver<Uplink>,
+    mut server_rx: watch::Receiver<(mpsc::Sender<Uplink>, ScanSlots)>,
+    ctl: LinkControl,
+) {
+    let mut to_server = server_rx.borrow_and_update().clone();
+    let mut draining = false;
+    while let Some(msg) = up_rx.recv().await {
+        let held = ctl.pass(&robot).await;
+        ctl.count_late(held, &mut draining, up_rx.is_empty());
+        if server_rx.has_changed().unwrap_or(false) {
+            to_server = server_rx.borrow_and_update().clone();
         }
-        assert!(!tx.send(cmd(999)));
-        assert!(!missed.any.load(Ordering::SeqCst), "a dropped command is not a missed safety message");
-        assert!(!tx.send(Downlink::Disarm));
-        assert!(missed.any.load(Ordering::SeqCst) && !missed.estop.load(Ordering::SeqCst));
-        assert!(!tx.send(Downlink::EStop));
-        assert!(missed.estop.load(Ordering::SeqCst));
-        assert_eq!(rx.try_recv().ok(), Some(cmd(0)), "what was queued stays, in order");
-    }
-
-    #[tokio::test]
-    async fn routes_by_robot_and_a_cut_loses_both_directions() {
-        let robots = vec!["a".to_owned(), "b".to_owned()];
-        let (mut server, mut ends, control) = in_process(&robots);
-        assert!(server.down.send("b", cmd(1)));
-        assert_eq!(ends[1].down.recv().await, Some(cmd(1)));
-        assert!(!server.down.send("nobody", cmd(2)));
-        ends[0].up.send(Uplink::Safety {
-            robot: "a".into(),
-            seq: 1,
-            stamp_s: 0.0,
-            state: amr_msgs::SafetyState::Armed,
-            stops: 1,
-            mock: false,
-        });
-        assert_eq!(server.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
-
-        control.set_cut("a", true);
-        assert!(server.down.send("a", cmd(3)), "the router takes it; the cut loses it");
-        ends[0].up.send(Uplink::Safety {
-            robot: "a".into(),
-            seq: 2,
-            stamp_s: 0.0,
-            state: amr_msgs::SafetyState::Armed,
-            stops: 1,
-            mock: false,
-        });
-        // Both messages reach the router and are lost there; b is unaffected.
-        tokio::time::timeout(std::time::Duration::from_secs(2), async {
-            while control.lost() < 2 {
-                tokio::task::yield_now().await;
-            }
-        })
-        .await
-        .unwrap();
-        assert!(ends[0].down.try_recv().is_err());
-        assert!(server.down.send("b", cmd(4)));
-        assert_eq!(ends[1].down.recv().await, Some(cmd(4)));
-        control.set_cut("a", false);
-        assert!(server.down.send("a", cmd(5)));
-        assert_eq!(ends[0].down.recv().await, Some(cmd(5)));
-    }
-
-    #[tokio::test]
-    async fn a_held_link_delivers_its_backlog_late() {
-        let robots = vec!["a".to_owned()];
-        let (server, mut ends, control) = in_process(&robots);
-        control.set_held("a", true);
-        assert!(server.down.send("a", cmd(1)));
-        assert!(server.down.send("a", cmd(2)));
-        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-        assert!(ends[0].down.try_recv().is_err(), "nothing passes while held");
-        control.set_held("a", false);
-        assert_eq!(ends[0].down.recv().await, Some(cmd(1)));
-        assert_eq!(ends[0].down.recv().await, Some(cmd(2)));
-        assert_eq!(control.late(), 2, "the message the router was holding and the queued one");
-        assert_eq!(control.lost(), 0);
-    }
-
-    #[tokio::test]
-    async fn a_new_server_end_replaces_the_old_one() {
-        let robots = vec!["a".to_owned(), "b".to_owned()];
-        let (old, mut ends, control) = in_process(&robots);
-        let mut new = control.new_server_end().unwrap();
-        drop(old);
-        // The router may still hold the old queue for a moment: bounded retries.
-        let mut got = None;
-        for k in 0..100 {
-            assert!(new.down.send("b", cmd(k + 1)));
-            if let Ok(Some(m)) =
-                tokio::time::timeout(std::time::Duration::from_millis(10), ends[1].down.recv()).await
-            {
-                got = Some(m);
-                break;
-            }
+        if ctl.is_cut(&robot) {
+            ctl.lost.fetch_add(1, Ordering::Relaxed);
+            continue;
         }
-        assert!(matches!(got, Some(Downlink::Command(_))));
-        ends[0].up.send(Uplink::Safety {
-            robot: "a".into(),
-            seq: 1,
-            stamp_s: 0.0,
-            state: amr_msgs::SafetyState::Armed,
-            stops: 1,
-            mock: false,
-        });
-        assert_eq!(new.up.recv().await.map(|m| m.robot().to_owned()), Some("a".to_owned()));
+        let msg = match msg {
+            Uplink::Scan(scan) => {
+                let (slots, delay) = (to_server.1.clone(), ctl.scan_delay(&robot));
+                if delay.is_zero() {
+                    slots.push(scan);
+                } else {
+                    // Each scan on its own timer: late, not slower (the others are not held up).
+                    tokio::spawn(async move {
+                        tokio::time::sleep(delay).await;
+                        slots.push(scan);
+                    });
+                }
+                continue;
+            }
+            other => other,
+        };
+        if to_server.0.try_send(msg).is_err() {
+            ctl.lost.fetch_add(1, Ordering::Relaxed);
+        }
     }
 }
+
+/// The current server → router → robot: follows each new server's queue; what meets a cut or a
+/// closed robot end is lost. Ends when no server is attached and none can come.
+async fn route_down(
+    name: String,
+    mut queues: mpsc::UnboundedReceiver<mpsc::Receiver<Downlink>>,
+    to_robot: DownlinkTx,
+    ctl: LinkControl,
+) {
+    let mut current: Option<mpsc::Receiver<Downlink>> = None;
+    let mut more = true;
+    let mut draining = false;
+    loop {
+        let event = match current.as_mut() {
+            Some(rx) => tokio::select! {
+                biased;
+                q = queues.recv(), if more => DownEvent::Server(q),
+                m = rx.recv() => DownEvent::Msg(m),
+                () = to_robot.closed() => break,
+            },
+            None if more => tokio::select! {
+                biased;
+                q = queues.recv() => DownEvent::Server(q),
+                () = to_robot.closed() => break,
+            },
+            None => break,
+        };
+        match event {
+            DownEvent::Server(Some(rx)) => current = Some(rx),
+            DownEvent::Server(None) => more = false,
+            DownEvent::Msg(None) => current = None,
+            DownEvent::Msg(Some(msg)) => {
+                let held = ctl.pass(&name).await;
+                let empty = current.as_ref().is_none_or(mpsc::Receiver::is_empty);
+                ctl.count_late(held, &mut draining, empty);
+                if ctl.is_cut(&name) || !to_robot.send(msg) {
+                    ctl.lost.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

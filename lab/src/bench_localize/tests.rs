@@ -1,0 +1,60 @@
+//! Tests of the localisation benchmark's counts, scores and report.
+
+use super::*;
+use IntegrityState::{Lost, Tracking, Uncertain};
+
+#[test]
+fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
+    let (on, off) = (Some(0.1), Some(2.0));
+    let scans = [
+        (on, Tracking),
+        (on, Tracking),
+        (on, Tracking),
+        // A loss of four scans, reported lost at its second: detected; two of its scans
+        // reported tracking (a server would drive on them).
+        (off, Tracking),
+        (off, Lost),
+        (off, Lost),
+        (off, Tracking),
+        (on, Uncertain),
+        // A brief excursion reported tracking throughout.
+        (off, Tracking),
+        (on, Tracking),
+        (on, Tracking),
+        (on, Tracking),
+        // Lost while on, after three on scans: a false alarm.
+        (on, Lost),
+        (None, Lost),
+    ];
+    let c = integrity_counts(&scans, 7);
+    assert_eq!((c.losses, c.detected, c.recovered), (1, 1, 1));
+    assert_eq!(c.excursions, 1);
+    assert_eq!(c.false_lost, 1);
+    assert_eq!(c.uncertain_on, 1);
+    assert_eq!(c.on, 8);
+    assert_eq!(c.tracking_off, 3);
+    assert_eq!(c.reseeds, 7);
+}
+
+/// A percentile is the sorted sample at its rank, rounded; NaN for none.
+#[test]
+fn percentiles_take_the_rounded_rank() {
+    let v = [1.0, 2.0, 3.0, 4.0];
+    assert_eq!(percentile(&v, 0.5), 3.0);
+    assert_eq!(percentile(&v, 0.05), 1.0);
+    assert_eq!(percentile(&v, 0.95), 4.0);
+    assert!(percentile(&[], 0.5).is_nan());
+}
+
+/// Without logs the report is its tables' headers, and a skipped log says why.
+#[test]
+fn the_report_heads_its_tables_and_names_skipped_logs() {
+    let r = Report { seeds: vec![1, 2], logs: Vec::new(), skipped: vec![("b".into(), "no odometry".into())] };
+    let md = markdown(&r);
+    assert!(md.starts_with("AMCL on recorded logs against their references (seeds [1, 2];"), "{md}");
+    assert!(
+        md.contains("\n| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms |")
+    );
+    assert!(md.contains("\n| log | pose | scans | median | P5 | P95 | uncertain (%) | lost (%) |\n"));
+    assert!(md.ends_with("\nb: not run, no odometry.\n"), "{md}");
+}
