@@ -54,6 +54,14 @@ drills! {
     late_scans => "late-scans",
 }
 
+/// One robot floods the server with scans, shortened from 60 s to 15 s.
+#[tokio::test(start_paused = true)]
+async fn scan_flood_shortened() {
+    let config = load(&ConfigSource::Embedded).unwrap();
+    let outcome = amr_sim::drills::scan_flood(&config, 5, Duration::from_secs(15), DrillClock::Virtual).await;
+    assert!(outcome.passed, "{}\n{outcome:#?}", table(std::slice::from_ref(&outcome)));
+}
+
 /// The chaos soak, shortened from 10 minutes to 60 s (still several faults of several kinds, a
 /// server crash among them), run twice: it passes, and the same seed gives the same outcome,
 /// events, counters and every timing. (tokio picks at random among the branches of a `select!`
@@ -82,14 +90,12 @@ async fn every_drill_in_the_list_has_a_test() {
     let config = load(&ConfigSource::Embedded).unwrap();
     for d in DRILLS {
         let quoted = format!("\"{}\"", d.name);
-        // The soak runs shortened, above.
-        let shortened = d.name == "soak";
+        // The soak and the scan flood run shortened, above.
+        let shortened = ["soak", "scan-flood"].contains(&d.name);
         match d.real_time_only() {
             None => assert!(here.contains(&quoted) || shortened, "no virtual-time test for drill {}", d.name),
             Some(why) => {
-                // The scan flood runs shortened there.
-                let shortened = d.name == "scan-flood";
-                assert!(real.contains(&quoted) || shortened, "no real-time test for drill {}", d.name);
+                assert!(real.contains(&quoted), "no real-time test for drill {}", d.name);
                 let o = run_on(d.name, &config, 1, DrillClock::Virtual).await.unwrap();
                 assert!(!o.passed && o.failures.iter().any(|f| f.contains(why)), "{o:#?}");
             }

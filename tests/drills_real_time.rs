@@ -1,15 +1,12 @@
 //! The drills that keep the real transports and the wall clock honest, in real time: one per
 //! transport (the LiDAR over TCP, the IMU over a pty, CAN over socketcand), the drills that need
 //! the wall clock (a robot on a thread of its own, frozen or killed; a blocked worker of the
-//! multi-thread runtime; a TCP port nobody listens on; a localiser flooded beyond this machine's
-//! speed), and the main command's job starved by busy threads. The other drills run on virtual
-//! time (`drills.rs`).
+//! multi-thread runtime; a TCP port nobody listens on), and the main command's job starved by busy
+//! threads. The other drills run on virtual time (`drills.rs`).
 #![allow(clippy::unwrap_used, clippy::expect_used, reason = "test code: a failed step fails the test")]
 
-use std::time::Duration;
-
 use amr_actors::config::{ConfigSource, load};
-use amr_sim::drills::{DrillClock, DrillOutcome, run, table};
+use amr_sim::drills::{DrillOutcome, run, table};
 
 /// Drills measure deadlines of a few hundred milliseconds in real time: on a 2-core machine two
 /// simulations side by side starve each other, so the drills of this binary run one at a time.
@@ -45,15 +42,6 @@ drills! {
     robot_freeze => "robot-freeze",
     estop_restart => "estop-restart",
     slow_consumer => "slow-consumer",
-}
-
-/// One robot floods the server with scans, shortened from 60 s to 15 s.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn scan_flood_shortened() {
-    let _turn = ONE_AT_A_TIME.lock().await;
-    let config = load(&ConfigSource::Embedded).unwrap();
-    let outcome = amr_sim::drills::scan_flood(&config, 5, Duration::from_secs(15), DrillClock::Real).await;
-    assert!(outcome.passed, "{}\n{outcome:#?}", table(std::slice::from_ref(&outcome)));
 }
 
 /// The main command's job in real time with two threads spinning beside it on this 2-core

@@ -22,11 +22,23 @@ pub enum LocalizerMsg {
     Tick,
     /// An operator's pose for V ([`ServerCore::set_initial_pose`]): V, and the spread, m and rad.
     InitialPose { v: amr_core::se2::Se2, std_xy_m: f64, std_yaw_rad: f64 },
-    /// A drill: for `during` from now, every scan first blocks the actor's worker thread for
-    /// `each` (a stalled localisation). A deadline rather than an "end" message, which would queue
+    /// A drill: for `during` from now, every scan first costs the localizer `each` more (a
+    /// stalled or slow localisation). A deadline rather than an "end" message, which would queue
     /// behind the backlog the stall builds.
     #[cfg(feature = "fault-injection")]
-    InjectStall { each: Duration, during: Duration },
+    InjectStall { each: Duration, during: Duration, how: Stall },
+}
+
+/// How a drill's stall costs the localizer its time.
+#[cfg(feature = "fault-injection")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stall {
+    /// It blocks the actor's worker thread (a computation that hogs it): what the robots' safety
+    /// loops must survive on the multi-thread runtime. Real time only.
+    BlockThread,
+    /// The actor waits before the scan, its mailbox queueing meanwhile (a localisation slower
+    /// than the scans come, as on a loaded host): on virtual time as in real time.
+    Wait,
 }
 
 /// The localizer actor.
@@ -45,9 +57,9 @@ pub(crate) struct LocalizerState {
     /// mailbox holds at most one however fast scans come.
     pending: Arc<std::sync::atomic::AtomicBool>,
     _waker: crate::robot::ports::AbortOnDrop<()>,
-    /// The drill's stall per scan, and until when.
+    /// The drill's stall per scan, until when, and how.
     #[cfg(feature = "fault-injection")]
-    stall: Option<(Duration, Instant)>,
+    stall: Option<(Duration, tokio::time::Instant, Stall)>,
 }
 
 impl Actor for LocalizerActor {
@@ -94,6 +106,12 @@ impl Actor for LocalizerActor {
             LocalizerMsg::Scans => {
                 state.pending.store(false, std::sync::atomic::Ordering::SeqCst);
                 for (scan, rx) in self.ports.scans.take(self.ports.clock.now_s()) {
+                    #[cfg(feature = "fault-injection")]
+                    if let Some((each, until, Stall::Wait)) = state.stall
+                        && tokio::time::Instant::now() < until
+                    {
+                        tokio::time::sleep(each).await;
+                    }
                     let u = Uplink::Scan(scan);
                     // For recorders and observers: the scans the localizer processed, in order.
                     self.ports.uplink.send((u.clone(), rx));
@@ -119,13 +137,14 @@ impl Actor for LocalizerActor {
                 }
             }
             #[cfg(feature = "fault-injection")]
-            LocalizerMsg::InjectStall { each, during } => {
+            LocalizerMsg::InjectStall { each, during, how } => {
                 tracing::warn!(
                     each_ms = each.as_millis(),
                     during_ms = during.as_millis(),
+                    ?how,
                     "localizer: drill stall"
                 );
-                state.stall = Some((each, Instant::now() + during));
+                state.stall = Some((each, tokio::time::Instant::now() + during, how));
             }
         }
         Ok(())
@@ -143,8 +162,8 @@ impl LocalizerActor {
         let mut last = Instant::now();
         let step = super::compute(|| {
             #[cfg(feature = "fault-injection")]
-            if let Some((each, until)) = stall
-                && Instant::now() < until
+            if let Some((each, until, Stall::BlockThread)) = stall
+                && tokio::time::Instant::now() < until
             {
                 std::thread::sleep(each);
             }

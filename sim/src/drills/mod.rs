@@ -44,7 +44,6 @@ impl Drill {
             "command-burst" | "robot-freeze" | "estop-restart" => {
                 Some("the robot runs on a runtime and thread of its own, frozen or killed")
             }
-            "scan-flood" => Some("whether the localiser keeps up is a question of the machine's speed"),
             "slow-consumer" => {
                 Some("a blocked worker of the multi-thread runtime hands its tasks to the other")
             }

@@ -2,6 +2,7 @@
 
 #[allow(clippy::wildcard_imports, reason = "the drills share their parent's imports and helpers")]
 use super::*;
+use amr_actors::server::localizer::Stall;
 
 /// How long the full scan-flood drill floods.
 pub(crate) const FLOOD_FULL: Duration = Duration::from_secs(60);
@@ -33,8 +34,11 @@ pub(crate) async fn scan_flood(config: &Config, seed: u64, length: Duration, c: 
     let dropped0 = slots.dropped();
     let Some(localizer) = sim.server.localizer_actor().await else { return c.fail("no localizer actor") };
     c.inject();
-    // 8 ms a scan: at most 125 a second, fewer than the 165 that come.
-    if localizer.cast(LocalizerMsg::InjectStall { each: Duration::from_millis(8), during: length }).is_err() {
+    // 8 ms a scan: at most 125 a second, fewer than the 165 that come. The localizer waits (its
+    // mailbox queueing), so that the drill means the same on virtual time as in real time.
+    let stall =
+        LocalizerMsg::InjectStall { each: Duration::from_millis(8), during: length, how: Stall::Wait };
+    if localizer.cast(stall).is_err() {
         c.fail("the localizer actor is gone");
     }
     let flood = flood(&sim, &seen);

@@ -2,6 +2,7 @@
 
 #[allow(clippy::wildcard_imports, reason = "the drills share their parent's imports and helpers")]
 use super::*;
+use amr_actors::server::localizer::Stall;
 
 /// Records when each message arrives.
 #[derive(Debug)]
@@ -104,7 +105,13 @@ pub(crate) async fn slow_consumer(config: &Config, seed: u64, c: &mut Check) {
     let own0 = own(&sim);
     c.inject();
     let stall_from = Instant::now();
-    if localizer.cast(LocalizerMsg::InjectStall { each: Duration::from_millis(500), during: STALL }).is_err()
+    if localizer
+        .cast(LocalizerMsg::InjectStall {
+            each: Duration::from_millis(500),
+            during: STALL,
+            how: Stall::BlockThread,
+        })
+        .is_err()
     {
         c.fail("the localizer actor is gone");
     }
