@@ -42,6 +42,10 @@
 //! against and the checks belong together.
 #![no_main]
 
+#[path = "common/reader.rs"]
+mod reader;
+use reader::Reader;
+
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
@@ -539,43 +543,7 @@ fn kind(d: &Downlink) -> &'static str {
     }
 }
 
-/// Reads fields from the input; past its end every byte is zero.
-struct Reader<'a>(&'a [u8]);
-
 impl Reader<'_> {
-    fn is_empty(&self) -> bool {
-        self.0.is_empty()
-    }
-
-    fn u8(&mut self) -> u8 {
-        match self.0.split_first() {
-            Some((b, rest)) => {
-                self.0 = rest;
-                *b
-            }
-            None => 0,
-        }
-    }
-
-    fn u16(&mut self) -> u16 {
-        u16::from_le_bytes([self.u8(), self.u8()])
-    }
-
-    fn u64(&mut self) -> u64 {
-        let mut b = [0u8; 8];
-        for x in &mut b {
-            *x = self.u8();
-        }
-        u64::from_le_bytes(b)
-    }
-
-    fn bytes(&mut self, n: usize) -> Vec<u8> {
-        let n = n.min(self.0.len());
-        let (a, b) = self.0.split_at(n);
-        self.0 = b;
-        a.to_vec()
-    }
-
     /// Mostly `default`, else a value in `lo..=hi`, else one of the edge values.
     fn real(&mut self, default: f64, lo: f64, hi: f64) -> f64 {
         match self.u8() {

@@ -26,6 +26,10 @@
 //! refused and what the core did, and the largest allocation: see fuzz/README.md.
 #![no_main]
 
+#[path = "common/reader.rs"]
+mod reader;
+use reader::Reader;
+
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::RefCell;
 use std::collections::BTreeMap;
@@ -347,36 +351,7 @@ impl Server {
     }
 }
 
-/// Reads fields from the input; past its end every byte is zero.
-struct Reader<'a>(&'a [u8]);
-
 impl Reader<'_> {
-    fn u8(&mut self) -> u8 {
-        match self.0.split_first() {
-            Some((b, rest)) => {
-                self.0 = rest;
-                *b
-            }
-            None => 0,
-        }
-    }
-
-    fn u16(&mut self) -> u16 {
-        u16::from_le_bytes([self.u8(), self.u8()])
-    }
-
-    fn u64(&mut self) -> u64 {
-        let mut b = [0u8; 8];
-        for x in &mut b {
-            *x = self.u8();
-        }
-        u64::from_le_bytes(b)
-    }
-
-    fn rest(&mut self) -> Vec<u8> {
-        std::mem::take(&mut self.0).to_vec()
-    }
-
     /// Mostly `default`, else a value in `lo..=hi`, else one of the edge values.
     fn real(&mut self, default: f64, lo: f64, hi: f64) -> f64 {
         match self.u8() {
