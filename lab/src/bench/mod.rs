@@ -2,7 +2,7 @@
 //! Table 4, with the paper-faithful KD-tree heading search measured in the same run as the baseline,
 //! and the time per fused update for teams of 2, 3, 4 and 8 robots.
 //! Medians (and P95) over repeated runs on fixed synthetic scenes; this measures, it asserts nothing.
-//! `amr bench amcl`, the filter's costs, is in [`amcl`].
+//! `amr bench amcl`, the filter's costs, is [`run_amcl`] (in the module `amcl`).
 
 use std::fmt::Write as _;
 use std::hint::black_box;
