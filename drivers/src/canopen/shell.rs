@@ -71,9 +71,21 @@ pub async fn run_master<T: CanTransport>(
             }
         }
         let deadline = master.poll_timeout().map(Instant::from_std);
+        // In a fixed order, so that a run on a paused clock is the same every time: a command
+        // (a quick stop, a shutdown) first, then a frame, then a timer that is due. The timers are
+        // also run after every frame, so a bus that never falls quiet cannot starve the master's
+        // heartbeat or its consumers of the drives'.
         tokio::select! {
+            biased;
+            cmd = commands.recv() => match cmd {
+                None | Some(MasterCommand::Shutdown) => return Ok(()),
+                Some(cmd) => apply(&mut master, cmd),
+            },
             frame = transport.recv() => match frame {
-                Ok(frame) => master.handle_frame(now(), &frame),
+                Ok(frame) => {
+                    master.handle_frame(now(), &frame);
+                    master.handle_timeout(now());
+                }
                 // An error frame that does not end the connection: reported, never blocking.
                 Err(TransportError::ErrorFrame { class, state }) => {
                     let _ = events.try_send(MasterEvent::BusError { class, state });
@@ -83,10 +95,6 @@ pub async fn run_master<T: CanTransport>(
                     let _ = events.send(MasterEvent::Error(err.clone())).await;
                     return Err(err);
                 }
-            },
-            cmd = commands.recv() => match cmd {
-                None | Some(MasterCommand::Shutdown) => return Ok(()),
-                Some(cmd) => apply(&mut master, cmd),
             },
             () = sleep_until(deadline) => master.handle_timeout(now()),
         }

@@ -168,9 +168,14 @@ where
                 None => std::future::pending().await,
             }
         };
+        // In a fixed order, so that a run on a paused clock is the same every time: bytes
+        // already waiting before a timer (a task that was starved must not call the device silent
+        // while its data sits in the buffer), and the timers run after every read too, so a
+        // device that never stops sending cannot starve them.
         match stream.as_mut() {
             Some(s) => {
                 tokio::select! {
+                    biased;
                     r = s.read(&mut buf) => {
                         let now = Instant::now().into_std();
                         match r {
@@ -178,7 +183,10 @@ where
                                 stream = None;
                                 session.handle_disconnected(now, LinkError::Closed);
                             }
-                            Ok(n) => session.handle_bytes(now, &buf[..n]),
+                            Ok(n) => {
+                                session.handle_bytes(now, &buf[..n]);
+                                session.handle_timeout(now);
+                            }
                             Err(e) => {
                                 stream = None;
                                 session.handle_disconnected(now, LinkError::Io(e.to_string()));
@@ -191,6 +199,7 @@ where
             }
             None => {
                 tokio::select! {
+                    biased;
                     () = sleep => session.handle_timeout(Instant::now().into_std()),
                     () = tx.closed() => return,
                 }

@@ -61,7 +61,8 @@ pub enum DrillClock {
     /// tokio's paused clock on a current-thread runtime (the caller's), the LiDAR and the IMU
     /// over in-memory pipes and CAN on the in-process bus ([`SimCan::VirtualTime`]): the
     /// machine's speed decides nothing, so a drill gives the same outcome, timings included,
-    /// from the same seed. Drills with [`Drill::real_time_only`] refuse it.
+    /// from the same seed (all but the scan flood's readings of the process's resident memory).
+    /// Drills with [`Drill::real_time_only`] refuse it.
     Virtual,
 }
 
