@@ -1,4 +1,5 @@
-//! Drills on one robot and its devices, in four groups; the helpers they share are here.
+//! Drills on one robot and its devices: its supervision tree (`supervision`), the device links
+//! (`links`), the drives (`drives`) and its stops (`stops`). The helpers they share are here.
 
 use std::time::Duration;
 
