@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 /// The version of these types' encoding, on the network and in recordings. Any change to a type
 /// here that changes its encoding must bump it (a test pins the encoding of a sample of every
 /// message: it fails on such a change and says so).
-pub const SCHEMA_VERSION: u16 = 7;
+pub const SCHEMA_VERSION: u16 = 8;
 
 /// Most beams in a scan the fleet accepts (on the wire and at the server): far above any 2D LiDAR
 /// a robot of ours could carry (a TiM551 has 271, the densest common scanners a few thousand).
@@ -307,6 +307,10 @@ pub struct EstimateIntegrity {
     /// A robot whose own tracking estimate is farther from where this estimate places it than
     /// `server.toml`'s `[integrity]` bound (the first such robot, formation order).
     pub disagrees: Option<u32>,
+    /// Another place explains the filter's scans about as well as the estimate (a rival the scans
+    /// have not told apart yet): why a filter whose estimate explains its scan well is not tracking.
+    #[serde(default)]
+    pub ambiguous: bool,
 }
 
 impl EstimateIntegrity {
@@ -314,9 +318,13 @@ impl EstimateIntegrity {
     #[must_use]
     pub fn of(i: Option<amr_core::amcl::Integrity>) -> Self {
         match i {
-            Some(i) => {
-                EstimateIntegrity { state: i.state, explained: i.explained, level: i.level, disagrees: None }
-            }
+            Some(i) => EstimateIntegrity {
+                state: i.state,
+                explained: i.explained,
+                level: i.level,
+                disagrees: None,
+                ambiguous: i.ambiguous,
+            },
             None => EstimateIntegrity { state: IntegrityState::Uncertain, ..EstimateIntegrity::default() },
         }
     }

@@ -68,6 +68,11 @@ pub struct Integrity {
     pub explained: f64,
     /// The share this sensor explains where it is tracked (the learned level).
     pub level: f64,
+    /// Another place explains the scans about as well as the estimate, or better, and the scans
+    /// have not yet told them apart (the filter carries it as a rival): the state is not
+    /// `Tracking` however much of the scan the estimate explains.
+    #[serde(default)]
+    pub ambiguous: bool,
 }
 
 /// Settings of the integrity monitor (`[integrity]` in `amcl.toml`).
@@ -106,9 +111,10 @@ pub struct IntegrityParams {
     pub recover: u32,
     /// While `Lost`, the share of the particles re-seeded at each update from the scan.
     pub reseed_share: f64,
-    /// While `Uncertain`, with no alternative pending: draws per filter update (each the best of
+    /// While `Uncertain` (or on a scan explained poorly) and fewer rivals carried than the filter
+    /// keeps: draws per filter update (each the best of
     /// `reseed_candidates`) looking for a place that explains the scan far better than the
-    /// estimate (an alternative, checked on the next scans). 0: no search.
+    /// estimate (a rival, judged on the next scans). 0: no search.
     pub alternative_draws: usize,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
@@ -240,6 +246,9 @@ pub struct Monitor {
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
+    /// Another place explains the scans about as well as the estimate (the filter's rival,
+    /// one of `Amcl`'s rivals): not `Tracking` until the scans tell them apart.
+    ambiguous: bool,
     last: Option<Integrity>,
 }
 
@@ -255,6 +264,7 @@ impl Monitor {
             below_uncertain: 0,
             below_lost: 0,
             above_tracking: 0,
+            ambiguous: false,
             last: None,
         }
     }
@@ -283,6 +293,7 @@ impl Monitor {
         self.below_uncertain = 0;
         self.below_lost = 0;
         self.above_tracking = 0;
+        self.ambiguous = false;
     }
 
     /// The last judgement was below the lost ratio: one more confirms a loss.
@@ -291,14 +302,42 @@ impl Monitor {
         self.below_lost > 0 && self.state != IntegrityState::Lost
     }
 
+    /// The last judged scan, alone, was below the uncertain ratio (the state may still be
+    /// `Tracking`: the window's median decides that).
+    #[must_use]
+    pub fn last_below_uncertain(&self) -> bool {
+        self.last.is_some_and(|i| i.explained < self.params.uncertain_ratio * i.level)
+    }
+
+    /// Whether another place explains the scans about as well as the estimate. While it does the
+    /// state is at best `Uncertain` (a `Tracking` state turns `Uncertain` at once); when it no
+    /// longer does, `recover` good updates in a row bring `Tracking` back as usual.
+    pub fn set_ambiguous(&mut self, ambiguous: bool) {
+        self.ambiguous = ambiguous;
+        if ambiguous && self.state == IntegrityState::Tracking {
+            self.state = IntegrityState::Uncertain;
+        }
+        if let Some(last) = &mut self.last {
+            last.state = self.state;
+            last.ambiguous = ambiguous;
+        }
+    }
+
+    #[must_use]
+    pub fn ambiguous(&self) -> bool {
+        self.ambiguous
+    }
+
     /// The estimate is known to be wrong by other evidence than its share (a place that explains
     /// the scan far better): `Lost` now, and `recover` good updates in a row to track again.
     pub fn declare_lost(&mut self) {
         self.state = IntegrityState::Lost;
+        self.ambiguous = false;
         self.below_lost = self.params.confirm;
         self.above_tracking = 0;
         if let Some(last) = &mut self.last {
             last.state = IntegrityState::Lost;
+            last.ambiguous = false;
         }
     }
 
@@ -319,8 +358,12 @@ impl Monitor {
         let before = self.state;
         self.state = match self.state {
             _ if self.below_lost >= p.confirm => IntegrityState::Lost,
-            IntegrityState::Tracking if self.below_uncertain > 0 => IntegrityState::Uncertain,
-            IntegrityState::Uncertain | IntegrityState::Lost if self.above_tracking >= p.recover => {
+            IntegrityState::Tracking if self.below_uncertain > 0 || self.ambiguous => {
+                IntegrityState::Uncertain
+            }
+            IntegrityState::Uncertain | IntegrityState::Lost
+                if self.above_tracking >= p.recover && !self.ambiguous =>
+            {
                 IntegrityState::Tracking
             }
             s => s,
@@ -339,7 +382,7 @@ impl Monitor {
             let w = p.level_alpha.max(1.0 / self.learned as f64);
             self.level = (self.level + w * (explained - self.level)).clamp(p.floor, 1.0);
         }
-        let out = Integrity { state: self.state, explained, level: self.level };
+        let out = Integrity { state: self.state, explained, level: self.level, ambiguous: self.ambiguous };
         self.last = Some(out);
         out
     }
@@ -407,6 +450,39 @@ mod tests {
             assert_eq!(m.observe(0.9).state, IntegrityState::Lost);
         }
         assert_eq!(m.observe(0.9).state, IntegrityState::Tracking);
+    }
+
+    #[test]
+    fn an_ambiguous_estimate_is_not_tracking_until_the_rival_is_gone() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..10 {
+            m.observe(0.9);
+        }
+        assert_eq!(m.state(), IntegrityState::Tracking);
+        // A rival turns a tracking estimate uncertain at once, its last judgement too.
+        m.set_ambiguous(true);
+        assert_eq!(m.state(), IntegrityState::Uncertain);
+        assert_eq!(m.last().map(|i| i.state), Some(IntegrityState::Uncertain));
+        // However well the estimate explains the scans, not tracking while the rival stands.
+        for _ in 0..10 {
+            assert_eq!(m.observe(0.95).state, IntegrityState::Uncertain);
+        }
+        // The rival gone: the good updates in a row count again.
+        m.set_ambiguous(false);
+        assert_eq!(m.observe(0.95).state, IntegrityState::Tracking);
+        // A loss clears the ambiguity: recovering from it needs only the good updates.
+        m.set_ambiguous(true);
+        m.declare_lost();
+        assert!(!m.ambiguous());
+        for _ in 1..p.recover {
+            assert_eq!(m.observe(0.9).state, IntegrityState::Lost);
+        }
+        assert_eq!(m.observe(0.9).state, IntegrityState::Tracking);
+        // A restart forgets it.
+        m.set_ambiguous(true);
+        m.restart(IntegrityState::Uncertain);
+        assert!(!m.ambiguous());
     }
 
     #[test]

@@ -8,16 +8,16 @@
 //! Deterministic: every draw comes from the filter's own seeded generator.
 //!
 //! It is one file because every step of an update (motion, weighting, resampling, judging,
-//! re-seeding, the search for an alternative) reads and writes the filter's own state, the
+//! re-seeding, the rivals) reads and writes the filter's own state, the
 //! particles, generator, averages and integrity monitor; the parts that need none of it are the
 //! submodules.
 
-mod alternative;
 pub mod integrity;
 pub mod likelihood;
 pub mod log;
 pub mod motion;
 pub mod particles;
+mod rivals;
 
 use std::sync::Arc;
 
@@ -48,6 +48,9 @@ pub struct Amcl {
     field: Arc<LikelihoodField>,
     particles: Vec<Particle>,
     rng: Rng,
+    /// The search for rivals draws from a stream of its own: a search that finds nothing
+    /// leaves the filter's own draws (motion, resampling) as they would have been.
+    search_rng: Rng,
     w_slow: f64,
     w_fast: f64,
     last_odom: Option<Se2>,
@@ -73,9 +76,9 @@ pub struct Amcl {
     rest_polishes: u32,
     /// The sensor's position in the tracked frame (`set_sensor_origin`).
     sensor_origin: Option<[f64; 2]>,
-    /// While uncertain: a place that explained the scan far better than the estimate, being
-    /// checked on the next scans before the filter believes it.
-    alternative: Option<alternative::Alternative>,
+    /// Places that explained a scan far better than the estimate, judged against it on the scans
+    /// after before the filter believes one (`rivals.rs`).
+    rivals: Vec<rivals::Rival>,
     /// Scans since the last judged one.
     unjudged: u32,
 }
@@ -112,6 +115,7 @@ impl Amcl {
             field,
             particles: Vec::new(),
             rng: Rng::seed(seed),
+            search_rng: Rng::seed(seed ^ SEARCH_STREAM),
             w_slow: 0.0,
             w_fast: 0.0,
             last_odom: None,
@@ -127,7 +131,7 @@ impl Amcl {
             reseeds: 0,
             rest_polishes: 0,
             sensor_origin: None,
-            alternative: None,
+            rivals: Vec::new(),
             unjudged: 0,
         }
     }
@@ -226,7 +230,7 @@ impl Amcl {
         self.monitor.restart(IntegrityState::Uncertain);
         self.estimate = particles::cluster_estimate(&self.particles);
         self.rest_polishes = 0;
-        self.alternative = None;
+        self.rivals.clear();
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -243,7 +247,7 @@ impl Amcl {
         self.reset_averages();
         self.monitor.restart(IntegrityState::Uncertain);
         self.global_pending = true;
-        self.alternative = None;
+        self.rivals.clear();
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -305,7 +309,7 @@ impl Amcl {
                     && let Some(pose) = self.pose_at(&odom)
                     && self.judge(&pose, points)
                 {
-                    self.check_alternative(odom, points);
+                    self.judge_rivals(odom, points);
                 }
                 return UpdateOutcome::Skipped;
             }
@@ -338,17 +342,26 @@ impl Amcl {
                 IntegrityState::Lost => {
                     self.reseed(points, p.reseed_share);
                 }
-                IntegrityState::Uncertain => {
-                    if self.alternative.is_some() {
-                        self.check_alternative(odom, points);
-                    } else {
-                        self.search_alternative(odom, points);
+                // Not lost: the rivals are judged on this scan; more are looked for while
+                // uncertain, and while tracking from the first scan the estimate explains poorly
+                // (a kidnapping, a missed turn), not only once the window's median has turned the
+                // state uncertain a few scans later. Twins are found one at a time: the search
+                // goes on while fewer than the most carried, so that the truth is among them when
+                // the first found was its twin.
+                IntegrityState::Uncertain | IntegrityState::Tracking => {
+                    if !self.rivals.is_empty() {
+                        self.judge_rivals(odom, points);
+                    }
+                    if self.monitor.state() == IntegrityState::Uncertain
+                        || self.monitor.last_below_uncertain()
+                    {
+                        self.search_rivals(odom, points);
                     }
                 }
-                IntegrityState::Tracking => {}
             }
-            if self.monitor.state() != IntegrityState::Uncertain {
-                self.alternative = None;
+            if self.monitor.state() == IntegrityState::Lost {
+                self.rivals.clear();
+                self.monitor.set_ambiguous(false);
             }
         }
         UpdateOutcome::Updated { resampled }
@@ -423,7 +436,7 @@ impl Amcl {
         // Which particles go: all of them, or `k` drawn at random.
         let slots: Vec<usize> =
             if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
-        let places = self.better_places(points, slots.len());
+        let places = self.better_places(points, slots.len(), Stream::Filter);
         let w = 1.0 / n as f64;
         let mut placed = 0usize;
         for (at, pose) in slots.into_iter().zip(places) {
@@ -456,7 +469,7 @@ impl Amcl {
     /// `tries` draws, each the best-fitting of `reseed_candidates` poses uniform over the free
     /// space, climbed to its local optimum: each `Some` if it explains [`Self::replace_need`] of
     /// the scan.
-    fn better_places(&mut self, points: &[[f64; 2]], tries: usize) -> Vec<Option<Se2>> {
+    fn better_places(&mut self, points: &[[f64; 2]], tries: usize, stream: Stream) -> Vec<Option<Se2>> {
         let p = *self.monitor.params();
         let Some(need) = self.replace_need() else { return vec![None; tries] };
         // A candidate is judged coarsely (`COARSE` times the distances) against the estimate's own
@@ -468,16 +481,21 @@ impl Amcl {
         let judged = subsample(points, p.max_points);
         let field = Arc::clone(&self.field);
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
+        let origin = self.sensor_origin;
+        let rng = match stream {
+            Stream::Filter => &mut self.rng,
+            Stream::Search => &mut self.search_rng,
+        };
         (0..tries)
             .map(|_| {
-                let pose = best_of_random_poses(&field, &beams, &mut self.rng, p.reseed_candidates);
+                let pose = best_of_random_poses(&field, &beams, rng, p.reseed_candidates);
                 // The cheap test first (endpoints only, coarse), then the candidate climbed to its
                 // local optimum and judged as the estimate was (fine, beams through walls included).
                 if integrity::explained_share(&field, &pose, &judged, None, &coarse).unwrap_or(0.0) < need {
                     return None;
                 }
                 let pose = refine(&field, &beams, pose);
-                let fine = integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p);
+                let fine = integrity::explained_share(&field, &pose, &judged, origin, &p);
                 (fine.unwrap_or(0.0) >= need).then_some(pose)
             })
             .collect()
@@ -705,6 +723,17 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
 
 /// How much looser than the integrity measure's own distances the re-seeding's comparison is.
 const COARSE: f64 = 3.0;
+
+/// Which random stream [`Amcl::better_places`] draws from: the filter's own (re-seeding, which
+/// changes the particles anyway) or the search's.
+#[derive(Clone, Copy)]
+enum Stream {
+    Filter,
+    Search,
+}
+
+/// Mixed into the filter's seed for the search's stream.
+const SEARCH_STREAM: u64 = 0x5EA2_C4A1_7E2B_A7E5;
 
 /// The spread below which the particles count as converged (nav2 `pf->dist_threshold`).
 pub const CONVERGED_M: f64 = 0.5;

@@ -578,20 +578,26 @@ fn global_localisation_places_particles_on_the_first_scan() {
 
 /// Carried 5 m along the corridor: the estimate still explains about 60 % of what it explains where
 /// it is right (the corridor's walls), between the lost and the uncertain ratio, so the share alone
-/// says `Uncertain` and nothing more. The uncertain filter looks for a place that explains the scan
-/// far better, checks it on the next scans, and then reports `Lost` and re-localises there.
-/// Measured, seeds 0–5: uncertain from the third update, lost at the 9th or 10th, within 0.3 m from
-/// the 10th or 11th, tracking from the 12th or 13th; without the search (`alternative_draws`
-/// 0) uncertain until the 27th, when the share happened to dip below the lost ratio.
-/// Not on every seed: this building is its own twin turned by 180° (but for two small obstacles),
-/// and on seed 6 of 0–11 the place found and confirmed was the twin, 6.6 m off, which the filter
-/// then reported `Tracking` (as a lost filter's re-seeding can; docs/integrity.md).
+/// says `Uncertain` and nothing more. The filter looks for places that explain the scan far
+/// better, judges them against the estimate on the next scans, and then reports `Lost` and
+/// re-localises at the one the scans pick. This building is its own twin turned by 180° (but for
+/// two small obstacles): the search may find the twin first, and a filter that switched to the
+/// first place found settled in the twin, 6.6 m off, and reported `Tracking` there (1 seed of 12
+/// with the first place judged alone; 5 of 24 with its evidence summed). Carrying up to three
+/// rivals, searching on while fewer are carried, and switching only to one whose evidence leads
+/// the runner-up's, every seed of 0–23 comes back to the truth. Measured, seeds 0–11 (updates
+/// counted from 0): uncertain from the 2nd; on 9 seeds lost at the 8th, within 0.3 m from the 9th,
+/// tracking from the 11th; where the twin was found first (3 seeds), uncertain until the scans
+/// tell the two apart: lost at the 17th, within 0.3 m from the 18th, tracking from the 20th.
+/// Without the search (`alternative_draws` 0): uncertain until the 27th, when the share happened
+/// to dip below the lost ratio.
 #[test]
 fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lost() {
     let to = Se2::new(9.0, 4.0, 0.0);
     let mut without = tuned_params();
     without.integrity.alternative_draws = 0;
-    for seed in 0..6 {
+    let mut quick = 0;
+    for seed in 0..12 {
         let r = kidnapping(&tuned_params(), seed, to);
         let lost = r.states_after.iter().position(|s| *s == IntegrityState::Lost);
         let back = recovered_from(&r.errors_after);
@@ -607,9 +613,10 @@ fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lo
         });
         assert!(doubted.is_some_and(|d| d <= 2), "seed {seed}: {:?}", r.states_after);
         assert!(again.is_some_and(|t| back.is_some_and(|b| t >= b)), "seed {seed}: {:?}", r.states_after);
-        assert!(lost.is_some_and(|l| l < 12), "seed {seed}: {:?}", r.states_after);
-        assert!(back.is_some_and(|b| b < 14), "seed {seed}: {:?}", r.errors_after);
-        assert!(tracking.is_some_and(|t| t < 16), "seed {seed}: {:?}", r.states_after);
+        assert!(lost.is_some_and(|l| l < 20), "seed {seed}: {:?}", r.states_after);
+        assert!(back.is_some_and(|b| b < 22), "seed {seed}: {:?}", r.errors_after);
+        assert!(tracking.is_some_and(|t| t < 24), "seed {seed}: {:?}", r.states_after);
+        quick += usize::from(back.is_some_and(|b| b < 14));
         // The share alone: uncertain, off by 5 m, for longer.
         let w = kidnapping(&without, seed, to);
         assert!(
@@ -619,4 +626,5 @@ fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lo
         );
         assert!(w.errors_after[..20].iter().all(|e| e.0 > 4.0), "seed {seed}");
     }
+    assert!(quick >= 8, "back within 14 updates on {quick} seeds of 12");
 }

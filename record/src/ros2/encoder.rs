@@ -168,6 +168,9 @@ impl Ros2Encoder {
         let disagrees = i.disagrees.map(|k| self.robot_name(k as usize));
         let (level, message) = match (i.state, &disagrees) {
             (S::Lost, _) => (DiagnosticStatus::ERROR, "lost: re-localising".to_owned()),
+            (S::Uncertain, _) if i.ambiguous => {
+                (DiagnosticStatus::WARN, "uncertain: another place explains the scans as well".to_owned())
+            }
             (S::Uncertain, _) => {
                 (DiagnosticStatus::WARN, "uncertain: the map explains too little of the scan".to_owned())
             }
@@ -180,6 +183,7 @@ impl Ros2Encoder {
             ("state".to_owned(), i.state.as_str().to_owned()),
             ("explained".to_owned(), format!("{:.3}", i.explained)),
             ("level".to_owned(), format!("{:.3}", i.level)),
+            ("ambiguous".to_owned(), i.ambiguous.to_string()),
         ];
         if let Some(r) = disagrees {
             values.push(("disagrees".to_owned(), r));

@@ -203,6 +203,14 @@ impl RobotView {
             return Err("no fresh estimate of V".to_owned());
         }
         let i = &self.fused_integrity;
+        if i.state != amr_msgs::IntegrityState::Tracking && i.ambiguous {
+            return Err(format!(
+                "V is {}: another place explains its scans as well (the map explains {:.0} % of its scan there, {:.0} % where tracked)",
+                i.state,
+                i.explained * 100.0,
+                i.level * 100.0
+            ));
+        }
         if i.state != amr_msgs::IntegrityState::Tracking {
             return Err(format!(
                 "V is {} (the map explains {:.0} % of its scan, {:.0} % where tracked)",

@@ -17,6 +17,39 @@ fn a_plan_resumes_mid_turn_where_v_heads() {
     assert_eq!(super::nearest_ahead(&plan, 20, 200, v), Some(20), "never back");
 }
 
+/// The reason the formation holds names the check that failed: an ambiguous V (a rival place
+/// explains its scans as well) is said as such, not as a share too low.
+#[test]
+fn an_unverified_v_is_held_with_the_reason() {
+    use amr_msgs::{Anchored, EstimateIntegrity, IntegrityState};
+    let fused = Some(Anchored {
+        map: amr_core::se2::Se2::IDENTITY,
+        odom: amr_core::se2::Se2::IDENTITY,
+        stamp_s: 10.0,
+    });
+    let names = ["robot-a".to_owned(), "robot-b".to_owned()];
+    let view = |integrity: EstimateIntegrity| super::RobotView {
+        fused,
+        fused_integrity: integrity,
+        ..Default::default()
+    };
+    let i = |state, ambiguous, disagrees| EstimateIntegrity {
+        state,
+        explained: 0.9,
+        level: 0.93,
+        disagrees,
+        ambiguous,
+    };
+    assert_eq!(view(i(IntegrityState::Tracking, false, None)).verified(10.1, &names), Ok(()));
+    let ambiguous = view(i(IntegrityState::Uncertain, true, None)).verified(10.1, &names).unwrap_err();
+    assert!(ambiguous.contains("another place explains its scans as well"), "{ambiguous}");
+    let low = view(i(IntegrityState::Uncertain, false, None)).verified(10.1, &names).unwrap_err();
+    assert!(low.starts_with("V is uncertain (the map explains 90 %"), "{low}");
+    let disagrees = view(i(IntegrityState::Tracking, false, Some(1))).verified(10.1, &names).unwrap_err();
+    assert!(disagrees.contains("robot-b"), "{disagrees}");
+    assert!(view(i(IntegrityState::Tracking, false, None)).verified(20.0, &names).is_err(), "stale");
+}
+
 #[test]
 fn auto_arm_moves_only_mock_robots_unless_the_operator_says() {
     assert!(arm_authorised(AutoArm::Mock, false, &[true, true]));
@@ -117,8 +150,12 @@ fn localised(f: &ActorRef<FormationMsg>, starts: &[Se2], seq: u64, now: f64) {
     }
     let robots =
         starts.iter().map(|s| Some(Anchored { map: *s, odom: Se2::IDENTITY, stamp_s: now })).collect();
-    let integrity =
-        EstimateIntegrity { state: IntegrityState::Tracking, explained: 0.9, level: 0.9, disagrees: None };
+    let integrity = EstimateIntegrity {
+        state: IntegrityState::Tracking,
+        explained: 0.9,
+        level: 0.9,
+        ..Default::default()
+    };
     let e = Estimate {
         source: EstimateSource::Fused(amr_core::config::Configuration::T4),
         stamp_s: now,

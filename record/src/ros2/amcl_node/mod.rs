@@ -347,6 +347,7 @@ fn diagnostics(stamp: f64, i: amr_core::amcl::Integrity) -> DiagnosticArray {
             values: vec![
                 ("explained".into(), format!("{:.3}", i.explained)),
                 ("level".into(), format!("{:.3}", i.level)),
+                ("ambiguous".into(), i.ambiguous.to_string()),
             ],
         }],
     }
