@@ -47,6 +47,9 @@ pub struct KidnapOutcome {
     pub carried_off: bool,
     /// More than 0.5 m off on some scan, but never for [`DETECT_WITHIN`] in a row.
     pub brief: bool,
+    /// Scans until the filter no longer reported `Tracking` (`Uncertain` or `Lost`: a server
+    /// holds on either).
+    pub doubted_after: Option<usize>,
     pub lost_after: Option<usize>,
     pub tracked_after: Option<usize>,
 }
@@ -63,6 +66,8 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
             let window = || judged.iter().filter(|(i, _, _)| *i >= k.scan && *i < end);
             let lost_after =
                 window().find(|(_, _, s)| *s == IntegrityState::Lost).map(|(i, _, _)| i - k.scan);
+            let doubted_after =
+                window().find(|(_, _, s)| *s != IntegrityState::Tracking).map(|(i, _, _)| i - k.scan);
             let tracked_after = window()
                 .find(|(i, e, s)| {
                     *s == IntegrityState::Tracking
@@ -79,6 +84,7 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
                 scan: k.scan,
                 jump_m: k.jump.translation_norm(),
                 jump_deg: k.jump.theta.to_degrees(),
+                doubted_after,
                 lost_after,
                 tracked_after,
             }

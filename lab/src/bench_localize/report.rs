@@ -98,6 +98,7 @@ fn kidnap_table(r: &Report, out: &mut String) {
     let off: Vec<&KidnapOutcome> =
         kidnaps.iter().filter(|(_, _, k)| k.carried_off).map(|(_, _, k)| *k).collect();
     let lost3 = off.iter().filter(|k| k.lost_after.is_some_and(|a| a < DETECT_WITHIN)).count();
+    let doubted3 = off.iter().filter(|k| k.doubted_after.is_some_and(|a| a < DETECT_WITHIN)).count();
     let back10 = off.iter().filter(|k| k.tracked_after.is_some_and(|a| a < 10)).count();
     let back = off.iter().filter(|k| k.tracked_after.is_some()).count();
     let brief = kidnaps.iter().filter(|(_, _, k)| k.brief).count();
@@ -106,17 +107,21 @@ fn kidnap_table(r: &Report, out: &mut String) {
         "\nKidnappings (odometry teleported 1-5 m, any heading): {n} in all, {} of which carried the \
          estimate off (more than 0.5 m for at least {DETECT_WITHIN} scans in a row; {brief} more went \
          0.5 m off for fewer scans, the others the filter absorbed); of those carried off, reported \
-         lost within {DETECT_WITHIN} scans: {lost3}; tracking again within 10 scans: {back10}; at all: \
-         {back}. Scans counted from the kidnapping's (0).\n",
+         lost within {DETECT_WITHIN} scans: {lost3} (no longer tracking, uncertain or lost: \
+         {doubted3}); tracking again within 10 scans: {back10}; at all: {back}. Scans counted from \
+         the kidnapping's (0).\n",
         off.len()
     );
-    let _ = writeln!(out, "| log | seed | scan | jump (m, °) | carried off | lost after | tracking after |");
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|");
+    let _ = writeln!(
+        out,
+        "| log | seed | scan | jump (m, °) | carried off | not tracking after | lost after | tracking after |"
+    );
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
     let show = |a: Option<usize>| a.map_or("never".to_owned(), |a| a.to_string());
     for (name, s, k) in kidnaps {
         let _ = writeln!(
             out,
-            "| {name} | {s} | {} | {:.1}, {:.0} | {} | {} | {} |",
+            "| {name} | {s} | {} | {:.1}, {:.0} | {} | {} | {} | {} |",
             k.scan,
             k.jump_m,
             k.jump_deg,
@@ -127,6 +132,7 @@ fn kidnap_table(r: &Report, out: &mut String) {
             } else {
                 "no"
             },
+            show(k.doubted_after),
             show(k.lost_after),
             show(k.tracked_after)
         );

@@ -58,3 +58,35 @@ fn the_report_heads_its_tables_and_names_skipped_logs() {
     assert!(md.contains("\n| log | pose | scans | median | P5 | P95 | uncertain (%) | lost (%) |\n"));
     assert!(md.ends_with("\nb: not run, no odometry.\n"), "{md}");
 }
+
+/// A kidnapping's outcome counts from the kidnapping's scan: when the filter stopped reporting
+/// `Tracking`, when it reported `Lost`, and when it tracked again within 0.5 m after that; the
+/// next kidnapping ends the window.
+#[test]
+fn kidnap_outcomes_count_doubt_loss_and_return_from_the_kidnapping() {
+    let (on, off) = (Some(0.1), Some(2.0));
+    let states = [
+        (on, Tracking),
+        (off, Tracking),
+        (off, Uncertain),
+        (off, Uncertain),
+        (off, Lost),
+        (on, Lost),
+        (on, Tracking),
+        // The second kidnapping: absorbed, never doubted.
+        (on, Tracking),
+        (on, Tracking),
+    ];
+    let judged: Vec<Judged> = states.iter().enumerate().map(|(i, (e, s))| (i, *e, *s)).collect();
+    let jump = amr_core::se2::Se2::new(3.0, 4.0, 0.5);
+    let kidnaps =
+        [amr_core::amcl::log::Kidnap { scan: 1, jump }, amr_core::amcl::log::Kidnap { scan: 7, jump }];
+    let out = kidnap_outcomes(&judged, &kidnaps);
+    let first = &out[0];
+    assert!(first.carried_off && !first.brief);
+    assert_eq!((first.doubted_after, first.lost_after, first.tracked_after), (Some(1), Some(3), Some(5)));
+    assert!((first.jump_m - 5.0).abs() < 1e-9);
+    let second = &out[1];
+    assert!(!second.carried_off && !second.brief);
+    assert_eq!((second.doubted_after, second.lost_after, second.tracked_after), (None, None, None));
+}
