@@ -89,9 +89,8 @@ impl Amcl {
     /// `switch_margin`, and it explains this scan as well as a tracked place does (never less than
     /// a single rival needed before rivals were carried side by side: a lead summed over many scans
     /// of small differences carried filters to wrong places along a featureless corridor). The
-    /// estimate is then taken to be
-    /// wrong, the filter turns `Lost` and places the re-seeded share of its particles around the
-    /// rival. The scan that found it does not count: a best-of-many pose fits the scan it was
+    /// estimate is then taken to be wrong, the filter turns `Lost` and places the re-seeded share
+    /// of its particles around the rival. The scan that found it does not count: a best-of-many pose fits the scan it was
     /// chosen on better than the truth does (placing particles there at once pulled a filter
     /// that was right, its scan full of unmapped people, to a place 27 m off).
     pub(super) fn judge_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
@@ -105,14 +104,14 @@ impl Amcl {
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let judged_points = subsample(points, p.max_points);
         let mut kept: Vec<(Rival, f64)> = Vec::new();
-        for alt in rivals {
-            let pose = refine(&self.field, &beams, alt.pose * (alt.odom.inverse() * odom));
+        for rival in rivals {
+            let pose = refine(&self.field, &beams, rival.pose * (rival.odom.inverse() * odom));
             let share =
                 integrity::explained_share(&self.field, &pose, &judged_points, self.sensor_origin, &p)
                     .unwrap_or(0.0);
-            let evidence = alt.evidence + (share - last.explained);
-            let judged = alt.judged + 1;
-            let streak = if share >= last.explained + p.switch_margin { alt.streak + 1 } else { 0 };
+            let evidence = rival.evidence + (share - last.explained);
+            let judged = rival.judged + 1;
+            let streak = if share >= last.explained + p.switch_margin { rival.streak + 1 } else { 0 };
             let dropped = share < p.uncertain_ratio * last.level
                 || same_place(&pose, &estimate)
                 || evidence <= -p.switch_margin
