@@ -111,10 +111,10 @@ pub struct IntegrityParams {
     pub recover: u32,
     /// While `Lost`, the share of the particles re-seeded at each update from the scan.
     pub reseed_share: f64,
-    /// While `Uncertain` (or on a scan explained poorly) and fewer rivals carried than the filter
-    /// keeps: draws per filter update (each the best of
-    /// `reseed_candidates`) looking for a place that explains the scan far better than the
-    /// estimate (a rival, judged on the next scans). 0: no search.
+    /// While `Uncertain` (or on a scan explained poorly) and carrying fewer rivals than it keeps:
+    /// draws per filter update (each the best of `reseed_candidates`) looking for places that
+    /// explain the scan far better than the estimate (rivals, judged on the next scans). 0: no
+    /// search.
     pub alternative_draws: usize,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
@@ -246,8 +246,8 @@ pub struct Monitor {
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
-    /// Another place explains the scans about as well as the estimate (the filter's rival,
-    /// one of `Amcl`'s rivals): not `Tracking` until the scans tell them apart.
+    /// Another place explains the scans about as well as the estimate (one of `Amcl`'s rivals):
+    /// not `Tracking` until the scans tell them apart.
     ambiguous: bool,
     last: Option<Integrity>,
 }
