@@ -1,5 +1,6 @@
 //! `amr tools carmen-prepare`: a Radish "corrected" CARMEN log made into the files `amr bench
-//! localize` reads (amr_core::carmen::prepare does the work; this reads and writes the files).
+//! localize` reads (amr_core::carmen::prepare does the work; this reads and writes the files);
+//! `amr tools carmen-kidnap`: such a log with kidnappings written into it.
 
 use std::io::Read as _;
 use std::path::Path;
@@ -77,6 +78,25 @@ pub(crate) fn prepare_log(log: &Path, out: &Path, name: Option<String>) -> anyho
         "wrote {name}-raw.log, {name}-gt.csv, {name}_map.yaml and {name}_map.pgm to {}",
         out.display()
     );
+    Ok(())
+}
+
+/// Write `log` with its odometry teleported every `every` scans (jumps from `seed`) to `out`.
+pub(crate) fn kidnap_log(log: &Path, every: u64, seed: u64, out: &Path) -> anyhow::Result<()> {
+    let every = usize::try_from(every).context("--every is too large")?;
+    let text = std::fs::read_to_string(log).with_context(|| format!("cannot read {}", log.display()))?;
+    let (written, kidnaps) = amr_core::amcl::log::kidnapped_text(&text, every, seed)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", log.display()))?;
+    std::fs::write(out, written).with_context(|| format!("cannot write {}", out.display()))?;
+    for k in &kidnaps {
+        tracing::info!(
+            scan = k.scan,
+            jump_m = %format!("{:.2}", k.jump.translation_norm()),
+            jump_deg = %format!("{:.0}", k.jump.theta.to_degrees()),
+            "odometry teleported"
+        );
+    }
+    tracing::info!(kidnappings = kidnaps.len(), "wrote {}", out.display());
     Ok(())
 }
 

@@ -316,6 +316,22 @@ pub(crate) enum ToolsCommand {
         #[arg(long)]
         name: Option<String>,
     },
+    /// Write a CARMEN log with its odometry teleported every N scans (the kidnappings of `amr
+    /// bench localize --kidnap N` with the same seed): for another localiser (nav2's core) to be
+    /// run on the very log ours is kidnapped in. Prints the kidnappings (scan, jump).
+    CarmenKidnap {
+        /// The log (e.g. NAME-raw.log of `amr tools carmen-prepare`).
+        log: PathBuf,
+        /// Teleport the odometry every this many scans.
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+        every: u64,
+        /// Draws the jumps (1-5 m, any direction and heading).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// The log to write.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+    },
     /// The robot on a kernel CAN interface (SocketCAN, e.g. a vcan): mock drives and the robot's
     /// CANopen master on sockets of their own, a velocity move, a quick stop, then malformed and
     /// error frames written by can-utils' `cansend`. One PASS/FAIL line per check; `tests/vm/run`
@@ -383,7 +399,9 @@ pub(crate) enum BenchCommand {
         /// Seeds, comma-separated.
         #[arg(long, value_delimiter = ',', default_values_t = [1u64, 2, 3])]
         seeds: Vec<u64>,
-        /// A directory with nav2's estimate per log, `<name>.csv` (`timestamp,x,y,theta`).
+        /// A directory with nav2's estimate per log, `<name>.csv` (`timestamp,x,y,theta`), and
+        /// with `--kidnap N` per seed S `<name>-kidnap<N>-s<S>.csv`: its estimate on the log
+        /// `amr tools carmen-kidnap <name>-raw.log --every N --seed S` writes.
         #[arg(long)]
         nav2: Option<PathBuf>,
         /// AMCL parameters (an amcl.toml); default: the configuration's.

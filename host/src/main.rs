@@ -219,6 +219,9 @@ fn tools_command(command: ToolsCommand) -> anyhow::Result<()> {
     match command {
         ToolsCommand::SopasDecode { file } => mock_cmd::sopas_decode(&file),
         ToolsCommand::CarmenPrepare { log, out, name } => carmen_cmd::prepare_log(&log, &out, name),
+        ToolsCommand::CarmenKidnap { log, every, seed, out } => {
+            carmen_cmd::kidnap_log(&log, every, seed, &out)
+        }
         #[cfg(feature = "drills")]
         ToolsCommand::CanCheck { iface, cansend, seed, config } => {
             sim_cmd::can_check(&iface, &cansend, seed, config)

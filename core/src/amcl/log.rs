@@ -284,19 +284,36 @@ pub struct Kidnap {
 /// untouched: the filter is carried away by its odometry, as when a robot is lifted or slips far.
 #[must_use]
 pub fn kidnapped(records: &[Record], every: usize, seed: u64) -> (Vec<Record>, Vec<Kidnap>) {
+    let (fixes, kidnaps) = kidnap_fixes(records, every, seed);
+    let out = records
+        .iter()
+        .zip(fixes)
+        .map(|(r, fix)| match r {
+            Record::Odometry { pose, timestamp_s } => {
+                Record::Odometry { pose: fix * *pose, timestamp_s: *timestamp_s }
+            }
+            Record::Laser(l) => {
+                let mut l = l.clone();
+                l.odometry = l.odometry.map(|o| fix * o);
+                Record::Laser(l)
+            }
+        })
+        .collect();
+    (out, kidnaps)
+}
+
+/// [`kidnapped`] as the transform each record's odometry takes (reported = fix ∘ raw), one per
+/// record, and the kidnappings.
+fn kidnap_fixes(records: &[Record], every: usize, seed: u64) -> (Vec<Se2>, Vec<Kidnap>) {
     let mut rng = crate::rng::Rng::seed(seed);
-    let mut out = Vec::with_capacity(records.len());
+    let mut fixes = Vec::with_capacity(records.len());
     let mut kidnaps = Vec::new();
-    // Maps the raw odometry to the reported one: reported = fix ∘ raw.
     let mut fix = Se2::IDENTITY;
     let mut last_raw: Option<Se2> = None;
     let mut lasers = 0usize;
     for r in records {
         match r {
-            Record::Odometry { pose, timestamp_s } => {
-                last_raw = Some(*pose);
-                out.push(Record::Odometry { pose: fix * *pose, timestamp_s: *timestamp_s });
-            }
+            Record::Odometry { pose, .. } => last_raw = Some(*pose),
             Record::Laser(l) => {
                 if every > 0 && lasers > 0 && lasers.is_multiple_of(every) {
                     let base = l.odometry.or(last_raw);
@@ -311,17 +328,64 @@ pub fn kidnapped(records: &[Record], every: usize, seed: u64) -> (Vec<Record>, V
                         kidnaps.push(Kidnap { scan: lasers, jump });
                     }
                 }
-                let mut l = l.clone();
-                if let Some(o) = l.odometry {
-                    last_raw = Some(o);
-                    l.odometry = Some(fix * o);
+                if l.odometry.is_some() {
+                    last_raw = l.odometry;
                 }
                 lasers += 1;
-                out.push(Record::Laser(l));
             }
         }
+        fixes.push(fix);
     }
-    (out, kidnaps)
+    (fixes, kidnaps)
+}
+
+/// A CARMEN log's text with the kidnappings of [`kidnapped`] written into it, for another
+/// localiser to read the same log (nav2's core beside ours): every line [`crate::carmen::parse_line`]
+/// reads as a record counts as one, as in [`kidnapped`]; the poses of its ODOM and FLASER lines
+/// (FLASER's laser pose and odometry) are moved by the kidnappings so far, every other field and
+/// line kept as it was. An error for a line with a pose this cannot move (ROBOTLASER1).
+pub fn kidnapped_text(text: &str, every: usize, seed: u64) -> Result<(String, Vec<Kidnap>), String> {
+    let parsed: Vec<Option<Record>> =
+        text.lines().map(|l| crate::carmen::parse_line(l).ok().flatten()).collect();
+    let records: Vec<Record> = parsed.iter().flatten().cloned().collect();
+    let (fixes, kidnaps) = kidnap_fixes(&records, every, seed);
+    let mut fixes = fixes.into_iter();
+    let mut out = String::with_capacity(text.len() + text.len() / 8);
+    for (n, (line, record)) in text.lines().zip(&parsed).enumerate() {
+        let Some(fix) = record.as_ref().and_then(|_| fixes.next()) else {
+            out.push_str(line);
+            out.push('\n');
+            continue;
+        };
+        let mut fields: Vec<String> = line.split_ascii_whitespace().map(str::to_owned).collect();
+        // Where the poses stand: ODOM x y θ; FLASER n r1..rn laser_x laser_y laser_θ odom_x odom_y odom_θ.
+        let at: Vec<usize> = match fields.first().map(String::as_str) {
+            Some("ODOM") => vec![1],
+            Some("FLASER") => {
+                let n = fields.get(1).and_then(|f| f.parse::<usize>().ok()).unwrap_or(0);
+                vec![2 + n, 5 + n]
+            }
+            Some(m) if m.starts_with("RAWLASER") => Vec::new(),
+            Some(m) => return Err(format!("line {}: {m} carries a pose this cannot move", n + 1)),
+            None => Vec::new(),
+        };
+        for k in at {
+            let pose = match fields.get(k..k + 3) {
+                Some([x, y, t]) => match (x.parse::<f64>(), y.parse::<f64>(), t.parse::<f64>()) {
+                    (Ok(x), Ok(y), Ok(t)) => Se2::new(x, y, t),
+                    _ => return Err(format!("line {}: a pose that is not three numbers", n + 1)),
+                },
+                _ => return Err(format!("line {}: a pose that is not three numbers", n + 1)),
+            };
+            let moved = fix * pose;
+            for (slot, v) in fields[k..k + 3].iter_mut().zip([moved.x, moved.y, moved.theta]) {
+                *slot = format!("{v:.6}");
+            }
+        }
+        out.push_str(&fields.join(" "));
+        out.push('\n');
+    }
+    Ok((out, kidnaps))
 }
 
 /// The displacements the integrity measure is tested against (translation m, rotation rad): the
@@ -391,6 +455,75 @@ mod tests {
                 Err(e) => prop_assert!(e.contains("line") || e.contains("empty"), "{e}"),
             }
         }
+    }
+
+    /// The log written with the kidnappings reads back as the kidnapped records: another
+    /// localiser given the written log sees the odometry ours sees.
+    #[test]
+    fn a_kidnapped_log_written_out_reads_as_the_kidnapped_records() {
+        let mut text = String::from("# comment\nPARAM robot_length 0.5 nohost 0\n");
+        let mut pose = Se2::IDENTITY;
+        for k in 0..25 {
+            pose = pose * Se2::new(0.3, 0.0, 0.05);
+            text +=
+                &format!("ODOM {:.6} {:.6} {:.6} 0.3 0.05 0 {k}.5 host {k}.5\n", pose.x, pose.y, pose.theta);
+            text += &crate::carmen::flaser_line(&[1.0, 2.0, 81.9, 3.5], &pose, &pose, f64::from(k) + 0.6);
+            text.push('\n');
+        }
+        let records: Vec<Record> =
+            text.lines().filter_map(|l| crate::carmen::parse_line(l).ok().flatten()).collect();
+        let (want, kidnaps) = kidnapped(&records, 10, 3);
+        assert_eq!(kidnaps.iter().map(|k| k.scan).collect::<Vec<_>>(), [10, 20]);
+        let (written, same) = kidnapped_text(&text, 10, 3).unwrap();
+        assert_eq!(same, kidnaps);
+        assert!(written.starts_with("# comment\nPARAM robot_length 0.5 nohost 0\n"));
+        let got: Vec<Record> =
+            written.lines().filter_map(|l| crate::carmen::parse_line(l).ok().flatten()).collect();
+        assert_eq!(got.len(), want.len());
+        let close = |a: &Se2, b: &Se2| {
+            (a.x - b.x).abs() < 2e-6 && (a.y - b.y).abs() < 2e-6 && angle_diff(a.theta, b.theta).abs() < 2e-6
+        };
+        for (g, w) in got.iter().zip(&want) {
+            match (g, w) {
+                (
+                    Record::Odometry { pose: a, timestamp_s: s },
+                    Record::Odometry { pose: b, timestamp_s: t },
+                ) => {
+                    assert!(close(a, b) && s == t, "{a:?} {b:?}");
+                }
+                (Record::Laser(a), Record::Laser(b)) => {
+                    assert!(close(&a.odometry.unwrap(), &b.odometry.unwrap()));
+                    // No return (81.9 m) reads as NaN, which no `==` matches: compared as printed.
+                    assert_eq!(
+                        format!("{:?}", (a.timestamp_s, &a.scan)),
+                        format!("{:?}", (b.timestamp_s, &b.scan))
+                    );
+                    // The laser pose moves with the odometry (here the laser sits at the robot's origin).
+                    assert!(close(&a.logged_pose.unwrap(), &a.odometry.unwrap()));
+                }
+                _ => panic!("records out of order"),
+            }
+        }
+        // The odometry jumps at the kidnappings and nowhere else.
+        let odom: Vec<Se2> = got
+            .iter()
+            .filter_map(|r| match r {
+                Record::Laser(l) => l.odometry,
+                Record::Odometry { .. } => None,
+            })
+            .collect();
+        let steps: Vec<f64> = odom.windows(2).map(|w| (w[0].inverse() * w[1]).translation_norm()).collect();
+        for (k, d) in steps.iter().enumerate() {
+            assert_eq!(*d > 0.5, k + 1 == 10 || k + 1 == 20, "step {k}: {d}");
+        }
+        assert!(
+            kidnapped_text(
+                "ROBOTLASER1 0 -1.5 3.1 0.01 80 0.1 0 1 2.0 0 0 0 0 0 0 0 0 0 0 0 0 1.0 h 1.0\n",
+                1,
+                1
+            )
+            .is_err()
+        );
     }
 
     #[test]

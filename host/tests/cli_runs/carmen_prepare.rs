@@ -293,3 +293,95 @@ fn standard_input_names_and_refusals() {
     refused(&["tools", "carmen-prepare", "raw.log", "--out", "x", "--name", "a/b"], "--name `a/b`");
     assert!(!dir.path().join("x").exists(), "nothing written on a refusal");
 }
+
+/// `amr tools carmen-kidnap` writes the log `--kidnap` kidnaps, for another localiser to run on;
+/// the bench scores that localiser's CSV on the same kidnappings: one that is always right (the
+/// reference) was never carried off, one that follows the kidnapped odometry alone was carried
+/// off by every jump and never came back.
+#[test]
+fn a_kidnapped_log_is_written_and_another_localisers_run_on_it_scored() {
+    let dir = tempfile::tempdir().unwrap();
+    let (text, _, _) = corrected_log();
+    std::fs::write(dir.path().join("room-corrected.log"), &text).unwrap();
+    let run = amr(&["tools", "carmen-prepare", "room-corrected.log", "--out", "p"], dir.path());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let run = amr(
+        &["tools", "carmen-kidnap", "p/room-raw.log", "--every", "20", "--seed", "4", "--out", "k.log"],
+        dir.path(),
+    );
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("scan=20") && stderr.contains("scan=40") && stderr.contains("kidnappings=2"),
+        "{stderr}"
+    );
+    let written = std::fs::read_to_string(dir.path().join("k.log")).unwrap();
+    let raw = std::fs::read_to_string(dir.path().join("p/room-raw.log")).unwrap();
+    // Everything but the poses kept: same lines, same ranges and stamps.
+    assert_eq!(written.lines().count(), raw.lines().count());
+    let lasers = |t: &str| -> Vec<(Vec<String>, Se2)> {
+        t.lines()
+            .filter(|l| l.starts_with("FLASER"))
+            .map(|l| {
+                let f: Vec<&str> = l.split_ascii_whitespace().collect();
+                let n: usize = f[1].parse().unwrap();
+                let pose = |k: usize| {
+                    Se2::new(f[k].parse().unwrap(), f[k + 1].parse().unwrap(), f[k + 2].parse().unwrap())
+                };
+                let kept = f[..2 + n].iter().chain(&f[8 + n..]).map(|s| (*s).to_owned()).collect();
+                (kept, pose(5 + n))
+            })
+            .collect()
+    };
+    let (a, b) = (lasers(&raw), lasers(&written));
+    assert_eq!(a.len(), 50);
+    for (k, ((ka, oa), (kb, ob))) in a.iter().zip(&b).enumerate() {
+        assert_eq!(ka, kb, "scan {k}");
+        // Before the first kidnapping the odometry is the raw one; after it, moved.
+        assert_eq!(oa.approx_eq(ob, 1e-5, 1e-5), k < 20, "scan {k}: {oa:?} {ob:?}");
+    }
+
+    // The other localiser's CSVs: the reference (always right) and the kidnapped odometry alone
+    // aligned on the first reference pose (carried off by each jump, never back).
+    let gt = std::fs::read_to_string(dir.path().join("p/room-gt.csv")).unwrap();
+    let rows: Vec<Vec<f64>> =
+        gt.lines().skip(1).map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    let first = Se2::new(rows[0][2], rows[0][3], rows[0][4]);
+    let align = first * b[0].1.inverse();
+    let mut right = String::from("timestamp,x,y,theta\n");
+    let mut carried = String::from("timestamp,x,y,theta\n");
+    for (r, (_, o)) in rows.iter().zip(&b) {
+        right += &format!("{},{},{},{}\n", r[1], r[2], r[3], r[4]);
+        let p = align * *o;
+        carried += &format!("{},{},{},{}\n", r[1], p.x, p.y, p.theta);
+    }
+    for (csv, carried_off) in [(right, false), (carried, true)] {
+        let nav2_dir = dir.path().join(if carried_off { "carried" } else { "right" });
+        std::fs::create_dir(&nav2_dir).unwrap();
+        std::fs::write(nav2_dir.join("room-kidnap20-s4.csv"), csv).unwrap();
+        let bench = amr(
+            &["bench", "localize", "--logs", "p", "--seeds", "4", "--kidnap", "20", "--json", "--nav2"]
+                .into_iter()
+                .chain([nav2_dir.to_str().unwrap()])
+                .collect::<Vec<_>>(),
+            dir.path(),
+        );
+        assert!(bench.status.success(), "{}", String::from_utf8_lossy(&bench.stderr));
+        let report: serde_json::Value = serde_json::from_slice(&bench.stdout).unwrap();
+        let log = &report["logs"][0];
+        let ours: Vec<u64> = log["kidnapped"][0]["kidnaps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|k| k["scan"].as_u64().unwrap())
+            .collect();
+        assert_eq!(ours, [20, 40]);
+        let (seed, theirs) = (&log["nav2_kidnapped"][0][0], log["nav2_kidnapped"][0][1].as_array().unwrap());
+        assert_eq!(seed, 4);
+        assert_eq!(theirs.iter().map(|k| k["scan"].as_u64().unwrap()).collect::<Vec<_>>(), ours);
+        for k in theirs {
+            assert_eq!(k["carried_off"], carried_off, "{k}");
+            assert!(k["back_after"].is_null() && k["lost_after"].is_null(), "{k}");
+        }
+    }
+}

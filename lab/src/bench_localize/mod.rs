@@ -52,6 +52,10 @@ pub struct KidnapOutcome {
     pub doubted_after: Option<usize>,
     pub lost_after: Option<usize>,
     pub tracked_after: Option<usize>,
+    /// Scans until the estimate was back: within 0.5 m on [`DETECT_WITHIN`] scans in a row after
+    /// it had been more than 0.5 m off, whatever the state reported (what a localiser that reports
+    /// no state, nav2's, can be compared on).
+    pub back_after: Option<usize>,
 }
 
 /// Per laser record: its index, the error against the reference, and the state reported.
@@ -78,6 +82,13 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
             let off: Vec<bool> =
                 window().map(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M)).collect();
             let carried_off = off.windows(DETECT_WITHIN).any(|w| w.iter().all(|o| *o));
+            let first_off = off.iter().position(|o| *o);
+            let back_after = first_off
+                .and_then(|f| {
+                    off.windows(DETECT_WITHIN).enumerate().skip(f).find(|(_, w)| w.iter().all(|o| !*o))
+                })
+                .and_then(|(n, _)| window().nth(n))
+                .map(|(i, _, _)| i - k.scan);
             KidnapOutcome {
                 carried_off,
                 brief: !carried_off && off.iter().any(|o| *o),
@@ -87,6 +98,7 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
                 doubted_after,
                 lost_after,
                 tracked_after,
+                back_after,
             }
         })
         .collect()
@@ -169,6 +181,10 @@ pub struct LogReport {
     pub kidnapped: Vec<Run>,
     /// nav2's scores on this log, from `<nav2-dir>/<name>.csv` if given.
     pub nav2: Option<Score>,
+    /// nav2 on the kidnapped logs, per seed, from `<nav2-dir>/<name>-kidnap<every>-s<seed>.csv`
+    /// (its estimates on the log `amr tools carmen-kidnap --every <every> --seed <seed>` writes)
+    /// where there is one: the kidnappings scored as ours are, nav2 reporting no state.
+    pub nav2_kidnapped: Vec<(u64, Vec<KidnapOutcome>)>,
     /// The integrity measure at the reference poses and displaced from them.
     pub separation: Vec<SeparationRow>,
 }
@@ -375,6 +391,30 @@ fn error_at(refs: &[RefPose], t: f64, pose: &Se2) -> Option<f64> {
     Some((g.pose.x - pose.x).hypot(g.pose.y - pose.y))
 }
 
+/// Another localiser's poses judged as [`run_once`] judges ours, per laser record (the pose
+/// stamped with the record's stamp, if any); it reports no state, so every scan counts as
+/// `Tracking`.
+fn judged_without_states(records: &[Record], reference: &[RefPose], poses: &[(f64, Se2)]) -> Vec<Judged> {
+    let mut refs = reference.to_vec();
+    refs.sort_by(|a, b| a.timestamp_s.total_cmp(&b.timestamp_s));
+    let mut sorted = poses.to_vec();
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let tol = amr_core::amcl::log::MATCH_TOLERANCE_S;
+    records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Laser(l) => Some(l.timestamp_s),
+            Record::Odometry { .. } => None,
+        })
+        .enumerate()
+        .filter_map(|(i, t)| {
+            let k = sorted.partition_point(|p| p.0 < t - tol);
+            let (_, pose) = sorted.get(k).filter(|p| (p.0 - t).abs() <= tol)?;
+            Some((i, error_at(&refs, t, pose), IntegrityState::Tracking))
+        })
+        .collect()
+}
+
 /// The odometry alone, rigidly aligned so that the first scan sits on the first reference pose.
 fn odometry_only(records: &[Record], reference: &[RefPose]) -> Score {
     let mut est = Vec::new();
@@ -433,16 +473,24 @@ pub fn run(
             .collect();
         // The same log with its odometry teleported every `kidnap_every` scans (jumps drawn from
         // the seed), tracked from the first reference pose.
-        let kidnapped: Vec<Run> = match kidnap_every {
-            Some(every) => seeds
-                .iter()
-                .map(|&s| {
-                    let (recs, k) = amr_core::amcl::log::kidnapped(&records, every, s);
-                    run_once(&grid, &recs, params, tracked, s, &reference, &k)
-                })
-                .collect(),
-            None => Vec::new(),
-        };
+        let mut kidnapped = Vec::new();
+        let mut nav2_kidnapped = Vec::new();
+        for &s in seeds {
+            let Some(every) = kidnap_every else { break };
+            let (recs, k) = amr_core::amcl::log::kidnapped(&records, every, s);
+            kidnapped.push(run_once(&grid, &recs, params, tracked, s, &reference, &k));
+            let Some(p) = nav2_dir.map(|d| d.join(format!("{name}-kidnap{every}-s{s}.csv"))) else {
+                continue;
+            };
+            if p.exists() {
+                let mut poses = read_poses(&p)?;
+                if indexed {
+                    by_order(&mut poses, reference.len()).with_context(|| p.display().to_string())?;
+                }
+                nav2_kidnapped
+                    .push((s, kidnap_outcomes(&judged_without_states(&recs, &reference, &poses), &k)));
+            }
+        }
         let nav2 = match nav2_dir {
             Some(d) => {
                 let p: PathBuf = d.join(format!("{name}.csv"));
@@ -467,6 +515,7 @@ pub fn run(
             global,
             kidnapped,
             nav2,
+            nav2_kidnapped,
             separation: separation_rows(&shares, params),
         });
     }

@@ -108,10 +108,14 @@ fn kidnap_table(r: &Report, out: &mut String) {
          estimate off (more than 0.5 m for at least {DETECT_WITHIN} scans in a row; {brief} more went \
          0.5 m off for fewer scans, the others the filter absorbed); of those carried off, reported \
          lost within {DETECT_WITHIN} scans: {lost3} (no longer tracking, uncertain or lost: \
-         {doubted3}); tracking again within 10 scans: {back10}; at all: {back}. Scans counted from \
-         the kidnapping's (0).\n",
-        off.len()
+         {doubted3}); tracking again within 10 scans: {back10}; at all: {back}; the estimate back \
+         within 0.5 m ({DETECT_WITHIN} scans in a row, whatever the state) within 10 scans: \
+         {within10}; at all: {again}. Scans counted from the kidnapping's (0).\n",
+        off.len(),
+        within10 = back_within(&off, 10),
+        again = back_within(&off, usize::MAX),
     );
+    nav2_kidnap_table(r, out);
     let _ = writeln!(
         out,
         "| log | seed | scan | jump (m, °) | carried off | not tracking after | lost after | tracking after |"
@@ -137,6 +141,52 @@ fn kidnap_table(r: &Report, out: &mut String) {
             show(k.tracked_after)
         );
     }
+}
+
+/// Of `off`, the kidnappings whose estimate was back within `scans` scans.
+fn back_within(off: &[&KidnapOutcome], scans: usize) -> usize {
+    off.iter().filter(|k| k.back_after.is_some_and(|a| a < scans)).count()
+}
+
+/// nav2 beside ours on the same kidnapped logs, where its estimates were given: per log and seed,
+/// the kidnappings that carried the estimate off, and of those the ones back within 10 scans and
+/// at all.
+fn nav2_kidnap_table(r: &Report, out: &mut String) {
+    if r.logs.iter().all(|l| l.nav2_kidnapped.is_empty()) {
+        return;
+    }
+    let _ = writeln!(
+        out,
+        "nav2 (its CSVs) on the same kidnapped logs: kidnappings carried off / back within 0.5 m \
+         within 10 scans / at all (back: {DETECT_WITHIN} scans in a row within 0.5 m).\n"
+    );
+    let _ = writeln!(out, "| log | seed | ours | nav2 |");
+    let _ = writeln!(out, "|---|---|---|---|");
+    let counts = |ks: &[KidnapOutcome]| {
+        let off: Vec<&KidnapOutcome> = ks.iter().filter(|k| k.carried_off).collect();
+        (off.len(), back_within(&off, 10), back_within(&off, usize::MAX))
+    };
+    let mut sums = [(0, 0, 0); 2];
+    for l in &r.logs {
+        for (s, nav2) in &l.nav2_kidnapped {
+            let Some(ours) =
+                r.seeds.iter().zip(&l.kidnapped).find(|(x, _)| *x == s).map(|(_, run)| &run.kidnaps)
+            else {
+                continue;
+            };
+            let (a, b) = (counts(ours), counts(nav2));
+            for (sum, c) in sums.iter_mut().zip([a, b]) {
+                *sum = (sum.0 + c.0, sum.1 + c.1, sum.2 + c.2);
+            }
+            let _ = writeln!(
+                out,
+                "| {} | {s} | {} / {} / {} | {} / {} / {} |",
+                l.name, a.0, a.1, a.2, b.0, b.1, b.2
+            );
+        }
+    }
+    let [a, b] = sums;
+    let _ = writeln!(out, "| all | | {} / {} / {} | {} / {} / {} |\n", a.0, a.1, a.2, b.0, b.1, b.2);
 }
 
 /// How the integrity measure separates the reference poses from displaced ones.

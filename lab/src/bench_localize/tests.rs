@@ -86,7 +86,23 @@ fn kidnap_outcomes_count_doubt_loss_and_return_from_the_kidnapping() {
     assert!(first.carried_off && !first.brief);
     assert_eq!((first.doubted_after, first.lost_after, first.tracked_after), (Some(1), Some(3), Some(5)));
     assert!((first.jump_m - 5.0).abs() < 1e-9);
+    // Two scans on before the next kidnapping: not back.
+    assert_eq!(first.back_after, None);
     let second = &out[1];
     assert!(!second.carried_off && !second.brief);
     assert_eq!((second.doubted_after, second.lost_after, second.tracked_after), (None, None, None));
+    assert_eq!(second.back_after, None, "never off");
+}
+
+/// A localiser that reports no state (nav2's) is back when its estimate is within 0.5 m on
+/// `DETECT_WITHIN` scans in a row after being off: a brief return does not count.
+#[test]
+fn back_after_counts_a_lasting_return_whatever_the_state() {
+    let (on, off) = (Some(0.1), Some(2.0));
+    let errors = [on, off, off, off, on, off, on, on, on, off];
+    let judged: Vec<Judged> = errors.iter().enumerate().map(|(i, e)| (i + 10, *e, Tracking)).collect();
+    let kidnaps = [amr_core::amcl::log::Kidnap { scan: 10, jump: amr_core::se2::Se2::new(2.0, 0.0, 1.0) }];
+    let k = kidnap_outcomes(&judged, &kidnaps)[0];
+    assert!(k.carried_off);
+    assert_eq!((k.back_after, k.doubted_after, k.lost_after, k.tracked_after), (Some(6), None, None, None));
 }
