@@ -134,9 +134,9 @@ pub(crate) fn read_map(yaml_path: &Path) -> anyhow::Result<OccupancyGrid> {
 }
 
 /// The pose, its covariance, and the integrity of the estimate (`amcl::integrity`): the state, the
-/// share of the scan the map explains at the estimate, and the level this sensor explains when
-/// tracked.
-const HEADER: &str = "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level";
+/// share of the scan the map explains at the estimate, the level this sensor explains when
+/// tracked, and whether another place explains the scans as well (1: a rival stands).
+const HEADER: &str = "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level,ambiguous";
 
 /// Summary of a run, for the log.
 #[derive(Debug, Default)]
@@ -304,9 +304,10 @@ pub(crate) fn run(opts: &Options) -> anyhow::Result<Summary> {
             }
             match p.integrity {
                 Some(i) => {
-                    let _ = write!(out, ",{},{:.4},{:.4}", i.state, i.explained, i.level);
+                    let ambiguous = u8::from(i.ambiguous);
+                    let _ = write!(out, ",{},{:.4},{:.4},{ambiguous}", i.state, i.explained, i.level);
                 }
-                None => out.push_str(",uncertain,,"),
+                None => out.push_str(",uncertain,,,0"),
             }
             out.push('\n');
             summary.poses += 1;

@@ -109,7 +109,7 @@ fn a_synthetic_carmen_log_is_localised_end_to_end() {
     assert_eq!(
         lines.next(),
         Some(
-            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level"
+            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level,ambiguous"
         )
     );
     // The pose and covariance, and the integrity state each row was judged in.
@@ -124,6 +124,11 @@ fn a_synthetic_carmen_log_is_localised_end_to_end() {
     let first = states.iter().position(|s| s == "tracking").expect("the filter verifies its estimate");
     assert!(first <= 5, "tracking from scan {first}: {states:?}");
     assert!(states[first..].iter().all(|s| s == "tracking"), "{states:?}");
+    // No rival on a tracked row: its last column (ambiguous) is 0 there.
+    for l in csv.lines().skip(1 + first) {
+        let f: Vec<&str> = l.split(',').collect();
+        assert_eq!((f.len(), f[16]), (17, "0"), "{l}");
+    }
     let mut worst: f64 = 0.0;
     for (row, (t, pose)) in rows.iter().zip(&truth) {
         assert_eq!(row.len(), 13);

@@ -253,7 +253,7 @@ fn errors(csv: &str, truth: &[(f64, Se2)]) -> (usize, f64, f64, f64) {
     assert_eq!(
         lines.next(),
         Some(
-            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level"
+            "timestamp,x,y,theta,cov_xx,cov_xy,cov_xtheta,cov_yx,cov_yy,cov_ytheta,cov_thetax,cov_thetay,cov_thetatheta,integrity,explained,level,ambiguous"
         )
     );
     // The pose and covariance (the integrity columns after them are the CARMEN test's).
