@@ -123,6 +123,11 @@ pub struct IntegrityParams {
     pub reseed_max_particles: usize,
     /// A re-seeded pose must explain this much more of the scan than the estimate does, share.
     pub switch_margin: f64,
+    /// Not tracking, and the estimate between the uncertain and the tracking bar: if no other
+    /// place explains the scan within this share of what the estimate explains (a search of
+    /// `alternative_draws` draws), the scan counts towards `Tracking` as one above the bar would.
+    /// 0: no such search, `Tracking` needs the bar.
+    pub unique_margin: f64,
 }
 
 impl Default for IntegrityParams {
@@ -147,6 +152,7 @@ impl Default for IntegrityParams {
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,
+            unique_margin: 0.05,
         }
     }
 }
@@ -173,6 +179,7 @@ impl IntegrityParams {
             ("level_alpha", self.level_alpha),
             ("reseed_share", self.reseed_share),
             ("switch_margin", self.switch_margin),
+            ("unique_margin", self.unique_margin),
         ] {
             if !share(v) {
                 return Err(format!("{name} must be within 0..=1 (got {v})"));
@@ -246,6 +253,9 @@ pub struct Monitor {
     below_uncertain: u32,
     below_lost: u32,
     above_tracking: u32,
+    /// The last judgement fell between the uncertain and the tracking bar while not tracking:
+    /// the run of good updates before it, which [`Monitor::vouch`] may carry on.
+    vouchable: Option<u32>,
     /// Another place explains the scans about as well as the estimate (one of `Amcl`'s rivals):
     /// not `Tracking` until the scans tell them apart.
     ambiguous: bool,
@@ -264,6 +274,7 @@ impl Monitor {
             below_uncertain: 0,
             below_lost: 0,
             above_tracking: 0,
+            vouchable: None,
             ambiguous: false,
             last: None,
         }
@@ -293,6 +304,7 @@ impl Monitor {
         self.below_uncertain = 0;
         self.below_lost = 0;
         self.above_tracking = 0;
+        self.vouchable = None;
         self.ambiguous = false;
     }
 
@@ -335,6 +347,7 @@ impl Monitor {
         self.ambiguous = false;
         self.below_lost = self.params.confirm;
         self.above_tracking = 0;
+        self.vouchable = None;
         if let Some(last) = &mut self.last {
             last.state = IntegrityState::Lost;
             last.ambiguous = false;
@@ -354,7 +367,8 @@ impl Monitor {
         let median = sorted.get(sorted.len() / 2).copied().unwrap_or(explained);
         self.below_lost = if ratio < p.lost_ratio { self.below_lost + 1 } else { 0 };
         self.below_uncertain = u32::from(median / self.level < p.uncertain_ratio);
-        self.above_tracking = if ratio >= p.tracking_ratio { self.above_tracking + 1 } else { 0 };
+        let run = self.above_tracking;
+        self.above_tracking = if ratio >= p.tracking_ratio { run + 1 } else { 0 };
         let before = self.state;
         self.state = match self.state {
             _ if self.below_lost >= p.confirm => IntegrityState::Lost,
@@ -382,9 +396,39 @@ impl Monitor {
             let w = p.level_alpha.max(1.0 / self.learned as f64);
             self.level = (self.level + w * (explained - self.level)).clamp(p.floor, 1.0);
         }
+        self.vouchable = (self.state != IntegrityState::Tracking
+            && ratio >= p.uncertain_ratio
+            && ratio < p.tracking_ratio)
+            .then_some(run);
         let out = Integrity { state: self.state, explained, level: self.level, ambiguous: self.ambiguous };
         self.last = Some(out);
         out
+    }
+
+    /// Whether the last judgement may be vouched for ([`Monitor::vouch`]): not tracking, and the
+    /// estimate explained the scan between the uncertain and the tracking bar.
+    #[must_use]
+    pub fn vouchable(&self) -> bool {
+        self.vouchable.is_some()
+    }
+
+    /// The last judgement fell short of the tracking bar, but no other place explains the scan
+    /// nearly as well as the estimate (the caller searched): it counts towards `Tracking` as an
+    /// update above the bar would. Scans that the map explains less well than the learned level
+    /// at the right place (clutter, an unmapped crowd) keep a filter that recovered from a loss
+    /// out of `Tracking` by the bar alone, where one that never lost the robot stays tracking.
+    pub fn vouch(&mut self) {
+        let Some(run) = self.vouchable.take() else { return };
+        self.above_tracking = run + 1;
+        if self.above_tracking >= self.params.recover && !self.ambiguous {
+            self.state = IntegrityState::Tracking;
+            self.below_uncertain = 0;
+            self.recent.clear();
+            if let Some(last) = &mut self.last {
+                last.state = IntegrityState::Tracking;
+                self.recent.push_back(last.explained);
+            }
+        }
     }
 }
 
@@ -483,6 +527,54 @@ mod tests {
         m.set_ambiguous(true);
         m.restart(IntegrityState::Uncertain);
         assert!(!m.ambiguous());
+    }
+
+    #[test]
+    fn a_unique_estimate_between_the_bars_tracks_after_a_run_of_vouched_updates() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..10 {
+            m.observe(0.9);
+        }
+        let level = m.last().unwrap().level;
+        m.declare_lost();
+        let between = level * (p.uncertain_ratio + p.tracking_ratio) / 2.0;
+        // Between the bars, unvouched: lost however long it lasts.
+        for _ in 0..10 {
+            assert_eq!(m.observe(between).state, IntegrityState::Lost);
+            assert!(m.vouchable());
+        }
+        // Vouched for: `recover` of them in a row track, an update above the bar counting alike.
+        m.observe(between);
+        m.vouch();
+        assert_eq!(m.state(), IntegrityState::Lost);
+        assert!(!m.vouchable(), "once per judgement");
+        m.observe(level);
+        assert_eq!(m.state(), IntegrityState::Lost);
+        m.observe(between);
+        m.vouch();
+        assert_eq!(m.state(), IntegrityState::Tracking);
+        assert_eq!(m.last().map(|i| i.state), Some(IntegrityState::Tracking));
+        // Tracking: nothing to vouch for. Below the uncertain bar: nothing either.
+        m.observe(between);
+        assert!(!m.vouchable());
+        m.declare_lost();
+        m.observe(level * p.uncertain_ratio * 0.95);
+        assert!(!m.vouchable());
+        // A run broken by an unvouched update between the bars starts again.
+        m.observe(between);
+        m.vouch();
+        m.observe(between);
+        m.observe(between);
+        m.vouch();
+        assert_eq!(m.state(), IntegrityState::Lost);
+        // While a rival stands, vouching never brings tracking.
+        m.set_ambiguous(true);
+        for _ in 0..5 {
+            m.observe(between);
+            m.vouch();
+        }
+        assert_eq!(m.state(), IntegrityState::Lost);
     }
 
     #[test]

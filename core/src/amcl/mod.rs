@@ -310,6 +310,7 @@ impl Amcl {
                     && self.judge(&pose, points)
                 {
                     self.judge_rivals(odom, points);
+                    self.vouch_if_unique(&pose, points);
                 }
                 return UpdateOutcome::Skipped;
             }
@@ -362,6 +363,9 @@ impl Amcl {
             if self.monitor.state() == IntegrityState::Lost {
                 self.rivals.clear();
                 self.monitor.set_ambiguous(false);
+            }
+            if let Some(pose) = self.estimate.as_ref().map(|e| e.pose) {
+                self.vouch_if_unique(&pose, points);
             }
         }
         UpdateOutcome::Updated { resampled }
@@ -470,8 +474,23 @@ impl Amcl {
     /// space, climbed to its local optimum: each `Some` if it explains [`Self::replace_need`] of
     /// the scan.
     fn better_places(&mut self, points: &[[f64; 2]], tries: usize, stream: Stream) -> Vec<Option<Se2>> {
+        match self.replace_need() {
+            Some(need) => self.places_explaining(points, tries, stream, need, |_| false),
+            None => vec![None; tries],
+        }
+    }
+
+    /// As [`Self::better_places`], each `Some` if it explains `need` of the scan; the draws stop
+    /// after the first place `enough` accepts (a search for whether any such place exists).
+    fn places_explaining(
+        &mut self,
+        points: &[[f64; 2]],
+        tries: usize,
+        stream: Stream,
+        need: f64,
+        mut enough: impl FnMut(&Se2) -> bool,
+    ) -> Vec<Option<Se2>> {
         let p = *self.monitor.params();
-        let Some(need) = self.replace_need() else { return vec![None; tries] };
         // A candidate is judged coarsely (`COARSE` times the distances) against the estimate's own
         // share: it is one uniform draw, in the truth's basin but rarely at its optimum, where the
         // fine share of a pose 0.2 m off is already low.
@@ -486,19 +505,24 @@ impl Amcl {
             Stream::Filter => &mut self.rng,
             Stream::Search => &mut self.search_rng,
         };
-        (0..tries)
-            .map(|_| {
-                let pose = best_of_random_poses(&field, &beams, rng, p.reseed_candidates);
-                // The cheap test first (endpoints only, coarse), then the candidate climbed to its
-                // local optimum and judged as the estimate was (fine, beams through walls included).
-                if integrity::explained_share(&field, &pose, &judged, None, &coarse).unwrap_or(0.0) < need {
-                    return None;
-                }
-                let pose = refine(&field, &beams, pose);
-                let fine = integrity::explained_share(&field, &pose, &judged, origin, &p);
-                (fine.unwrap_or(0.0) >= need).then_some(pose)
-            })
-            .collect()
+        let mut out = Vec::with_capacity(tries);
+        for _ in 0..tries {
+            let pose = best_of_random_poses(&field, &beams, rng, p.reseed_candidates);
+            // The cheap test first (endpoints only, coarse), then the candidate climbed to its
+            // local optimum and judged as the estimate was (fine, beams through walls included).
+            let found = (integrity::explained_share(&field, &pose, &judged, None, &coarse).unwrap_or(0.0)
+                >= need)
+                .then(|| refine(&field, &beams, pose))
+                .filter(|pose| {
+                    integrity::explained_share(&field, pose, &judged, origin, &p).unwrap_or(0.0) >= need
+                });
+            let stop = found.as_ref().is_some_and(&mut enough);
+            out.push(found);
+            if stop {
+                break;
+            }
+        }
+        out
     }
 
     /// The particles' weights normalised again (after some were replaced at weight `1 / n`: the

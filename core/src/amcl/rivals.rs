@@ -78,6 +78,36 @@ impl Amcl {
         self.monitor.set_ambiguous(!self.rivals.is_empty());
     }
 
+    /// Not tracking, the estimate explaining this scan between the uncertain and the tracking bar,
+    /// no rival carried: look for any other place that explains the scan nearly as well
+    /// (`unique_margin` less, `alternative_draws` draws of the search's stream); if there is
+    /// none, the estimate is the only candidate for where the robot is, and the monitor counts
+    /// the scan towards `Tracking` ([`integrity::Monitor::vouch`]). What the bar alone cannot
+    /// tell: a filter that came back to the robot after a loss, in a place whose scans the map
+    /// explains less well than it usually does (clutter, people), is at the only place that
+    /// explains them; a filter at a twin of that place is not.
+    pub(super) fn vouch_if_unique(&mut self, estimate: &Se2, points: &[[f64; 2]]) {
+        let p = *self.monitor.params();
+        let Some(last) = self.monitor.last() else { return };
+        if p.alternative_draws == 0
+            || p.unique_margin <= 0.0
+            || !self.monitor.vouchable()
+            || !self.rivals.is_empty()
+        {
+            return;
+        }
+        let need = last.explained - p.unique_margin;
+        let away = |place: &Se2| !same_place(place, estimate);
+        let elsewhere = self
+            .places_explaining(points, p.alternative_draws, super::Stream::Search, need, away)
+            .into_iter()
+            .flatten()
+            .any(|place| away(&place));
+        if !elsewhere {
+            self.monitor.vouch();
+        }
+    }
+
     /// Each rival judged on this scan (carried by the odometry, climbed to the scan) against the
     /// estimate, the two as hypotheses whose evidence adds up scan by scan (the sum of the
     /// rival's share less the estimate's). While none has won, the filter is not `Tracking`
