@@ -532,7 +532,7 @@ mod tests {
 
     #[test]
     fn a_unique_estimate_between_the_bars_tracks_after_a_run_of_vouched_updates() {
-        let p = IntegrityParams { unique_margin: 0.05, ..IntegrityParams::default() };
+        let p = IntegrityParams::default();
         let mut m = Monitor::new(p);
         for _ in 0..10 {
             m.observe(0.9);
