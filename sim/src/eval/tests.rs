@@ -335,3 +335,33 @@ fn on_a_shipped_sites_own_map_the_robots_are_placed_where_they_stand() {
         assert!(stats.d2.rmse < 0.025, "{c:?}: 2D RMSE {:.3} m", stats.d2.rmse);
     }
 }
+
+/// In the hall two robots 0.5 m apart hide much of each other's view of the racks: the
+/// neighbour's body is about half of what each robot's LiDAR returns, and the map does not hold
+/// it. Each robot's own filter must not take that for being lost and re-seed itself to a place
+/// whose racks explain the body's returns (where it stood metres off for the rest of the run).
+#[test]
+fn robots_side_by_side_in_the_hall_keep_their_own_filters() {
+    let mut setup = short_setup();
+    let config = shipped();
+    let map = config.maps["one-sided-hall"].clone();
+    setup.site = crate::site_for("one-sided-hall", &map).unwrap();
+    setup.map = EvalMap::Given(map);
+    setup.amcl = config.amcl.clone();
+    setup.scenario = config.scenarios["hall-straight"].clone();
+    setup.scenario.spacing_m = amr_core::config::value::Positive::new(0.5).unwrap();
+    setup.scenario.segments = vec![amr_core::config::Segment {
+        straight_m: Some(amr_core::config::value::Finite::new(3.0).unwrap()),
+        turn_deg: None,
+    }];
+    for seed in [7, 8] {
+        let trial = run_trial(&setup, seed);
+        let (_, t1) = trial.series.iter().find(|(c, _)| *c == Configuration::T1).unwrap();
+        assert_eq!(t1.robots.len(), 2);
+        for (i, r) in t1.robots.iter().enumerate() {
+            assert_eq!(r.len(), t1.truth.len(), "seed {seed}: robot {i} placed at every scan");
+            let worst = r.iter().map(|e| e.e_x.hypot(e.e_y)).fold(0.0, f64::max);
+            assert!(worst < 0.15, "seed {seed}: robot {i}'s own filter {worst:.2} m off at worst");
+        }
+    }
+}
