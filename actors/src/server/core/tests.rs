@@ -290,3 +290,31 @@ fn an_initial_pose_restarts_each_robots_filter_in_its_slot() {
         assert_ne!(f.integrity_state(), amr_core::amcl::IntegrityState::Tracking, "not verified yet");
     }
 }
+
+/// A robot's own filter is given its scan without the returns on its teammates' bodies, placed
+/// where their own estimates put them; the rest of the scan is kept, and before a teammate has an
+/// estimate (no scan of it yet) nothing is masked.
+#[test]
+fn a_robots_own_filter_does_not_see_its_teammates() {
+    let mut core = core_with(&[0.25, -0.25]);
+    // In robot-b's base frame robot-a stands 0.5 m to the left (+y), facing the same way.
+    let on_a = [[0.0, 0.5 - 0.2], [0.1, 0.5 - 0.21], [-0.1, 0.5 - 0.19]];
+    let elsewhere = [[3.0, 0.0], [0.0, -2.0], [0.0, 0.5 - 0.6]];
+    let all: Vec<[f64; 2]> = on_a.iter().chain(&elsewhere).copied().collect();
+    let mut points = all.clone();
+    core.mask_teammates(1, Se2::IDENTITY, &mut points);
+    assert_eq!(points, all, "robot-a has sent no scan: nothing to mask it by");
+    assert!(core.offer(&tim551("robot-a", 1.0), 1.0, &mut |_| {}).refused.is_none());
+    let chassis = core.members()[0].chassis.clone();
+    assert!(
+        on_a.iter().all(|p| chassis.contains_inflated([p[0], p[1] - 0.5], 0.05)),
+        "the test's points are on robot-a"
+    );
+    let mut points = all.clone();
+    core.mask_teammates(1, Se2::IDENTITY, &mut points);
+    assert_eq!(points, elsewhere.to_vec(), "robot-a's returns go, the others stay");
+    // Robot-a's own view: robot-b has sent nothing yet.
+    let mut points = all.clone();
+    core.mask_teammates(0, Se2::IDENTITY, &mut points);
+    assert_eq!(points, all);
+}
