@@ -47,6 +47,10 @@ pub const MAX_FUTURE_S: f64 = 0.5;
 /// used) may be a scan period (67 ms for a TiM551, 1.5 cm at 0.22 m/s) older or newer, m.
 pub(crate) const TEAMMATE_MARGIN_M: f64 = 0.1;
 
+/// How long after the fusion last placed the robots its placement is carried on by odometry for the
+/// teammate masks, s (then the robots' own estimates place them).
+pub(crate) const PLACED_FOR_S: f64 = 2.0;
+
 /// Spread of the initial particle clouds (a pose given by the operator or the scenario).
 pub(crate) const INITIAL_STD_XY_M: f64 = 0.1;
 pub(crate) const INITIAL_STD_YAW_RAD: f64 = 0.05;
@@ -249,6 +253,16 @@ pub struct ServerCore {
     checks: IntegrityChecks,
     /// The sync gate's spread (`CoreSetup::max_spread_s`), s.
     max_spread_s: f64,
+    /// Where the fusion last placed the robots, for the teammate masks ([`ServerCore::mask_teammates`]).
+    placed: Option<Placed>,
+}
+
+/// Where a fusion that tracks the robots in each other's scans (T4, else T3) last placed them:
+/// per robot its base in V and its odometry pose at that scan, and when the frame was received.
+#[derive(Debug, Clone)]
+struct Placed {
+    robots: Vec<(Se2, Se2)>,
+    rx_s: f64,
 }
 
 impl ServerCore {
@@ -311,6 +325,7 @@ impl ServerCore {
             members: setup.members,
             checks: setup.checks,
             max_spread_s: setup.max_spread_s,
+            placed: None,
         }
     }
 
@@ -401,7 +416,7 @@ impl ServerCore {
             step.odometry_restarted = true;
         }
         self.odom_frames[i] = s.odom_frame;
-        self.robot_amcl(i, s, odom, &mut step);
+        self.robot_amcl(i, s, odom, rx_s, &mut step);
         lap(Lap::RobotAmcl);
         let buf = &mut self.scans[i];
         let truth = self.truth.get_mut(i).and_then(Option::take);
@@ -456,6 +471,8 @@ impl ServerCore {
         if let Some(c) = self.corrections.get_mut(i) {
             *c = None;
         }
+        // Its odometry poses of the last placement are of the old frame.
+        self.placed = None;
         self.retrack(i);
         if i == 0 {
             for f in self.channels.iter_mut().filter_map(|ch| ch.filter.as_mut()) {
@@ -479,10 +496,10 @@ impl ServerCore {
         }
     }
 
-    fn robot_amcl(&mut self, i: usize, s: &ScanMsg, odom: Se2, step: &mut Step) {
+    fn robot_amcl(&mut self, i: usize, s: &ScanMsg, odom: Se2, rx_s: f64, step: &mut Step) {
         let mut points =
             self.members.get(i).map_or_else(Vec::new, |m| scan_points(&s.scan, &m.lidar_to_base, &self.amcl));
-        self.mask_teammates(i, odom, &mut points);
+        self.mask_teammates(i, odom, rx_s, &mut points);
         let (Some(filter), Some(m)) = (self.robot_filters.get_mut(i), self.members.get(i)) else { return };
         let before = filter.integrity_state();
         if matches!(filter.update(odom, &points, false), UpdateOutcome::Updated { .. }) {
@@ -508,26 +525,54 @@ impl ServerCore {
         });
     }
 
-    /// Drop from robot `i`'s points (its base frame, at odometry pose `odom`) those on a teammate's
-    /// body, where the robots' own estimates put the teammates. The map does not hold them, and
-    /// side by side a neighbour is much of what a robot's LiDAR returns (two robots 0.5 m apart in
-    /// a hall with racks on one side: about 40 % of the returns): judged with them the filter took
-    /// its right place for a wrong one, and re-seeded itself metres off where racks explained the
-    /// body. A teammate whose own filter is lost, or has no estimate yet, is not masked; nor is
-    /// anything while robot `i`'s own filter has no pose.
-    fn mask_teammates(&self, i: usize, odom: Se2, points: &mut Vec<[f64; 2]>) {
-        let Some(here) = self.robot_filters.get(i).and_then(|f| f.pose_at(&odom)) else { return };
-        let bodies: Vec<(Se2, &Polygon)> = (0..self.members.len())
-            .filter(|&j| j != i)
-            .filter_map(|j| {
-                let f = self.robot_filters.get(j)?;
-                if f.integrity_state() == amr_core::amcl::IntegrityState::Lost {
-                    return None;
-                }
-                let there = self.corrections.get(j).copied().flatten()? * self.scans.get(j)?.back()?.odom;
-                // Points of robot i's base frame into teammate j's.
-                Some(((here.inverse() * there).inverse(), &self.members.get(j)?.chassis))
-            })
+    /// Drop from robot `i`'s points (its base frame, at odometry pose `odom`, received at `rx_s`)
+    /// those on a teammate's body. The map does not hold the teammates, and side by side a
+    /// neighbour is much of what a robot's LiDAR returns (two robots 0.5 m apart in a hall with
+    /// racks on one side: about 40 % of the returns): judged with them the filter took its right
+    /// place for a wrong one, and re-seeded itself metres off where racks explained the body.
+    ///
+    /// The teammates stand where the fusion last placed them relative to robot `i` (its contour
+    /// tracker finds each in its neighbour's scan), carried on by each robot's odometry since; a
+    /// robot's own estimate is no guide to where its body is in a neighbour's scan when it cannot
+    /// see the site itself (on `short-racks` the blind robot's estimate drifted, the mask missed
+    /// its body, and its neighbour judged itself lost). Before the fusion has placed them, or
+    /// [`PLACED_FOR_S`] after it last did, the robots' own estimates place them (unless `lost`).
+    fn mask_teammates(&self, i: usize, odom: Se2, rx_s: f64, points: &mut Vec<[f64; 2]>) {
+        let latest = |j: usize| self.scans.get(j).and_then(|b| b.back()).map(|h| h.odom);
+        let placed = self
+            .placed
+            .as_ref()
+            .filter(|p| rx_s - p.rx_s <= PLACED_FOR_S && p.robots.len() == self.members.len());
+        // Robot j in robot i's base frame, for every teammate placed.
+        let teammates: Vec<(usize, Se2)> = if let Some(p) = placed {
+            let (b_i, o_i) = p.robots[i];
+            let moved_i = o_i.inverse() * odom;
+            (0..self.members.len())
+                .filter(|&j| j != i)
+                .filter_map(|j| {
+                    let (b_j, o_j) = p.robots[j];
+                    let moved_j = o_j.inverse() * latest(j)?;
+                    Some((j, moved_i.inverse() * b_i.inverse() * b_j * moved_j))
+                })
+                .collect()
+        } else {
+            let Some(here) = self.robot_filters.get(i).and_then(|f| f.pose_at(&odom)) else { return };
+            (0..self.members.len())
+                .filter(|&j| j != i)
+                .filter_map(|j| {
+                    let f = self.robot_filters.get(j)?;
+                    if f.integrity_state() == amr_core::amcl::IntegrityState::Lost {
+                        return None;
+                    }
+                    let there = self.corrections.get(j).copied().flatten()? * latest(j)?;
+                    Some((j, here.inverse() * there))
+                })
+                .collect()
+        };
+        // Points of robot i's base frame into each teammate's.
+        let bodies: Vec<(Se2, &Polygon)> = teammates
+            .into_iter()
+            .filter_map(|(j, rel)| Some((rel.inverse(), &self.members.get(j)?.chassis)))
             .collect();
         if bodies.is_empty() {
             return;
@@ -569,6 +614,13 @@ impl ServerCore {
 #[must_use]
 pub fn virtual_params(amcl: &AmclParams, robots: usize) -> AmclParams {
     let mut p = amcl.clone();
+    // V is not looked for over the whole map: a lost V starts again where the robots' own
+    // tracking estimates put it (`Channel::restart_lost_v`), as it started. Its scan is composed
+    // from several robots' by relative poses that can be wrong (T1–T3 take them from the robots'
+    // own filters), and a place elsewhere that explained a virtual scan assembled with a drifting
+    // robot's estimate better carried V 11 m off (`short-racks`, T2).
+    p.integrity.alternative_draws = 0;
+    p.integrity.reseed_share = 0.0;
     let beams = i64::from(amcl.max_beams.get()).saturating_mul(robots.max(1) as i64);
     if let Ok(c) = amr_core::config::value::Count::new(beams) {
         p.max_beams = c;

@@ -365,3 +365,31 @@ fn robots_side_by_side_in_the_hall_keep_their_own_filters() {
         }
     }
 }
+
+/// On `short-racks` two robots 0.5 m apart: the far one sees nothing of the site but its
+/// neighbour, and its own estimate drifts. A virtual scan assembled with that estimate (T2 takes
+/// the relative position from the robots' own filters) fits the map poorly; V's filter, judged
+/// lost, must start again from the robots' own estimates, not re-localise anywhere on the map (a
+/// place 11 m off explained that scan better).
+#[test]
+fn a_virtual_scan_assembled_with_a_drifting_robot_does_not_carry_v_off() {
+    let mut setup = short_setup();
+    let config = shipped();
+    let map = config.maps["short-racks"].clone();
+    setup.site = crate::site_for("short-racks", &map).unwrap();
+    setup.map = EvalMap::Given(map);
+    setup.amcl = config.amcl.clone();
+    setup.scenario = config.scenarios["short-racks"].clone();
+    setup.scenario.spacing_m = amr_core::config::value::Positive::new(0.5).unwrap();
+    let trial = run_trial(&setup, 7);
+    for (c, s) in &trial.series {
+        assert!(
+            s.truth.len() + 20 > trial.scans,
+            "{c:?}: V placed on {} of {} scans",
+            s.truth.len(),
+            trial.scans
+        );
+        let worst = s.truth.iter().map(|e| e.e_x.hypot(e.e_y)).fold(0.0, f64::max);
+        assert!(worst < 1.0, "{c:?}: V {worst:.2} m off at worst");
+    }
+}

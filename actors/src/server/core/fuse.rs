@@ -56,6 +56,15 @@ impl ServerCore {
             self.fuse_channel(ch, &view, &packets, lap, step);
         }
         self.channels = channels;
+        // The teammate masks of the robots' own filters: where a configuration that tracks the
+        // robots in each other's scans placed them (T4's frame before T3's).
+        let placed =
+            [amr_core::config::Configuration::T4, amr_core::config::Configuration::T3].into_iter().find_map(
+                |c| step.fusions.iter().find(|f| f.configuration == c).and_then(|f| f.result.as_ref().ok()),
+            );
+        if let Some(frame) = placed {
+            self.placed = Some(super::Placed { robots: frame.robots.clone(), rx_s: now_s });
+        }
     }
 
     /// Each robot's own estimate at its scan of the set, when its filter is tracking.
@@ -175,7 +184,8 @@ impl ServerCore {
                         level = now.level, "V's localisation changed state"
                     );
                 }
-                filter.pose_at(&frame.v_odom)
+                ch.restart_lost_v(&view.own, &frame.robots);
+                ch.filter.as_ref().and_then(|f| f.pose_at(&frame.v_odom))
             }
             _ => self.corrections.first().copied().flatten().map(|c| c * frame.v_odom),
         }
@@ -228,6 +238,19 @@ impl Channel {
         if self.last_fused_s.is_some_and(|t| now_s - t > restart_after_s) {
             self.started = false;
             self.last_fused_s = None;
+        }
+    }
+
+    /// V's filter, lost, starts again where the robots' own tracking estimates put V (none
+    /// tracking: it stays lost, and the formation holds). Its virtual scan no longer fits the map
+    /// at its estimate, and V is not searched for elsewhere (`virtual_params`).
+    fn restart_lost_v(&mut self, own: &[Option<Se2>], robots: &[(Se2, Se2)]) {
+        let lost = self.filter.as_ref().is_some_and(|f| f.integrity_state() == IntegrityState::Lost);
+        if lost && own.iter().any(Option::is_some) {
+            let bases_in_v: Vec<Se2> = robots.iter().map(|(b, _)| *b).collect();
+            tracing::info!(configuration = ?self.configuration, "V's filter lost: it starts again from the robots' own estimates");
+            self.started = false;
+            self.start_v(own, &bases_in_v);
         }
     }
 

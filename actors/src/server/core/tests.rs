@@ -291,9 +291,9 @@ fn an_initial_pose_restarts_each_robots_filter_in_its_slot() {
     }
 }
 
-/// A robot's own filter is given its scan without the returns on its teammates' bodies, placed
-/// where their own estimates put them; the rest of the scan is kept, and before a teammate has an
-/// estimate (no scan of it yet) nothing is masked.
+/// A robot's own filter is given its scan without the returns on its teammates' bodies: where
+/// the fusion last placed them (carried on by the odometry), before that where their own estimates
+/// put them; the rest of the scan is kept, and with no teammate known nothing is masked.
 #[test]
 fn a_robots_own_filter_does_not_see_its_teammates() {
     let mut core = core_with(&[0.25, -0.25]);
@@ -301,20 +301,33 @@ fn a_robots_own_filter_does_not_see_its_teammates() {
     let on_a = [[0.0, 0.5 - 0.2], [0.1, 0.5 - 0.21], [-0.1, 0.5 - 0.19]];
     let elsewhere = [[3.0, 0.0], [0.0, -2.0], [0.0, 0.5 - 0.6]];
     let all: Vec<[f64; 2]> = on_a.iter().chain(&elsewhere).copied().collect();
-    let mut points = all.clone();
-    core.mask_teammates(1, Se2::IDENTITY, &mut points);
-    assert_eq!(points, all, "robot-a has sent no scan: nothing to mask it by");
+    let masked = |core: &ServerCore, i: usize, odom: Se2, rx_s: f64| {
+        let mut points = all.clone();
+        core.mask_teammates(i, odom, rx_s, &mut points);
+        points
+    };
+    assert_eq!(masked(&core, 1, Se2::IDENTITY, 1.0), all, "robot-a has sent no scan: nothing to mask it by");
     assert!(core.offer(&tim551("robot-a", 1.0), 1.0, &mut |_| {}).refused.is_none());
     let chassis = core.members()[0].chassis.clone();
     assert!(
         on_a.iter().all(|p| chassis.contains_inflated([p[0], p[1] - 0.5], 0.05)),
         "the test's points are on robot-a"
     );
-    let mut points = all.clone();
-    core.mask_teammates(1, Se2::IDENTITY, &mut points);
-    assert_eq!(points, elsewhere.to_vec(), "robot-a's returns go, the others stay");
+    assert_eq!(
+        masked(&core, 1, Se2::IDENTITY, 1.0),
+        elsewhere.to_vec(),
+        "robot-a's returns go, the others stay"
+    );
     // Robot-a's own view: robot-b has sent nothing yet.
-    let mut points = all.clone();
-    core.mask_teammates(0, Se2::IDENTITY, &mut points);
-    assert_eq!(points, all);
+    assert_eq!(masked(&core, 0, Se2::IDENTITY, 1.0), all);
+    // The fusion placed robot-a 1 m ahead of robot-b and 0.5 m to its left, whatever the two
+    // estimates say; robot-b has driven 1 m since (its odometry), robot-a not.
+    core.placed = Some(Placed {
+        robots: vec![(Se2::new(1.0, 0.25, 0.0), Se2::IDENTITY), (Se2::new(0.0, -0.25, 0.0), Se2::IDENTITY)],
+        rx_s: 1.0,
+    });
+    assert_eq!(masked(&core, 1, Se2::new(1.0, 0.0, 0.0), 1.5), elsewhere.to_vec(), "placed by the fusion");
+    assert_eq!(masked(&core, 1, Se2::IDENTITY, 1.5), all, "1 m behind: none of these is on robot-a");
+    // Too long ago: the estimates place the teammates again.
+    assert_eq!(masked(&core, 1, Se2::IDENTITY, 1.0 + PLACED_FOR_S + 0.1), elsewhere.to_vec());
 }
