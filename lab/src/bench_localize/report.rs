@@ -118,14 +118,14 @@ fn kidnap_table(r: &Report, out: &mut String) {
     nav2_kidnap_table(r, out);
     let _ = writeln!(
         out,
-        "| log | seed | scan | jump (m, °) | carried off | not tracking after | lost after | tracking after |"
+        "| log | seed | scan | jump (m, °) | carried off | not tracking after | lost after | tracking after | back after |"
     );
-    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|");
     let show = |a: Option<usize>| a.map_or("never".to_owned(), |a| a.to_string());
     for (name, s, k) in kidnaps {
         let _ = writeln!(
             out,
-            "| {name} | {s} | {} | {:.1}, {:.0} | {} | {} | {} | {} |",
+            "| {name} | {s} | {} | {:.1}, {:.0} | {} | {} | {} | {} | {} |",
             k.scan,
             k.jump_m,
             k.jump_deg,
@@ -138,7 +138,8 @@ fn kidnap_table(r: &Report, out: &mut String) {
             },
             show(k.doubted_after),
             show(k.lost_after),
-            show(k.tracked_after)
+            show(k.tracked_after),
+            show(k.back_after)
         );
     }
 }
