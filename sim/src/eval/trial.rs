@@ -33,8 +33,10 @@ const STANDSTILL_S: f64 = 2.0;
 ///
 /// The localisation is the server's own [`ServerCore`], running T1–T4 side by side on the same
 /// scans (each configuration's estimates are what the server would give in that configuration
-/// alone): robot `i`'s scans reach it as the uplink of `robot<i>`, with the odometry pose at the
-/// scan, received 10 ms (`RX_DELAY_S`) after they were taken.
+/// alone, but for one thing: the robots' own filters, which T1 is, mask their teammates where T4's
+/// fusion placed them, where a server running T1 or T2 alone places them by the robots' own
+/// estimates): robot `i`'s scans reach it as the uplink of `robot<i>`, with the odometry pose at
+/// the scan, received 10 ms (`RX_DELAY_S`) after they were taken.
 pub fn run_trial_observed(setup: &Setup, seed: u64, observe: &mut dyn FnMut(&TrialFrame<'_>)) -> Trial {
     let sc = &setup.scenario;
     let slots = slots(setup.robots, sc.spacing_m.get());
