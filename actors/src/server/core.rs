@@ -215,6 +215,8 @@ struct Channel {
     started: bool,
     /// When this configuration last fused a set of scans (receive time), s.
     last_fused_s: Option<f64>,
+    /// When V's filter, lost, last started again from the robots' estimates (receive time), s.
+    last_restart_s: Option<f64>,
     seq: u64,
 }
 
@@ -307,7 +309,15 @@ impl ServerCore {
                 // ([`ServerCore::start_v`]), not where the scenario says they should be.
                 let filter = (*c != Configuration::T1)
                     .then(|| Amcl::new(virtual_params(&setup.amcl, n), Arc::clone(&setup.field), setup.seed));
-                Channel { configuration: *c, pipeline, filter, started: false, last_fused_s: None, seq: 0 }
+                Channel {
+                    configuration: *c,
+                    pipeline,
+                    filter,
+                    started: false,
+                    last_fused_s: None,
+                    last_restart_s: None,
+                    seq: 0,
+                }
             })
             .collect();
         ServerCore {

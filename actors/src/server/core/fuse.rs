@@ -147,7 +147,7 @@ impl ServerCore {
         let heading_failed = u.pairs.iter().any(|p| p.heading_source == Source::PreviousHeading);
         let frame = frame_of(ch, &u, view);
         let bases_in_v: Vec<Se2> = frame.robots.iter().map(|(b, _)| *b).collect();
-        ch.start_v(&view.own, &bases_in_v);
+        ch.start_v(&view.own, &bases_in_v, true);
         let v = self.localise_v(ch, &frame, &u, view, step);
         lap(Lap::VirtualAmcl(c));
         if let Some(v) = v {
@@ -184,7 +184,7 @@ impl ServerCore {
                         level = now.level, "V's localisation changed state"
                     );
                 }
-                ch.restart_lost_v(&view.own, &frame.robots);
+                ch.restart_lost_v(&view.own, &frame.robots, view.now_s);
                 ch.filter.as_ref().and_then(|f| f.pose_at(&frame.v_odom))
             }
             _ => self.corrections.first().copied().flatten().map(|c| c * frame.v_odom),
@@ -224,6 +224,9 @@ impl ServerCore {
     }
 }
 
+/// V's restarts from the robots' estimates are logged at most this often, s.
+const RESTART_LOG_EVERY_S: f64 = 60.0;
+
 impl Channel {
     /// Before the update: each robot's track looked for where the own estimates put it, and, after
     /// a gap in fusion longer than `restart_after_s`, V's filter to start again from the robots'
@@ -244,24 +247,31 @@ impl Channel {
     /// V's filter, lost, starts again where the robots' own tracking estimates put V (none
     /// tracking: it stays lost, and the formation holds). Its virtual scan no longer fits the map
     /// at its estimate, and V is not searched for elsewhere (`virtual_params`).
-    fn restart_lost_v(&mut self, own: &[Option<Se2>], robots: &[(Se2, Se2)]) {
+    fn restart_lost_v(&mut self, own: &[Option<Se2>], robots: &[(Se2, Se2)], now_s: f64) {
         let lost = self.filter.as_ref().is_some_and(|f| f.integrity_state() == IntegrityState::Lost);
         if lost && own.iter().any(Option::is_some) {
             let bases_in_v: Vec<Se2> = robots.iter().map(|(b, _)| *b).collect();
-            tracing::info!(configuration = ?self.configuration, "V's filter lost: it starts again from the robots' own estimates");
+            // A virtual scan that stays poor restarts V every few frames: said once a minute at most.
+            let say = self.last_restart_s.is_none_or(|t| now_s - t >= RESTART_LOG_EVERY_S);
+            if say {
+                tracing::info!(configuration = ?self.configuration, "V's filter lost: it starts again from the robots' own estimates");
+                self.last_restart_s = Some(now_s);
+            }
             self.started = false;
-            self.start_v(own, &bases_in_v);
+            self.start_v(own, &bases_in_v, say);
         }
     }
 
     /// V's filter, not started yet, starts where the robots' own tracking estimates put V (their
-    /// mean); none tracking yet: V waits, with no estimate.
-    fn start_v(&mut self, own: &[Option<Se2>], bases_in_v: &[Se2]) {
+    /// mean); none tracking yet: V waits, with no estimate. `say`: log where it starts.
+    fn start_v(&mut self, own: &[Option<Se2>], bases_in_v: &[Se2], say: bool) {
         let c = self.configuration;
         if let Some(filter) = self.filter.as_mut().filter(|_| !self.started) {
             let start = mean_pose(own.iter().zip(bases_in_v).filter_map(|(o, b)| o.map(|o| o * b.inverse())));
             if let Some(v0) = start {
-                tracing::info!(configuration = ?c, x = v0.x, y = v0.y, theta = v0.theta, "V's filter starts where the robots' own estimates put it");
+                if say {
+                    tracing::info!(configuration = ?c, x = v0.x, y = v0.y, theta = v0.theta, "V's filter starts where the robots' own estimates put it");
+                }
                 filter.init_pose(v0, INITIAL_STD_XY_M, INITIAL_STD_YAW_RAD);
                 self.started = true;
             }
