@@ -336,20 +336,26 @@ fn on_a_shipped_sites_own_map_the_robots_are_placed_where_they_stand() {
     }
 }
 
+/// A shipped scenario on its site's own map with the robots 0.5 m apart and the shipped AMCL.
+fn close_formation(scenario: &str) -> Setup {
+    let mut setup = short_setup();
+    let config = shipped();
+    setup.scenario = config.scenarios[scenario].clone();
+    let grid = config.maps[&setup.scenario.map].clone();
+    setup.site = crate::site_for(&setup.scenario.map, &grid).unwrap();
+    setup.map = EvalMap::Given(grid);
+    setup.amcl = config.amcl.clone();
+    setup.scenario.spacing_m = amr_core::config::value::Positive::new(0.5).unwrap();
+    setup
+}
+
 /// In the hall two robots 0.5 m apart hide much of each other's view of the racks: the
 /// neighbour's body is about half of what each robot's LiDAR returns, and the map does not hold
 /// it. Each robot's own filter must not take that for being lost and re-seed itself to a place
 /// whose racks explain the body's returns (where it stood metres off for the rest of the run).
 #[test]
 fn robots_side_by_side_in_the_hall_keep_their_own_filters() {
-    let mut setup = short_setup();
-    let config = shipped();
-    let map = config.maps["one-sided-hall"].clone();
-    setup.site = crate::site_for("one-sided-hall", &map).unwrap();
-    setup.map = EvalMap::Given(map);
-    setup.amcl = config.amcl.clone();
-    setup.scenario = config.scenarios["hall-straight"].clone();
-    setup.scenario.spacing_m = amr_core::config::value::Positive::new(0.5).unwrap();
+    let mut setup = close_formation("hall-straight");
     setup.scenario.segments = vec![amr_core::config::Segment {
         straight_m: Some(amr_core::config::value::Finite::new(3.0).unwrap()),
         turn_deg: None,
@@ -373,14 +379,7 @@ fn robots_side_by_side_in_the_hall_keep_their_own_filters() {
 /// place 11 m off explained that scan better).
 #[test]
 fn a_virtual_scan_assembled_with_a_drifting_robot_does_not_carry_v_off() {
-    let mut setup = short_setup();
-    let config = shipped();
-    let map = config.maps["short-racks"].clone();
-    setup.site = crate::site_for("short-racks", &map).unwrap();
-    setup.map = EvalMap::Given(map);
-    setup.amcl = config.amcl.clone();
-    setup.scenario = config.scenarios["short-racks"].clone();
-    setup.scenario.spacing_m = amr_core::config::value::Positive::new(0.5).unwrap();
+    let setup = close_formation("short-racks");
     let trial = run_trial(&setup, 7);
     for (c, s) in &trial.series {
         assert!(
