@@ -32,7 +32,7 @@ pub struct Run {
     pub integrity: IntegrityCounts,
     /// With kidnappings written into the log: per kidnapping, the scans (from the kidnapping's on)
     /// until the filter reported `Lost`, and until it was tracking again (reported `Tracking` with
-    /// the estimate within 0.5 m); `None`: not before the next kidnapping or the log's end.
+    /// the estimate on, [`PoseError::off`] not); `None`: not before the next kidnapping or the log's end.
     pub kidnaps: Vec<KidnapOutcome>,
 }
 
@@ -41,25 +41,46 @@ pub struct KidnapOutcome {
     pub scan: usize,
     pub jump_m: f64,
     pub jump_deg: f64,
-    /// Whether the estimate was carried off: more than 0.5 m off for at least [`DETECT_WITHIN`]
+    /// Whether the estimate was carried off: off ([`PoseError::off`]) for at least [`DETECT_WITHIN`]
     /// scans in a row, a loss as [`IntegrityCounts`] counts them (a filter can absorb a jump, or
     /// come back from a short excursion by itself).
     pub carried_off: bool,
-    /// More than 0.5 m off on some scan, but never for [`DETECT_WITHIN`] in a row.
+    /// Off on some scan, but never for [`DETECT_WITHIN`] in a row.
     pub brief: bool,
     /// Scans until the filter no longer reported `Tracking` (`Uncertain` or `Lost`: a server
     /// holds on either).
     pub doubted_after: Option<usize>,
     pub lost_after: Option<usize>,
     pub tracked_after: Option<usize>,
-    /// Scans until the estimate was back: within 0.5 m on [`DETECT_WITHIN`] scans in a row after
-    /// it had been more than 0.5 m off, whatever the state reported (what a localiser that reports
+    /// Scans until the estimate was back: on for [`DETECT_WITHIN`] scans in a row after it had
+    /// been off, whatever the state reported (what a localiser that reports
     /// no state, nav2's, can be compared on).
     pub back_after: Option<usize>,
 }
 
 /// Per laser record: its index, the error against the reference, and the state reported.
-type Judged = (usize, Option<f64>, IntegrityState);
+type Judged = (usize, Option<PoseError>, IntegrityState);
+
+/// How far an estimate is from the reference pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseError {
+    pub m: f64,
+    pub rad: f64,
+}
+
+/// An estimate this far off in heading is off whatever its position: a kidnapping that turns the
+/// odometry can leave the estimate within 0.5 m of the robot facing the wrong way, and a server
+/// driving on it drives the wrong way. Degrees.
+pub const OFF_HEADING_DEG: f64 = 10.0;
+
+impl PoseError {
+    /// More than 0.5 m ([`amr_core::amcl::log::DIVERGED_M`]) or [`OFF_HEADING_DEG`] from the
+    /// reference.
+    #[must_use]
+    pub fn off(&self) -> bool {
+        self.m > amr_core::amcl::log::DIVERGED_M || self.rad > OFF_HEADING_DEG.to_radians()
+    }
+}
 
 fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> {
     kidnaps
@@ -75,12 +96,11 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
             let tracked_after = window()
                 .find(|(i, e, s)| {
                     *s == IntegrityState::Tracking
-                        && e.is_some_and(|e| e <= amr_core::amcl::log::DIVERGED_M)
+                        && e.is_some_and(|e| !e.off())
                         && lost_after.is_some_and(|l| *i >= k.scan + l)
                 })
                 .map(|(i, _, _)| i - k.scan);
-            let off: Vec<bool> =
-                window().map(|(_, e, _)| e.is_some_and(|e| e > amr_core::amcl::log::DIVERGED_M)).collect();
+            let off: Vec<bool> = window().map(|(_, e, _)| e.is_some_and(|e| e.off())).collect();
             let carried_off = off.windows(DETECT_WITHIN).any(|w| w.iter().all(|o| *o));
             let first_off = off.iter().position(|o| *o);
             let back_after = first_off
@@ -105,23 +125,24 @@ fn kidnap_outcomes(judged: &[Judged], kidnaps: &[Kidnap]) -> Vec<KidnapOutcome> 
 }
 
 /// How the integrity states matched the truth over one run. A scan is off when its estimate is
-/// more than 0.5 m from the reference; a loss is a run of at least [`DETECT_WITHIN`] off scans
-/// (shorter runs are excursions the filter came back from by itself).
+/// more than 0.5 m or [`OFF_HEADING_DEG`] from the reference ([`PoseError::off`]), else on; a
+/// loss is a run of at least [`DETECT_WITHIN`] off scans (shorter runs are excursions the filter
+/// came back from by itself).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct IntegrityCounts {
-    /// Scans whose estimate is within 0.5 m.
+    /// Scans whose estimate is on.
     pub on: usize,
-    /// Times the filter turned `Lost` with its estimate within 0.5 m, and within 0.5 m over the
+    /// Times the filter turned `Lost` with its estimate on, and on over the
     /// [`DETECT_WITHIN`] scans before (false alarms: not the hysteresis after a real loss).
     pub false_lost: usize,
-    /// Scans within 0.5 m reported `Uncertain`.
+    /// Scans on reported `Uncertain`.
     pub uncertain_on: usize,
-    /// Scans more than 0.5 m off reported `Tracking`: what a server would drive on.
+    /// Scans off reported `Tracking`: what a server would drive on.
     pub tracking_off: usize,
     /// Runs of off scans shorter than a loss.
     pub excursions: usize,
     /// Losses, those reported lost within [`DETECT_WITHIN`] scans of their start, and those the
-    /// filter came back from (the estimate within 0.5 m again before the log ended).
+    /// filter came back from (the estimate on again before the log ended).
     pub losses: usize,
     pub detected: usize,
     pub recovered: usize,
@@ -134,11 +155,11 @@ pub struct IntegrityCounts {
 pub const DETECT_WITHIN: usize = 3;
 
 /// The integrity counts of a run: per scan, its error (None: no reference) and the state reported.
-pub fn integrity_counts(per_scan: &[(Option<f64>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
+pub fn integrity_counts(per_scan: &[(Option<PoseError>, IntegrityState)], reseeds: u64) -> IntegrityCounts {
     let mut c = IntegrityCounts { reseeds, ..IntegrityCounts::default() };
-    let scored: Vec<(f64, IntegrityState)> =
+    let scored: Vec<(PoseError, IntegrityState)> =
         per_scan.iter().filter_map(|(e, s)| e.map(|e| (e, *s))).collect();
-    let off = |k: usize| scored[k].0 > amr_core::amcl::log::DIVERGED_M;
+    let off = |k: usize| scored[k].0.off();
     let mut k = 0;
     while k < scored.len() {
         if !off(k) {
@@ -368,7 +389,8 @@ fn run_once(
         }
     }
     let reseeds = loc.filter().map_or(0, amr_core::amcl::Amcl::reseeds);
-    let per_scan: Vec<(Option<f64>, IntegrityState)> = states.iter().map(|(_, e, s)| (*e, *s)).collect();
+    let per_scan: Vec<(Option<PoseError>, IntegrityState)> =
+        states.iter().map(|(_, e, s)| (*e, *s)).collect();
     // The first update builds the field: not an update's cost.
     if !ms.is_empty() {
         ms.remove(0);
@@ -384,11 +406,14 @@ fn run_once(
     }
 }
 
-/// The translation error of `pose` against the reference pose stamped `t` (sorted references).
-fn error_at(refs: &[RefPose], t: f64, pose: &Se2) -> Option<f64> {
+/// The error of `pose` against the reference pose stamped `t` (sorted references).
+fn error_at(refs: &[RefPose], t: f64, pose: &Se2) -> Option<PoseError> {
     let k = refs.partition_point(|g| g.timestamp_s < t - amr_core::amcl::log::MATCH_TOLERANCE_S);
     let g = refs.get(k).filter(|g| (g.timestamp_s - t).abs() <= amr_core::amcl::log::MATCH_TOLERANCE_S)?;
-    Some((g.pose.x - pose.x).hypot(g.pose.y - pose.y))
+    Some(PoseError {
+        m: (g.pose.x - pose.x).hypot(g.pose.y - pose.y),
+        rad: amr_core::se2::angle_diff(g.pose.theta, pose.theta).abs(),
+    })
 }
 
 /// Another localiser's poses judged as [`run_once`] judges ours, per laser record (the pose

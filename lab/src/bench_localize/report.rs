@@ -42,12 +42,13 @@ pub fn markdown(r: &Report) -> String {
         out,
         "AMCL on recorded logs against their references (seeds {:?}; one row per seed). Errors in cm; \
          'off' is the share of scans more than 0.5 m off; 'from' is the first scan from which every \
-         scan is within 0.5 m; times are per filter update (median / P95, ms). Integrity: losses \
-         (runs of at least {DETECT_WITHIN} off scans) reported lost within {DETECT_WITHIN} scans, \
-         losses recovered, brief excursions (shorter runs), false alarms (turned lost with the \
-         estimate within 0.5 m for {DETECT_WITHIN} scans), scans within 0.5 m reported uncertain / \
-         all scans within 0.5 m, scans more than 0.5 m off reported tracking (what a server would \
-         drive on), updates that re-seeded particles.\n",
+         scan is within 0.5 m; times are per filter update (median / P95, ms). Integrity (a scan \
+         is off there when its estimate is more than 0.5 m or {OFF_HEADING_DEG}° off, else on): \
+         losses (runs of at least {DETECT_WITHIN} off scans) reported lost within {DETECT_WITHIN} \
+         scans, losses recovered, brief excursions (shorter runs), false alarms (turned lost with \
+         the estimate on for {DETECT_WITHIN} scans), scans on reported uncertain / all scans on, \
+         scans off reported tracking (what a server would drive on), updates that re-seeded \
+         particles.\n",
         r.seeds
     );
     let _ = writeln!(
@@ -105,11 +106,12 @@ fn kidnap_table(r: &Report, out: &mut String) {
     let _ = writeln!(
         out,
         "\nKidnappings (odometry teleported 1-5 m, any heading): {n} in all, {} of which carried the \
-         estimate off (more than 0.5 m for at least {DETECT_WITHIN} scans in a row; {brief} more went \
-         0.5 m off for fewer scans, the others the filter absorbed); of those carried off, reported \
+         estimate off (more than 0.5 m or {OFF_HEADING_DEG}° for at least {DETECT_WITHIN} scans in a \
+         row; {brief} more went off for fewer scans, the others the filter absorbed); of those \
+         carried off, reported \
          lost within {DETECT_WITHIN} scans: {lost3} (no longer tracking, uncertain or lost: \
          {doubted3}); tracking again within 10 scans: {back10}; at all: {back}; the estimate back \
-         within 0.5 m ({DETECT_WITHIN} scans in a row, whatever the state) within 10 scans: \
+         on ({DETECT_WITHIN} scans in a row, whatever the state) within 10 scans: \
          {within10}; at all: {again}. Scans counted from the kidnapping's (0).\n",
         off.len(),
         within10 = back_within(&off, 10),
@@ -158,8 +160,8 @@ fn nav2_kidnap_table(r: &Report, out: &mut String) {
     }
     let _ = writeln!(
         out,
-        "nav2 (its CSVs) on the same kidnapped logs: kidnappings carried off / back within 0.5 m \
-         within 10 scans / at all (back: {DETECT_WITHIN} scans in a row within 0.5 m).\n"
+        "nav2 (its CSVs) on the same kidnapped logs: kidnappings carried off / back within 10 \
+         scans / at all (back: {DETECT_WITHIN} scans in a row within 0.5 m and {OFF_HEADING_DEG}°).\n"
     );
     let _ = writeln!(out, "| log | seed | ours | nav2 |");
     let _ = writeln!(out, "|---|---|---|---|");

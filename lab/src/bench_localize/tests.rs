@@ -3,9 +3,12 @@
 use super::*;
 use IntegrityState::{Lost, Tracking, Uncertain};
 
+const ON: Option<PoseError> = Some(PoseError { m: 0.1, rad: 0.02 });
+const OFF: Option<PoseError> = Some(PoseError { m: 2.0, rad: 0.02 });
+
 #[test]
 fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
-    let (on, off) = (Some(0.1), Some(2.0));
+    let (on, off) = (ON, OFF);
     let scans = [
         (on, Tracking),
         (on, Tracking),
@@ -36,6 +39,28 @@ fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
     assert_eq!(c.reseeds, 7);
 }
 
+/// An estimate within 0.5 m of the robot but turned by more than 10° is off as one metres away
+/// is: a filter that reports `lost` there is not a false alarm, and one that reports `tracking`
+/// there is tracking while off.
+#[test]
+fn an_estimate_facing_the_wrong_way_is_off() {
+    let turned = Some(PoseError { m: 0.2, rad: 120f64.to_radians() });
+    assert!(turned.unwrap().off() && !ON.unwrap().off());
+    assert!(!PoseError { m: 0.5, rad: 10f64.to_radians() - 1e-9 }.off());
+    assert!(PoseError { m: 0.5, rad: 10f64.to_radians() + 1e-6 }.off());
+    let scans = [
+        (ON, Tracking),
+        (ON, Tracking),
+        (ON, Tracking),
+        (turned, Tracking),
+        (turned, Lost),
+        (turned, Lost),
+        (ON, Lost),
+    ];
+    let c = integrity_counts(&scans, 0);
+    assert_eq!((c.false_lost, c.losses, c.detected, c.tracking_off, c.on), (0, 1, 1, 1, 4));
+}
+
 /// A percentile is the sorted sample at its rank, rounded; NaN for none.
 #[test]
 fn percentiles_take_the_rounded_rank() {
@@ -64,7 +89,7 @@ fn the_report_heads_its_tables_and_names_skipped_logs() {
 /// next kidnapping ends the window.
 #[test]
 fn kidnap_outcomes_count_doubt_loss_and_return_from_the_kidnapping() {
-    let (on, off) = (Some(0.1), Some(2.0));
+    let (on, off) = (ON, OFF);
     let states = [
         (on, Tracking),
         (off, Tracking),
@@ -98,7 +123,7 @@ fn kidnap_outcomes_count_doubt_loss_and_return_from_the_kidnapping() {
 /// `DETECT_WITHIN` scans in a row after being off: a brief return does not count.
 #[test]
 fn back_after_counts_a_lasting_return_whatever_the_state() {
-    let (on, off) = (Some(0.1), Some(2.0));
+    let (on, off) = (ON, OFF);
     let errors = [on, off, off, off, on, off, on, on, on, off];
     let judged: Vec<Judged> = errors.iter().enumerate().map(|(i, e)| (i + 10, *e, Tracking)).collect();
     let kidnaps = [amr_core::amcl::log::Kidnap { scan: 10, jump: amr_core::se2::Se2::new(2.0, 0.0, 1.0) }];
