@@ -326,6 +326,7 @@ impl Amcl {
         }
         self.estimate = particles::cluster_estimate(&self.particles);
         let before = self.monitor.last().map(|i| i.state);
+        let reseeds_before = self.reseeds;
         let judged = self.estimate.as_ref().map(|e| e.pose).is_some_and(|pose| self.judge(&pose, points));
         // Re-seeded after this update's estimate, so that the next scan, not the one that chose
         // them, judges the new poses: each is the best of many for this scan, and a best-of-many
@@ -367,6 +368,11 @@ impl Amcl {
             if let Some(pose) = self.estimate.as_ref().map(|e| e.pose) {
                 self.vouch_if_unique(&pose, points);
             }
+            // In doubt with nothing known to explain the scans better: the estimate matched to
+            // the map on this scan, judged on the next (not this one, which it was fitted to).
+            if self.reseeds == reseeds_before && self.polish_in_doubt() {
+                self.polish(points);
+            }
         }
         UpdateOutcome::Updated { resampled }
     }
@@ -389,9 +395,28 @@ impl Amcl {
         }
     }
 
+    /// Whether an update's estimate is matched to the map ([`Self::polish`]) after it was judged:
+    /// `uncertain` with no rival carried, or `lost` with an estimate that explains the scan as a
+    /// tracked one does (the filter came back to the robot). An estimate that drifted a little
+    /// in clutter (people, furniture the map does not hold: the weighting holds it loosely there)
+    /// explains less and less until it is called lost; matched, it is called `tracking` again.
+    /// A filter that has just come back from a loss is matched to the map, so it is called
+    /// `tracking` sooner. Not while rivals are carried: a wrong estimate matched to the map
+    /// explains more of the scans, and a rival that is the truth wins later.
+    /// Measured in docs/results.md ("Matching a doubted estimate to the map").
+    fn polish_in_doubt(&self) -> bool {
+        let Some(last) = self.monitor.last() else { return false };
+        match self.monitor.state() {
+            IntegrityState::Tracking => false,
+            IntegrityState::Uncertain => self.rivals.is_empty(),
+            IntegrityState::Lost => last.explained >= self.monitor.params().uncertain_ratio * last.level,
+        }
+    }
+
     /// Match the estimate to the map on this scan (a climb of the likelihood from it) and, if the
     /// map explains the scan clearly better there, move every particle by the correction: the
-    /// cloud keeps its shape and weights.
+    /// cloud keeps its shape and weights. At rest on the first scans, and after an update while
+    /// in doubt ([`Self::polish_in_doubt`]).
     fn polish(&mut self, points: &[[f64; 2]]) {
         let p = *self.monitor.params();
         let Some(e) = self.estimate.as_ref().map(|e| e.pose).filter(|_| points.len() >= p.min_points) else {

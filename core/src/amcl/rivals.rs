@@ -114,15 +114,19 @@ impl Amcl {
     /// (the monitor is told the estimate is ambiguous). A rival is dropped when it no longer
     /// explains the scan as a tracked place does (`uncertain_ratio` of the level), when the
     /// estimate has gone there, when the evidence is `switch_margin` against it, or after
-    /// [`RIVAL_SCANS`]. One wins when it explained `switch_margin` more of the scan than the
-    /// estimate on each of the last `confirm` scans, its evidence leads the runner-up rival's by
-    /// `switch_margin`, and it explains this scan as well as a tracked place does (never less than
-    /// a single rival needed before rivals were carried side by side: a lead summed over many scans
-    /// of small differences carried filters to wrong places along a featureless corridor). The
-    /// estimate is then taken to be wrong, the filter turns `Lost` and places the re-seeded share
-    /// of its particles around the rival. The scan that found it does not count: a best-of-many pose fits the scan it was
-    /// chosen on better than the truth does (placing particles there at once pulled a filter
-    /// that was right, its scan full of unmapped people, to a place 27 m off).
+    /// [`RIVAL_SCANS`]. One wins when it beat the estimate on each of the last `confirm` scans
+    /// (explained `switch_margin` more of the scan, or, where the estimate explained the scan
+    /// below the uncertain bar, explained it as a tracked place does: an estimate carried into an
+    /// office still explains about 70 % of a scan, many endpoints landing near some wall at any
+    /// pose, and the margin alone asked the truth for all of it), its evidence leads the
+    /// runner-up rival's by `switch_margin`, and it explains this scan as well as a tracked place
+    /// does (never less than a single rival needed before rivals were carried side by side: a
+    /// lead summed over many scans of small differences carried filters to wrong places along a
+    /// featureless corridor). The estimate is then taken to be wrong, the filter turns `Lost` and
+    /// places the re-seeded share of its particles around the rival. The scan that found it does
+    /// not count: a best-of-many pose fits the scan it was chosen on better than the truth does
+    /// (placing particles there at once pulled a filter that was right, its scan full of
+    /// unmapped people, to a place 27 m off).
     pub(super) fn judge_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let rivals = std::mem::take(&mut self.rivals);
         self.monitor.set_ambiguous(false);
@@ -141,7 +145,13 @@ impl Amcl {
                     .unwrap_or(0.0);
             let evidence = rival.evidence + (share - last.explained);
             let judged = rival.judged + 1;
-            let streak = if share >= last.explained + p.switch_margin { rival.streak + 1 } else { 0 };
+            // A scan counts towards the rival when it explains `switch_margin` more of it than the
+            // estimate, or, on a scan the estimate explains below the uncertain bar, when it
+            // explains the scan as a tracked place does.
+            let beaten = share >= last.explained + p.switch_margin
+                || (last.explained < p.uncertain_ratio * last.level
+                    && share >= p.tracking_ratio * last.level);
+            let streak = if beaten { rival.streak + 1 } else { 0 };
             let dropped = share < p.uncertain_ratio * last.level
                 || same_place(&pose, &estimate)
                 || evidence <= -p.switch_margin
