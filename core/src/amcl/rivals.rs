@@ -23,6 +23,14 @@ pub(super) struct Rival {
     streak: u32,
 }
 
+impl Rival {
+    /// A rival just found at `pose` when the odometry read `odom`, judged on no scan yet.
+    #[cfg(test)]
+    pub(super) fn found(pose: Se2, odom: Se2) -> Self {
+        Rival { pose, odom, evidence: 0.0, judged: 0, streak: 0 }
+    }
+}
+
 /// A rival this close to the estimate is the same place: the estimate went there, m and rad.
 const SAME_PLACE_M: f64 = 0.5;
 const SAME_PLACE_RAD: f64 = 0.175;

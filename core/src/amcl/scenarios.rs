@@ -519,6 +519,64 @@ fn an_estimate_in_doubt_is_matched_to_the_map_after_the_update() {
     }
 }
 
+/// A filter carried a little way along the corridor, or turned on the spot (a kidnapping whose
+/// first, poorly explained scan the search found the truth on): the estimate explains most of each
+/// scan after, below the uncertain bar but too much for a rival to explain `switch_margin` (0.3)
+/// more. The rival at the truth explains the scans as a tracked place does and wins on that: the
+/// filter is `lost` on the second scan, on the robot from the third and `tracking` from the fifth.
+/// (Winning only by the margin, the filter stayed `uncertain` at the wrong place.)
+#[test]
+fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
+    let params = tuned_params();
+    let b = building();
+    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
+    let truth = path();
+    let shifts = [
+        Se2::new(0.8, 0.0, 0.0),
+        Se2::new(1.0, 0.0, 0.0),
+        Se2::new(0.0, 0.0, 0.3),
+        Se2::new(0.0, 0.0, -0.25),
+    ];
+    for (seed, shift) in (0..).zip(shifts) {
+        let mut rng = Rng::seed(70 + seed);
+        let odom = odometry(&truth, &mut rng);
+        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 71 + seed);
+        amcl.init_pose(truth[0], 0.02, 0.01);
+        for (t, o) in truth.iter().zip(&odom).take(30) {
+            let scan = b.scan(t, &mut rng);
+            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, &params), false);
+        }
+        assert_eq!(amcl.integrity_state(), IntegrityState::Tracking, "seed {seed}");
+        // The cloud carried off as one, and the truth carried as a rival.
+        let at = amcl.pose_at(&odom[30]).unwrap();
+        let moved = at * shift * at.inverse();
+        for q in &mut amcl.particles {
+            q.pose = moved * q.pose;
+        }
+        amcl.estimate = super::particles::cluster_estimate(&amcl.particles);
+        amcl.rivals.push(super::rivals::Rival::found(truth[30], odom[30]));
+        let mut seen = Vec::new();
+        for (t, o) in truth.iter().zip(&odom).skip(31).take(8) {
+            let scan = b.scan(t, &mut rng);
+            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, &params), false);
+            let e = amcl.estimate().unwrap().pose;
+            let judged = amcl.monitor.last().map_or(0.0, |i| i.explained / i.level);
+            let error = ((e.x - t.x).hypot(e.y - t.y), angle_diff(e.theta, t.theta).abs());
+            seen.push((amcl.integrity_state(), judged, error));
+        }
+        eprintln!("seed {seed}: {seen:?}");
+        let p = params.integrity;
+        let (_, first, _) = seen[0];
+        assert!(
+            first >= p.lost_ratio && first < p.uncertain_ratio,
+            "seed {seed}: explains {first} of the level"
+        );
+        assert_eq!(seen[1].0, IntegrityState::Lost, "seed {seed}: {seen:?}");
+        assert!(seen[2..].iter().all(|(_, _, e)| e.0 < 0.06 && e.1 < 0.03), "seed {seed}: {seen:?}");
+        assert!(seen[4..].iter().all(|(s, _, _)| *s == IntegrityState::Tracking), "seed {seed}: {seen:?}");
+    }
+}
+
 /// Kidnapped-robot recovery with α_slow/α_fast: after being carried from the corridor into the room
 /// with the triangle, the estimate is back within 0.3 m / 10° within 30 updates and stays there to
 /// the end (60 updates); without the recovery alphas nothing is injected and the estimate stays
