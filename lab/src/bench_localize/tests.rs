@@ -3,7 +3,8 @@
 use super::*;
 use IntegrityState::{Lost, Tracking, Uncertain};
 
-const ON: Option<PoseError> = Some(PoseError { m: 0.1, rad: 0.02 });
+const ON_ERROR: PoseError = PoseError { m: 0.1, rad: 0.02 };
+const ON: Option<PoseError> = Some(ON_ERROR);
 const OFF: Option<PoseError> = Some(PoseError { m: 2.0, rad: 0.02 });
 
 #[test]
@@ -44,8 +45,9 @@ fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
 /// there is tracking while off.
 #[test]
 fn an_estimate_facing_the_wrong_way_is_off() {
-    let turned = Some(PoseError { m: 0.2, rad: 120f64.to_radians() });
-    assert!(turned.unwrap().off() && !ON.unwrap().off());
+    let turned_error = PoseError { m: 0.2, rad: 120f64.to_radians() };
+    assert!(turned_error.off() && !ON_ERROR.off());
+    let turned = Some(turned_error);
     assert!(!PoseError { m: 0.5, rad: 10f64.to_radians() - 1e-9 }.off());
     assert!(PoseError { m: 0.5, rad: 10f64.to_radians() + 1e-6 }.off());
     let scans = [
