@@ -403,7 +403,7 @@ impl Amcl {
     /// A filter that has just come back from a loss is matched to the map, so it is called
     /// `tracking` sooner. Not while rivals are carried: a wrong estimate matched to the map
     /// explains more of the scans, and a rival that is the truth wins later.
-    /// Measured in docs/results.md ("Matching a doubted estimate to the map").
+    /// Measured in docs/results.md ("Matching in doubt and the rival's lower bar").
     fn polish_in_doubt(&self) -> bool {
         let Some(last) = self.monitor.last() else { return false };
         match self.monitor.state() {
