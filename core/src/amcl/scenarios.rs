@@ -475,6 +475,37 @@ fn a_filter_started_a_little_off_verifies_itself_while_the_robot_stands_still() 
     }
 }
 
+/// A filter that tracked the first `updates` poses of `truth` from the first (a tight cloud), with
+/// the odometry and the scans' generator it ran on (seed `seed`; the filter's, `seed + 1`).
+struct Tracked {
+    amcl: Amcl,
+    odom: Vec<Se2>,
+    rng: Rng,
+}
+
+fn tracked_along(b: &Building, params: &AmclParams, truth: &[Se2], updates: usize, seed: u64) -> Tracked {
+    let mut rng = Rng::seed(seed);
+    let odom = odometry(truth, &mut rng);
+    let field = Arc::new(LikelihoodField::new(&b.grid, params, 10.0));
+    let mut amcl = Amcl::new(params.clone(), field, seed + 1);
+    amcl.init_pose(truth[0], 0.02, 0.01);
+    for (t, o) in truth.iter().zip(&odom).take(updates) {
+        let scan = b.scan(t, &mut rng);
+        amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, params), false);
+    }
+    Tracked { amcl, odom, rng }
+}
+
+/// Every particle moved as one by `shift` in the frame of the estimate at odometry `odom`.
+fn move_cloud(amcl: &mut Amcl, odom: &Se2, shift: Se2) {
+    let at = amcl.pose_at(odom).unwrap();
+    let moved = at * shift * at.inverse();
+    for q in &mut amcl.particles {
+        q.pose = moved * q.pose;
+    }
+    amcl.estimate = super::particles::cluster_estimate(&amcl.particles);
+}
+
 /// A driving robot whose filter's cloud slipped 12–14 cm and about 2° (a tight cloud, as one held
 /// loosely by scans full of clutter drifts) while it was in doubt: after the update its estimate is
 /// matched to the map and the cloud moved by the correction, within 4 cm and 0.5° of the robot.
@@ -484,28 +515,15 @@ fn a_filter_started_a_little_off_verifies_itself_while_the_robot_stands_still() 
 fn an_estimate_in_doubt_is_matched_to_the_map_after_the_update() {
     let params = tuned_params();
     let b = building();
-    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
     let truth = path();
     for (seed, slip) in
         [(0, Se2::new(0.05, -0.12, -0.03)), (1, Se2::new(-0.05, 0.12, 0.03)), (2, Se2::new(0.0, 0.12, -0.03))]
     {
-        let mut rng = Rng::seed(90 + seed);
-        let odom = odometry(&truth, &mut rng);
-        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 91 + seed);
-        amcl.init_pose(truth[0], 0.02, 0.01);
-        for (t, o) in truth.iter().zip(&odom).take(20) {
-            let scan = b.scan(t, &mut rng);
-            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, &params), false);
-        }
+        let Tracked { mut amcl, odom, mut rng } = tracked_along(&b, &params, &truth, 20, 90 + seed);
         assert_eq!(amcl.integrity_state(), IntegrityState::Tracking, "seed {seed}");
         // The cloud slips as one, and the filter is in doubt (as after `init_pose`).
         let (t, o) = (truth[20], odom[20]);
-        let at = amcl.pose_at(&o).unwrap();
-        let moved = at * slip * at.inverse();
-        for q in &mut amcl.particles {
-            q.pose = moved * q.pose;
-        }
-        amcl.estimate = super::particles::cluster_estimate(&amcl.particles);
+        move_cloud(&mut amcl, &o, slip);
         amcl.monitor.restart(IntegrityState::Uncertain);
         let error = |e: Se2| ((e.x - t.x).hypot(e.y - t.y), angle_diff(e.theta, t.theta).abs());
         let before = error(amcl.pose_at(&o).unwrap());
@@ -529,7 +547,6 @@ fn an_estimate_in_doubt_is_matched_to_the_map_after_the_update() {
 fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
     let params = tuned_params();
     let b = building();
-    let field = Arc::new(LikelihoodField::new(&b.grid, &params, 10.0));
     let truth = path();
     let shifts = [
         Se2::new(0.8, 0.0, 0.0),
@@ -538,22 +555,10 @@ fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
         Se2::new(0.0, 0.0, -0.25),
     ];
     for (seed, shift) in (0..).zip(shifts) {
-        let mut rng = Rng::seed(70 + seed);
-        let odom = odometry(&truth, &mut rng);
-        let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 71 + seed);
-        amcl.init_pose(truth[0], 0.02, 0.01);
-        for (t, o) in truth.iter().zip(&odom).take(30) {
-            let scan = b.scan(t, &mut rng);
-            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, &params), false);
-        }
+        let Tracked { mut amcl, odom, mut rng } = tracked_along(&b, &params, &truth, 30, 70 + seed);
         assert_eq!(amcl.integrity_state(), IntegrityState::Tracking, "seed {seed}");
         // The cloud carried off as one, and the truth carried as a rival.
-        let at = amcl.pose_at(&odom[30]).unwrap();
-        let moved = at * shift * at.inverse();
-        for q in &mut amcl.particles {
-            q.pose = moved * q.pose;
-        }
-        amcl.estimate = super::particles::cluster_estimate(&amcl.particles);
+        move_cloud(&mut amcl, &odom[30], shift);
         amcl.rivals.push(super::rivals::Rival::found(truth[30], odom[30]));
         let mut seen = Vec::new();
         for (t, o) in truth.iter().zip(&odom).skip(31).take(8) {
