@@ -42,10 +42,25 @@ const RIVAL_SCANS: u32 = 50;
 /// Rivals carried at most.
 const RIVALS: usize = 3;
 
+/// Whether `a` is where `b` is: within [`SAME_PLACE_M`] and [`SAME_PLACE_RAD`].
 fn same_place(a: &Se2, b: &Se2) -> bool {
-    let apart = *a * b.inverse();
-    apart.translation_norm() < SAME_PLACE_M && apart.theta.abs() < SAME_PLACE_RAD
+    within(a, b, SAME_PLACE_M, SAME_PLACE_RAD)
 }
+
+/// Whether `a` seen from `b` is within `m` and `rad` of it. In `b`'s frame, not the map's: the
+/// map-frame difference `a · b⁻¹` also holds the turn between them about the map's origin, metres
+/// far from it.
+fn within(a: &Se2, b: &Se2, m: f64, rad: f64) -> bool {
+    let apart = b.inverse() * *a;
+    apart.translation_norm() < m && apart.theta.abs() < rad
+}
+
+/// The estimate has gone to a rival when it is this close to it, m and rad: a rival is climbed to
+/// each scan, and an estimate at the same optimum stands within a few centimetres of it. One
+/// farther off but at the same place (a drift, a turn the odometry missed) is left to the rival
+/// to correct.
+const WENT_THERE_M: f64 = 0.1;
+const WENT_THERE_RAD: f64 = 0.035;
 
 /// The spread of the particles placed around a rival that won, m and rad.
 const RIVAL_SPREAD_M: f64 = 0.05;
@@ -161,7 +176,7 @@ impl Amcl {
                     && share >= p.tracking_ratio * last.level);
             let streak = if beaten { rival.streak + 1 } else { 0 };
             let dropped = share < p.uncertain_ratio * last.level
-                || same_place(&pose, &estimate)
+                || within(&pose, &estimate, WENT_THERE_M, WENT_THERE_RAD)
                 || evidence <= -p.switch_margin
                 || judged > RIVAL_SCANS
                 || kept.iter().any(|(k, _)| same_place(&k.pose, &pose));
@@ -181,13 +196,25 @@ impl Amcl {
             self.monitor.set_ambiguous(!self.rivals.is_empty());
             return;
         };
+        // The particles are where the last update left them, at its odometry: the rival is
+        // placed there too.
+        let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
+        // A rival at the estimate's place corrects it: the cloud is moved onto it, as a match to
+        // the map moves it, and the estimate was not lost.
+        if same_place(&pose, &estimate) {
+            if let Some(e) = self.estimate.as_ref().map(|e| e.pose) {
+                let correction = at_update * e.inverse();
+                for q in &mut self.particles {
+                    q.pose = correction * q.pose;
+                }
+                self.estimate = super::particles::cluster_estimate(&self.particles);
+            }
+            return;
+        }
         self.monitor.declare_lost();
         let n = self.particles.len();
         let k = n.min(p.reseed_max_particles);
         let w = 1.0 / n as f64;
-        // The particles are where the last update left them, at its odometry: the rival is
-        // placed there too.
-        let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
         for _ in 0..k {
             let at = self.rng.below(n);
             let q = Se2::new(
@@ -201,5 +228,28 @@ impl Amcl {
         }
         self.renormalise();
         self.reseeds += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two poses are compared in their own frame, not the map's: far from the map's origin a turn
+    /// of 3° is still the same place (composed the other way round, the 3° about the origin moved
+    /// it 12 m), and 0.6 m away is another, whatever the heading.
+    #[test]
+    fn places_are_compared_where_they_stand() {
+        for at in [[0.0, 0.0], [150.0, -200.0], [-220.0, 30.0]] {
+            let a = Se2::new(at[0], at[1], 1.0);
+            let turned = Se2::new(at[0], at[1], 1.0 + 3f64.to_radians());
+            assert!(same_place(&a, &turned) && same_place(&turned, &a), "{at:?}");
+            let moved = Se2::new(at[0] + 0.36, at[1] - 0.48, 1.0);
+            assert!(!same_place(&a, &moved) && !same_place(&moved, &a), "{at:?}");
+            let near = Se2::new(at[0] + 0.3, at[1], 1.0 + 5f64.to_radians());
+            assert!(same_place(&a, &near) && same_place(&near, &a), "{at:?}");
+            let facing = Se2::new(at[0], at[1], 1.0 + 12f64.to_radians());
+            assert!(!same_place(&a, &facing), "{at:?}");
+        }
     }
 }
