@@ -438,7 +438,13 @@ impl Amcl {
         {
             return;
         }
-        let correction = matched * e.inverse();
+        self.move_estimate_to(&e, &matched);
+    }
+
+    /// Every particle moved as one, so that the estimate `from` lands on `to` (the cloud keeps its
+    /// shape and weights), and the estimate taken again.
+    fn move_estimate_to(&mut self, from: &Se2, to: &Se2) {
+        let correction = *to * from.inverse();
         for q in &mut self.particles {
             q.pose = correction * q.pose;
         }

@@ -204,11 +204,7 @@ impl Amcl {
         // the map moves it, and the estimate was not lost.
         if same_place(&pose, &estimate) {
             if let Some(e) = self.estimate.as_ref().map(|e| e.pose) {
-                let correction = at_update * e.inverse();
-                for q in &mut self.particles {
-                    q.pose = correction * q.pose;
-                }
-                self.estimate = super::particles::cluster_estimate(&self.particles);
+                self.move_estimate_to(&e, &at_update);
             }
             return;
         }

@@ -508,11 +508,9 @@ fn tracked_along(b: &Building, params: &AmclParams, truth: &[Se2], updates: usiz
 /// Every particle moved as one by `shift` in the frame of the estimate at odometry `odom`.
 fn move_cloud(amcl: &mut Amcl, odom: &Se2, shift: Se2) {
     let at = amcl.pose_at(odom).unwrap();
-    let moved = at * shift * at.inverse();
-    for q in &mut amcl.particles {
-        q.pose = moved * q.pose;
-    }
-    amcl.estimate = super::particles::cluster_estimate(&amcl.particles);
+    let e = amcl.estimate().unwrap().pose;
+    // `at` moved by `shift` in its own frame is the estimate moved by the same map-frame motion.
+    amcl.move_estimate_to(&e, &(at * shift * at.inverse() * e));
 }
 
 /// A driving robot whose filter's cloud slipped 12–14 cm and about 2° (a tight cloud, as one held
