@@ -48,6 +48,31 @@ impl Drop for Procs {
     }
 }
 
+/// On a failed assertion, the end of every process's log goes to the test's output (the temporary
+/// directory that holds them is removed with the test): what the server and the robots said is
+/// what tells why a wait ran out.
+struct LogsOnFailure(PathBuf);
+
+impl Drop for LogsOnFailure {
+    fn drop(&mut self) {
+        if !std::thread::panicking() {
+            return;
+        }
+        let Ok(dir) = std::fs::read_dir(&self.0) else { return };
+        let mut logs: Vec<PathBuf> =
+            dir.flatten().map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "log")).collect();
+        logs.sort();
+        for log in logs {
+            let text = std::fs::read_to_string(&log).unwrap_or_default();
+            let lines: Vec<&str> = text.lines().collect();
+            eprintln!("---- {} (last {} of {} lines)", log.display(), lines.len().min(60), lines.len());
+            for line in &lines[lines.len().saturating_sub(60)..] {
+                eprintln!("{line}");
+            }
+        }
+    }
+}
+
 fn spawn(args: &[String], log: &Path, stdin: bool) -> Child {
     let file = std::fs::File::create(log).unwrap();
     Command::new(env!("CARGO_BIN_EXE_amr"))
@@ -126,6 +151,7 @@ fn wait_for(seen: &Mutex<Seen>, what: &str, limit: Duration, f: impl Fn(&Seen) -
 #[test]
 fn robot_and_server_processes_survive_losing_the_server_and_a_robot_and_finish() {
     let tmp = tempfile::tempdir().unwrap();
+    let _logs = LogsOnFailure(tmp.path().to_owned());
     write_config(tmp.path());
     let config = tmp.path().join("config");
     let certs = tmp.path().join("certs");
