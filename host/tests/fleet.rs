@@ -54,6 +54,7 @@ impl Drop for Procs {
 struct LogsOnFailure(PathBuf);
 
 impl Drop for LogsOnFailure {
+    #[allow(clippy::print_stderr, reason = "the failed test's output")]
     fn drop(&mut self) {
         if !std::thread::panicking() {
             return;
