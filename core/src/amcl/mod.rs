@@ -411,7 +411,7 @@ impl Amcl {
     /// less until it is called lost; matched, it is called `tracking` again. A filter that has
     /// just come back from a loss is matched to the map, so it is called `tracking` sooner. Also
     /// while rivals are carried: rivals are looked for on any scan the estimate explains below the
-    /// uncertain bar ([`Self::replace_need`]), and an estimate left unmatched while they were
+    /// uncertain bar ([`Self::rival_need`]), and an estimate left unmatched while they were
     /// judged drifted on in the clutter that had put it there until it was called lost (on a
     /// development log, 4–6 false alarms per run). A wrong estimate matched to the map explains
     /// more of the scans, but each match moves it at most [`POLISH_MAX_M`] and 5°, to the nearest
@@ -474,9 +474,8 @@ impl Amcl {
     /// The filter is lost: up to `share` of its particles, drawn at random, are
     /// replaced by poses that fit this scan (each the best of `reseed_candidates` poses uniform
     /// over the free space, the global localiser's sensor resetting) — but only by those that
-    /// explain the scan as a tracked place does and, where the estimate explains it at the
-    /// uncertain bar or above, `switch_margin` more than the estimate ([`Self::replace_need`]; by
-    /// the integrity measure, beams through walls included). Where the map explains little of the
+    /// explain the scan clearly better than the estimate does ([`Self::replace_need`]:
+    /// `switch_margin` more of it, by the integrity measure, beams through walls included). Where the map explains little of the
     /// scan anywhere (a region the map does not cover, a crowd), nothing is replaced and the
     /// filter keeps tracking on odometry: replacing it there put a tracked filter 12 m off in our
     /// surveyed world. The rest stay where they were; the weighting of the next scan keeps
@@ -491,7 +490,8 @@ impl Amcl {
         // Which particles go: all of them, or `k` drawn at random.
         let slots: Vec<usize> =
             if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
-        let places = self.better_places(points, slots.len(), Stream::Filter);
+        let need = self.replace_need();
+        let places = self.better_places(points, slots.len(), Stream::Filter, need);
         let w = 1.0 / n as f64;
         let mut placed = 0usize;
         for (at, pose) in slots.into_iter().zip(places) {
@@ -508,31 +508,47 @@ impl Amcl {
         true
     }
 
-    /// The share of the scan a replacement must explain: enough to be tracking there (a place
-    /// that explains half the scan is no alternative, wherever the estimate stands; nor one where
-    /// a wall nearby explains the beams a neighbouring robot blocked) and, where the estimate
-    /// explains the scan at the uncertain bar or above, clearly more than it does
-    /// (`switch_margin`). Below that bar the tracking bar alone, as a rival wins on such a scan
-    /// ([`Self::judge_rivals`]): a kidnapped estimate that still explains 70–80 % of a scan (many
-    /// endpoints land near some wall at any pose) asked the truth for more than all of it, and no
-    /// search could begin. `None` when no place could (more than all of it).
+    /// The share of the scan a replacement (a re-seeded particle) must explain: clearly more than
+    /// the estimate does (`switch_margin`), and enough to be tracking there (a place that explains
+    /// half the scan is no alternative, wherever the estimate stands; nor one where a wall nearby
+    /// explains the beams a neighbouring robot blocked). `None` when no place could (more than all
+    /// of it). A lost filter whose estimate came back to the robot explains most of the scan, and
+    /// this keeps its particles there: re-seeded at the tracking bar alone, they went to a place
+    /// along a corridor 99 m off that explained that one scan as well (infinite-corridor).
     fn replace_need(&self) -> Option<f64> {
         let p = self.monitor.params();
-        let need = self.monitor.last().map_or(0.0, |i| {
-            if i.explained < p.uncertain_ratio * i.level {
-                p.tracking_ratio * i.level
-            } else {
-                (i.explained + p.switch_margin).max(p.tracking_ratio * i.level)
-            }
-        });
+        let need = self
+            .monitor
+            .last()
+            .map_or(0.0, |i| (i.explained + p.switch_margin).max(p.tracking_ratio * i.level));
         (need <= 1.0).then_some(need)
     }
 
+    /// The share of the scan a rival must explain to be carried: as a replacement
+    /// ([`Self::replace_need`]), but where the estimate explains the scan below the uncertain bar
+    /// the tracking bar alone, the bar a rival wins on there ([`Self::judge_rivals`]). A kidnapped
+    /// estimate that still explains 70–80 % of a scan (many endpoints land near some wall at any
+    /// pose) asked the truth for more than all of it, and no search could begin. A rival is
+    /// judged on the scans after before anything moves; a re-seeded particle is not.
+    fn rival_need(&self) -> Option<f64> {
+        let p = self.monitor.params();
+        match self.monitor.last() {
+            Some(i) if i.explained < p.uncertain_ratio * i.level => Some(p.tracking_ratio * i.level),
+            _ => self.replace_need(),
+        }
+    }
+
     /// `tries` draws, each the best-fitting of `reseed_candidates` poses uniform over the free
-    /// space, climbed to its local optimum: each `Some` if it explains [`Self::replace_need`] of
-    /// the scan.
-    fn better_places(&mut self, points: &[[f64; 2]], tries: usize, stream: Stream) -> Vec<Option<Se2>> {
-        match self.replace_need() {
+    /// space, climbed to its local optimum: each `Some` if it explains `need` of the scan (none
+    /// without one).
+    fn better_places(
+        &mut self,
+        points: &[[f64; 2]],
+        tries: usize,
+        stream: Stream,
+        need: Option<f64>,
+    ) -> Vec<Option<Se2>> {
+        match need {
             Some(need) => self.places_explaining(points, tries, stream, need, |_| false),
             None => vec![None; tries],
         }

@@ -69,7 +69,7 @@ const RIVAL_SPREAD_RAD: f64 = 0.02;
 impl Amcl {
     /// Uncertain, or this scan explained poorly, and fewer than [`RIVALS`] carried: look for
     /// places that explain this scan far better than the estimate, or as a tracked place does
-    /// where the estimate explains it below the uncertain bar (`replace_need`; as `reseed` does,
+    /// where the estimate explains it below the uncertain bar (`rival_need`; as `reseed` does,
     /// `alternative_draws` draws); the best distinct ones join the rivals, judged on the next
     /// scans ([`Self::judge_rivals`]), and the estimate is ambiguous from now. The draws are few
     /// and repeated on each such update: a cluttered site is uncertain for a third of its scans
@@ -77,7 +77,8 @@ impl Amcl {
     pub(super) fn search_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let p = *self.monitor.params();
         let k = p.alternative_draws;
-        if k == 0 || self.rivals.len() >= RIVALS || self.replace_need().is_none() {
+        let need = self.rival_need();
+        if k == 0 || self.rivals.len() >= RIVALS || need.is_none() {
             return;
         }
         let judged = subsample(points, p.max_points);
@@ -87,7 +88,7 @@ impl Amcl {
         let field = Arc::clone(&self.field);
         let origin = self.sensor_origin;
         let mut found: Vec<(f64, Se2)> = self
-            .better_places(points, k, super::Stream::Search)
+            .better_places(points, k, super::Stream::Search, need)
             .into_iter()
             .flatten()
             .map(|pose| (share(&field, &pose, origin), pose))
