@@ -149,10 +149,16 @@ impl Amcl {
     /// lead summed over many scans of small differences carried filters to wrong places along a
     /// featureless corridor). The estimate is then taken to be wrong, the filter turns `Lost` and
     /// places the re-seeded share of its particles around the rival; but a winner at the
-    /// estimate's place ([`same_place`]) corrects the estimate instead, the cloud moved onto it. The scan that found it does
-    /// not count: a best-of-many pose fits the scan it was chosen on better than the truth does
-    /// (placing particles there at once pulled a filter that was right, its scan full of
-    /// unmapped people, to a place 27 m off).
+    /// estimate's place ([`same_place`]) corrects the estimate instead, the cloud moved onto it.
+    /// The scan that found it does not count: a best-of-many pose fits the scan it was chosen on
+    /// better than the truth does (placing particles there at once pulled a filter that was
+    /// right, its scan full of unmapped people, to a place 27 m off). Where none wins but two or
+    /// more have each beaten the estimate on the last `confirm` scans, explain the scan as a
+    /// tracked place does and stand away from it (twins: a place and its mirror image), the
+    /// filter turns `Lost`, places the particles around all of them and carries them on as
+    /// twins: judged on their own shares while `Lost`, dropped when they explain less than a
+    /// tracked place does or trail the best twin's evidence by `switch_margin`, and the estimate
+    /// ambiguous (never `Tracking`) while two remain.
     pub(super) fn judge_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let rivals = std::mem::take(&mut self.rivals);
         self.monitor.set_ambiguous(false);
@@ -233,8 +239,10 @@ impl Amcl {
                     }
                     return;
                 }
+                self.monitor.declare_lost();
                 vec![pose]
             }
+            // Two or more beat the estimate and none leads: it is wrong whichever is right.
             None if beaters.len() >= 2 => {
                 let poses = beaters.iter().map(|r| r.pose).collect();
                 self.monitor.declare_lost();
@@ -249,9 +257,6 @@ impl Amcl {
                 return;
             }
         };
-        if !self.twins {
-            self.monitor.declare_lost();
-        }
         let n = self.particles.len();
         let k = n.min(p.reseed_max_particles);
         let w = 1.0 / n as f64;
