@@ -136,8 +136,8 @@ impl Amcl {
     /// rival's share less the estimate's). While none has won, the filter is not `Tracking`
     /// (the monitor is told the estimate is ambiguous). A rival is dropped when it no longer
     /// explains the scan as a tracked place does (`uncertain_ratio` of the level), when the
-    /// estimate has gone there ([`WENT_THERE_M`], [`WENT_THERE_RAD`]), when the evidence is `switch_margin` against it, or after
-    /// [`RIVAL_SCANS`]. One wins when it beat the estimate on each of the last `confirm` scans
+    /// estimate has gone there ([`WENT_THERE_M`], [`WENT_THERE_RAD`]), when the evidence is
+    /// `switch_margin` against it, or after [`RIVAL_SCANS`]. One wins when it beat the estimate on each of the last `confirm` scans
     /// (explained `switch_margin` more of the scan, or, where the estimate explained the scan
     /// below the uncertain bar, explained it as a tracked place does: an estimate carried into an
     /// office still explains about 70 % of a scan, many endpoints landing near some wall at any
@@ -147,8 +147,8 @@ impl Amcl {
     /// lead summed over many scans of small differences carried filters to wrong places along a
     /// featureless corridor). The estimate is then taken to be wrong, the filter turns `Lost` and
     /// places the re-seeded share of its particles around the rival; but a winner at the
-    /// estimate's place ([`same_place`]) corrects the estimate instead, the cloud moved onto it. The scan that found it does
-    /// not count: a best-of-many pose fits the scan it was chosen on better than the truth does
+    /// estimate's place ([`same_place`]) corrects the estimate instead, the cloud moved onto it.
+    /// The scan that found it does not count: a best-of-many pose fits the scan it was chosen on better than the truth does
     /// (placing particles there at once pulled a filter that was right, its scan full of
     /// unmapped people, to a place 27 m off).
     pub(super) fn judge_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
