@@ -79,6 +79,9 @@ pub struct Amcl {
     /// Places that explained a scan far better than the estimate, judged against it on the scans
     /// after before the filter believes one (`rivals.rs`).
     rivals: Vec<rivals::Rival>,
+    /// The rivals carried while `lost` are twins: places that all beat the estimate, which the
+    /// scans have not yet told apart (`rivals.rs`).
+    twins: bool,
     /// Scans since the last judged one.
     unjudged: u32,
 }
@@ -132,6 +135,7 @@ impl Amcl {
             rest_polishes: 0,
             sensor_origin: None,
             rivals: Vec::new(),
+            twins: false,
             unjudged: 0,
         }
     }
@@ -231,6 +235,7 @@ impl Amcl {
         self.estimate = particles::cluster_estimate(&self.particles);
         self.rest_polishes = 0;
         self.rivals.clear();
+        self.twins = false;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -248,6 +253,7 @@ impl Amcl {
         self.monitor.restart(IntegrityState::Uncertain);
         self.global_pending = true;
         self.rivals.clear();
+        self.twins = false;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -333,7 +339,7 @@ impl Amcl {
         // fits the scan it was chosen on better than the truth does (clutter and all), which let
         // re-seeding pull a tracking filter away on the real logs.
         if judged {
-            let p = self.monitor.params();
+            let p = *self.monitor.params();
             match self.monitor.state() {
                 // Turned lost just now: every particle is a candidate for replacement (as the
                 // global localiser's first scan, which finds the robot on the real logs from one
@@ -342,6 +348,9 @@ impl Amcl {
                     self.reseed(points, 1.0);
                 }
                 IntegrityState::Lost => {
+                    if self.twins {
+                        self.judge_rivals(odom, points);
+                    }
                     self.reseed(points, p.reseed_share);
                 }
                 // Not lost: the rivals are judged on this scan; more are looked for while
@@ -361,7 +370,7 @@ impl Amcl {
                     }
                 }
             }
-            if self.monitor.state() == IntegrityState::Lost {
+            if self.monitor.state() == IntegrityState::Lost && !self.twins {
                 self.rivals.clear();
                 self.monitor.set_ambiguous(false);
             }
@@ -396,19 +405,23 @@ impl Amcl {
     }
 
     /// Whether an update's estimate is matched to the map ([`Self::polish`]) after it was judged:
-    /// `uncertain` with no rival carried, or `lost` with an estimate that explains the scan as a
-    /// tracked one does (the filter came back to the robot). An estimate that drifted a little
-    /// in clutter (people, furniture the map does not hold: the weighting holds it loosely there)
-    /// explains less and less until it is called lost; matched, it is called `tracking` again.
-    /// A filter that has just come back from a loss is matched to the map, so it is called
-    /// `tracking` sooner. Not while rivals are carried: a wrong estimate matched to the map
-    /// explains more of the scans, and a rival that is the truth wins later.
-    /// Measured in docs/results.md ("Matching in doubt and the rival's lower bar").
+    /// `uncertain`, or `lost` with an estimate that explains the scan as a tracked one does (the
+    /// filter came back to the robot). An estimate that drifted a little in clutter (people,
+    /// furniture the map does not hold: the weighting holds it loosely there) explains less and
+    /// less until it is called lost; matched, it is called `tracking` again. A filter that has
+    /// just come back from a loss is matched to the map, so it is called `tracking` sooner. Also
+    /// while rivals are carried: rivals are looked for on any scan the estimate explains below the
+    /// uncertain bar ([`Self::rival_need`]), and an estimate left unmatched while they were
+    /// judged drifted on in the clutter that had put it there until it was called lost (on a
+    /// development log, 4–6 false alarms per run). A wrong estimate matched to the map explains
+    /// more of the scans, but each match moves it at most [`POLISH_MAX_M`] and 5°, to the nearest
+    /// fit of the place it was carried to, and the rival at the truth still wins. Measured in docs/results.md ("Matching
+    /// in doubt and the rival's lower bar", "Rivals looked for at the tracking bar").
     fn polish_in_doubt(&self) -> bool {
         let Some(last) = self.monitor.last() else { return false };
         match self.monitor.state() {
             IntegrityState::Tracking => false,
-            IntegrityState::Uncertain => self.rivals.is_empty(),
+            IntegrityState::Uncertain => true,
             IntegrityState::Lost => last.explained >= self.monitor.params().uncertain_ratio * last.level,
         }
     }
@@ -461,8 +474,8 @@ impl Amcl {
     /// The filter is lost: up to `share` of its particles, drawn at random, are
     /// replaced by poses that fit this scan (each the best of `reseed_candidates` poses uniform
     /// over the free space, the global localiser's sensor resetting) — but only by those that
-    /// explain the scan clearly better than the estimate does (`switch_margin` more of it, by the
-    /// integrity measure, beams through walls included). Where the map explains little of the
+    /// explain the scan clearly better than the estimate does ([`Self::replace_need`]:
+    /// `switch_margin` more of it, by the integrity measure, beams through walls included). Where the map explains little of the
     /// scan anywhere (a region the map does not cover, a crowd), nothing is replaced and the
     /// filter keeps tracking on odometry: replacing it there put a tracked filter 12 m off in our
     /// surveyed world. The rest stay where they were; the weighting of the next scan keeps
@@ -477,7 +490,8 @@ impl Amcl {
         // Which particles go: all of them, or `k` drawn at random.
         let slots: Vec<usize> =
             if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
-        let places = self.better_places(points, slots.len(), Stream::Filter);
+        let need = self.replace_need();
+        let places = self.better_places(points, slots.len(), Stream::Filter, need);
         let w = 1.0 / n as f64;
         let mut placed = 0usize;
         for (at, pose) in slots.into_iter().zip(places) {
@@ -494,10 +508,13 @@ impl Amcl {
         true
     }
 
-    /// The share of the scan a replacement must explain: clearly more than the estimate does
-    /// (`switch_margin`), and enough to be tracking there (a place that explains half the scan is
-    /// no alternative, wherever the estimate stands; nor one where a wall nearby explains the
-    /// beams a neighbouring robot blocked). `None` when no place could (more than all of it).
+    /// The share of the scan a replacement (a re-seeded particle) must explain: clearly more than
+    /// the estimate does (`switch_margin`), and enough to be tracking there (a place that explains
+    /// half the scan is no alternative, wherever the estimate stands; nor one where a wall nearby
+    /// explains the beams a neighbouring robot blocked). `None` when no place could (more than all
+    /// of it). A lost filter whose estimate came back to the robot explains most of the scan, and
+    /// this keeps its particles there: re-seeded at the tracking bar alone, they went to a place
+    /// along a corridor 99 m off that explained that one scan as well (infinite-corridor).
     fn replace_need(&self) -> Option<f64> {
         let p = self.monitor.params();
         let need = self
@@ -507,11 +524,31 @@ impl Amcl {
         (need <= 1.0).then_some(need)
     }
 
+    /// The share of the scan a rival must explain to be carried: as a replacement
+    /// ([`Self::replace_need`]), but where the estimate explains the scan below the uncertain bar
+    /// the tracking bar alone, the bar a rival wins on there ([`Self::judge_rivals`]). A kidnapped
+    /// estimate that still explains 70–80 % of a scan (many endpoints land near some wall at any
+    /// pose) asked the truth for more than all of it, and no search could begin. A rival is
+    /// judged on the scans after before anything moves; a re-seeded particle is not.
+    fn rival_need(&self) -> Option<f64> {
+        let p = self.monitor.params();
+        match self.monitor.last() {
+            Some(i) if i.explained < p.uncertain_ratio * i.level => Some(p.tracking_ratio * i.level),
+            _ => self.replace_need(),
+        }
+    }
+
     /// `tries` draws, each the best-fitting of `reseed_candidates` poses uniform over the free
-    /// space, climbed to its local optimum: each `Some` if it explains [`Self::replace_need`] of
-    /// the scan.
-    fn better_places(&mut self, points: &[[f64; 2]], tries: usize, stream: Stream) -> Vec<Option<Se2>> {
-        match self.replace_need() {
+    /// space, climbed to its local optimum: each `Some` if it explains `need` of the scan (none
+    /// without one).
+    fn better_places(
+        &mut self,
+        points: &[[f64; 2]],
+        tries: usize,
+        stream: Stream,
+        need: Option<f64>,
+    ) -> Vec<Option<Se2>> {
+        match need {
             Some(need) => self.places_explaining(points, tries, stream, need, |_| false),
             None => vec![None; tries],
         }

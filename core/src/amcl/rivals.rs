@@ -68,7 +68,8 @@ const RIVAL_SPREAD_RAD: f64 = 0.02;
 
 impl Amcl {
     /// Uncertain, or this scan explained poorly, and fewer than [`RIVALS`] carried: look for
-    /// places that explain this scan far better than the estimate (as `reseed` does,
+    /// places that explain this scan far better than the estimate, or as a tracked place does
+    /// where the estimate explains it below the uncertain bar (`rival_need`; as `reseed` does,
     /// `alternative_draws` draws); the best distinct ones join the rivals, judged on the next
     /// scans ([`Self::judge_rivals`]), and the estimate is ambiguous from now. The draws are few
     /// and repeated on each such update: a cluttered site is uncertain for a third of its scans
@@ -76,7 +77,8 @@ impl Amcl {
     pub(super) fn search_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let p = *self.monitor.params();
         let k = p.alternative_draws;
-        if k == 0 || self.rivals.len() >= RIVALS || self.replace_need().is_none() {
+        let need = self.rival_need();
+        if k == 0 || self.rivals.len() >= RIVALS || need.is_none() {
             return;
         }
         let judged = subsample(points, p.max_points);
@@ -86,7 +88,7 @@ impl Amcl {
         let field = Arc::clone(&self.field);
         let origin = self.sensor_origin;
         let mut found: Vec<(f64, Se2)> = self
-            .better_places(points, k, super::Stream::Search)
+            .better_places(points, k, super::Stream::Search, need)
             .into_iter()
             .flatten()
             .map(|pose| (share(&field, &pose, origin), pose))
@@ -148,15 +150,25 @@ impl Amcl {
     /// featureless corridor). The estimate is then taken to be wrong, the filter turns `Lost` and
     /// places the re-seeded share of its particles around the rival; but a winner at the
     /// estimate's place ([`same_place`]) corrects the estimate instead, the cloud moved onto it.
-    /// The scan that found it does not count: a best-of-many pose fits the scan it was chosen on better than the truth does
-    /// (placing particles there at once pulled a filter that was right, its scan full of
-    /// unmapped people, to a place 27 m off).
+    /// The scan that found it does not count: a best-of-many pose fits the scan it was chosen on
+    /// better than the truth does (placing particles there at once pulled a filter that was
+    /// right, its scan full of unmapped people, to a place 27 m off). Where none wins but two or
+    /// more have each beaten the estimate on the last `confirm` scans, explain the scan as a
+    /// tracked place does and stand away from it (twins: a place and its mirror image), the
+    /// filter turns `Lost`, places the particles around all of them and carries them on as
+    /// twins: judged on their own shares while `Lost`, dropped when they explain less than a
+    /// tracked place does or trail the best twin's evidence by `switch_margin`, and the estimate
+    /// ambiguous (never `Tracking`) while two remain.
     pub(super) fn judge_rivals(&mut self, odom: Se2, points: &[[f64; 2]]) {
         let rivals = std::mem::take(&mut self.rivals);
         self.monitor.set_ambiguous(false);
         let p = *self.monitor.params();
         let (Some(last), Some(estimate)) = (self.monitor.last(), self.pose_at(&odom)) else { return };
-        if rivals.is_empty() || self.monitor.state() == IntegrityState::Lost {
+        if rivals.is_empty() {
+            self.twins = false;
+            return;
+        }
+        if self.monitor.state() == IntegrityState::Lost && !self.twins {
             return;
         }
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
@@ -176,9 +188,10 @@ impl Amcl {
                 || (last.explained < p.uncertain_ratio * last.level
                     && share >= p.tracking_ratio * last.level);
             let streak = if beaten { rival.streak + 1 } else { 0 };
+            // Twins are judged on their own shares: the estimate, lost, moves among them.
             let dropped = share < p.uncertain_ratio * last.level
-                || within(&pose, &estimate, WENT_THERE_M, WENT_THERE_RAD)
-                || evidence <= -p.switch_margin
+                || (!self.twins && within(&pose, &estimate, WENT_THERE_M, WENT_THERE_RAD))
+                || (!self.twins && evidence <= -p.switch_margin)
                 || judged > RIVAL_SCANS
                 || kept.iter().any(|(k, _)| same_place(&k.pose, &pose));
             if !dropped {
@@ -186,33 +199,72 @@ impl Amcl {
             }
         }
         kept.sort_by(|a, b| b.0.evidence.total_cmp(&a.0.evidence));
+        if self.twins {
+            // Lost among twins: not `tracking` while two of them still explain the scans as a
+            // tracked place does and neither leads the other by `switch_margin` (the evidence
+            // of each holds the same estimate's shares: their difference is theirs alone).
+            let best = kept.first().map_or(0.0, |(r, _)| r.evidence);
+            kept.retain(|(r, _)| best - r.evidence < p.switch_margin);
+            if kept.len() >= 2 {
+                self.rivals = kept.into_iter().map(|(r, _)| r).collect();
+                self.monitor.set_ambiguous(true);
+            } else {
+                self.twins = false;
+            }
+            return;
+        }
         let runner_up = kept.get(1).map_or(0.0, |(r, _)| r.evidence.max(0.0));
         let winner = kept.first().filter(|(lead, share)| {
             lead.streak >= p.confirm
                 && lead.evidence - runner_up >= p.switch_margin
                 && *share >= p.tracking_ratio * last.level
         });
-        let Some(&(Rival { pose, .. }, _)) = winner else {
-            self.rivals = kept.into_iter().map(|(r, _)| r).collect();
-            self.monitor.set_ambiguous(!self.rivals.is_empty());
-            return;
-        };
-        // The particles are where the last update left them, at its odometry: the rival is
-        // placed there too.
-        let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
-        // A rival at the estimate's place corrects it: the cloud is moved onto it, as a match to
-        // the map moves it, and the estimate was not lost.
-        if same_place(&pose, &estimate) {
-            if let Some(e) = self.estimate.as_ref().map(|e| e.pose) {
-                self.move_estimate_to(&e, &at_update);
+        let beaters: Vec<Rival> = kept
+            .iter()
+            .filter(|(r, share)| {
+                r.streak >= p.confirm
+                    && *share >= p.tracking_ratio * last.level
+                    && !same_place(&r.pose, &estimate)
+            })
+            .map(|(r, _)| *r)
+            .collect();
+        let targets: Vec<Se2> = match winner {
+            Some(&(Rival { pose, .. }, _)) => {
+                // A rival at the estimate's place corrects it: the cloud is moved onto it, as a
+                // match to the map moves it, and the estimate was not lost.
+                if same_place(&pose, &estimate) {
+                    let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
+                    if let Some(e) = self.estimate.as_ref().map(|e| e.pose) {
+                        self.move_estimate_to(&e, &at_update);
+                    }
+                    return;
+                }
+                self.monitor.declare_lost();
+                vec![pose]
             }
-            return;
-        }
-        self.monitor.declare_lost();
+            // Two or more beat the estimate and none leads: it is wrong whichever is right.
+            None if beaters.len() >= 2 => {
+                let poses = beaters.iter().map(|r| r.pose).collect();
+                self.monitor.declare_lost();
+                self.rivals = beaters;
+                self.twins = true;
+                self.monitor.set_ambiguous(true);
+                poses
+            }
+            None => {
+                self.rivals = kept.into_iter().map(|(r, _)| r).collect();
+                self.monitor.set_ambiguous(!self.rivals.is_empty());
+                return;
+            }
+        };
         let n = self.particles.len();
         let k = n.min(p.reseed_max_particles);
         let w = 1.0 / n as f64;
-        for _ in 0..k {
+        for i in 0..k {
+            // The particles are where the last update left them, at its odometry: the rival is
+            // placed there too.
+            let pose = targets[i % targets.len()];
+            let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
             let at = self.rng.below(n);
             let q = Se2::new(
                 at_update.x + self.rng.gaussian(RIVAL_SPREAD_M),

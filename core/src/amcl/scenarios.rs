@@ -562,9 +562,13 @@ fn an_estimate_in_doubt_is_matched_to_the_map_after_the_update() {
 /// margin, the filter stayed `uncertain` at the wrong place.) Turned 14°, the estimate is within
 /// 10° of the rival after the first update: the rival corrects it, the filter is on the robot from
 /// the second scan and never `lost` (declared lost, it was called lost for 2 scans while on it).
+/// The search is off here (`alternative_draws` 0): what is tested is how the rival at the truth
+/// wins. With it on, the search also finds the corridor's mirror image, which explains the scans
+/// as well as the truth ([`a_filter_in_a_corridor_that_mirrors_itself_is_lost_among_twins`]).
 #[test]
 fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
-    let params = tuned_params();
+    let mut params = tuned_params();
+    params.integrity.alternative_draws = 0;
     let b = building();
     let truth = path();
     let shifts = [
@@ -604,6 +608,43 @@ fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
         }
         assert!(seen[2..].iter().all(|(_, _, e)| e.0 < 0.06 && e.1 < 0.03), "seed {seed}: {seen:?}");
         assert!(seen[4..].iter().all(|(s, _, _)| *s == IntegrityState::Tracking), "seed {seed}: {seen:?}");
+    }
+}
+
+/// Carried 0.8 m and 1 m along the corridor, with the search on: the estimate explains 0.8–0.85
+/// of the level, below the uncertain bar, and the search finds, beside the truth, the corridor's
+/// mirror image (the building turned by 180°), which explains the scans as well. Neither leads the
+/// other, so neither wins; both beat the estimate, which is wrong whichever is right: the filter
+/// is `lost` (before, it stayed `uncertain` at the wrong place, the twins blocking each other), and
+/// not `tracking` anywhere while the twins explain the scans alike, even where its estimate has
+/// gone to one of them. Measured: `lost` on the 3rd scan, the estimate moving between the truth
+/// and the twin (3 m off, turned 180°) and on the truth from the 9th and the 6th scan, `lost` and
+/// ambiguous for all 20 scans (the corridor mirrors itself all along them).
+#[test]
+fn a_filter_in_a_corridor_that_mirrors_itself_is_lost_among_twins() {
+    let params = tuned_params();
+    let b = building();
+    let truth = path();
+    for (seed, shift) in [(0, Se2::new(0.8, 0.0, 0.0)), (1, Se2::new(1.0, 0.0, 0.0))] {
+        let Tracked { mut amcl, odom, mut rng } = tracked_along(&b, &params, &truth, 30, 70 + seed);
+        assert_eq!(amcl.integrity_state(), IntegrityState::Tracking, "seed {seed}");
+        move_cloud(&mut amcl, &odom[30], shift);
+        amcl.rivals.push(super::rivals::Rival::found(truth[30], odom[30]));
+        let mut seen = Vec::new();
+        for (t, o) in truth.iter().zip(&odom).skip(31).take(20) {
+            let scan = b.scan(t, &mut rng);
+            amcl.update(*o, &scan_points(&scan, &Se2::IDENTITY, &params), false);
+            let e = amcl.estimate().unwrap().pose;
+            let error = ((e.x - t.x).hypot(e.y - t.y), angle_diff(e.theta, t.theta).abs());
+            seen.push((amcl.integrity_state(), amcl.integrity().is_some_and(|i| i.ambiguous), error));
+        }
+        eprintln!("seed {seed}: {seen:?}");
+        assert!(seen[..3].iter().any(|(s, _, _)| *s == IntegrityState::Lost), "seed {seed}: {seen:?}");
+        let off = |e: &(f64, f64)| e.0 > 0.5 || e.1 > 10f64.to_radians();
+        assert!(
+            !seen.iter().any(|(s, _, e)| *s == IntegrityState::Tracking && off(e)),
+            "seed {seed}: tracking while off: {seen:?}"
+        );
     }
 }
 
@@ -715,21 +756,22 @@ fn global_localisation_places_particles_on_the_first_scan() {
 /// re-localises at the one the scans pick. This building is its own twin turned by 180° (but for
 /// two small obstacles): the search may find the twin first, and a filter that switched to the
 /// first place found settled in the twin, 6.6 m off, and reported `Tracking` there (1 seed of 12
-/// with the first place judged alone; 5 of 24 with its evidence summed). Carrying up to three
-/// rivals, searching on while fewer are carried, and switching only to one whose evidence leads
-/// the runner-up's, every seed of 0–23 comes back to the truth. Measured, seeds 0–11 (updates
-/// counted from 0): uncertain from the 2nd; on 9 seeds lost at the 8th, within 0.3 m from the 9th,
-/// tracking from the 11th; where the twin was found first (3 seeds), uncertain until the scans
-/// tell the two apart: lost at the 17th, within 0.3 m from the 18th, tracking from the 20th.
-/// Without the search (`alternative_draws` 0): uncertain until the 27th, when the share happened
-/// to dip below the lost ratio.
+/// with the first place judged alone; 5 of 24 with its evidence summed). Places are looked for at
+/// the tracking bar (the estimate explains the scans below the uncertain bar), so the truth and
+/// its twin are both found, and both beat the estimate: it is `lost` then, whichever is right, and
+/// not `tracking` until the scans tell the two apart. Measured, seeds 0–23 (updates counted from
+/// 0): uncertain from the 2nd, lost at the 2nd, within 0.3 m from the 3rd–6th, tracking from the
+/// 14th (8th on one seed). Looking only for places that explain `switch_margin` more than the
+/// estimate, the truth was found late (lost at the 8th on 9 seeds of 12, at the 17th on 3);
+/// looking at the tracking bar but waiting for one rival to lead, the twins blocked each other
+/// (lost at the 13th on 11 seeds). Without the search (`alternative_draws` 0): uncertain until
+/// the 27th, when the share happened to dip below the lost ratio.
 #[test]
 fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lost() {
     let to = Se2::new(9.0, 4.0, 0.0);
     let mut without = tuned_params();
     without.integrity.alternative_draws = 0;
-    let mut quick = 0;
-    for seed in 0..12 {
+    for seed in 0..24 {
         let r = kidnapping(&tuned_params(), seed, to);
         let lost = r.states_after.iter().position(|s| *s == IntegrityState::Lost);
         let back = recovered_from(&r.errors_after);
@@ -745,10 +787,19 @@ fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lo
         });
         assert!(doubted.is_some_and(|d| d <= 2), "seed {seed}: {:?}", r.states_after);
         assert!(again.is_some_and(|t| back.is_some_and(|b| t >= b)), "seed {seed}: {:?}", r.states_after);
-        assert!(lost.is_some_and(|l| l < 20), "seed {seed}: {:?}", r.states_after);
-        assert!(back.is_some_and(|b| b < 22), "seed {seed}: {:?}", r.errors_after);
-        assert!(tracking.is_some_and(|t| t < 24), "seed {seed}: {:?}", r.states_after);
-        quick += usize::from(back.is_some_and(|b| b < 14));
+        assert!(lost.is_some_and(|l| l <= 3), "seed {seed}: {:?}", r.states_after);
+        assert!(back.is_some_and(|b| b < 8), "seed {seed}: {:?}", r.errors_after);
+        assert!(tracking.is_some_and(|t| t < 16), "seed {seed}: {:?}", r.states_after);
+        let off = |e: &(f64, f64)| e.0 > 0.5 || e.1 > 10f64.to_radians();
+        assert!(
+            !r.states_after
+                .iter()
+                .zip(&r.errors_after)
+                .skip(2)
+                .any(|(s, e)| *s == IntegrityState::Tracking && off(e)),
+            "seed {seed}: tracking while off: {:?}",
+            r.states_after
+        );
         // The share alone: uncertain, off by 5 m, for longer.
         let w = kidnapping(&without, seed, to);
         assert!(
@@ -758,5 +809,4 @@ fn a_filter_carried_to_a_plausible_wrong_place_finds_a_better_one_and_reports_lo
         );
         assert!(w.errors_after[..20].iter().all(|e| e.0 > 4.0), "seed {seed}");
     }
-    assert!(quick >= 8, "back within 14 updates on {quick} seeds of 12");
 }
