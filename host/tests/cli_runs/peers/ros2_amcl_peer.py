@@ -69,8 +69,9 @@ PWCS, CLOUD = "geometry_msgs/msg/PoseWithCovarianceStamped", "nav2_msgs/msg/Part
 
 
 def stamp(t):
-    sec = math.floor(t)
-    return T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)) % 1000000000)
+    # From whole nanoseconds, so that a time a hair below a whole second carries into the seconds.
+    ns = int(round(t * 1e9))
+    return T["builtin_interfaces/msg/Time"](sec=ns // 1000000000, nanosec=ns % 1000000000)
 
 
 def secs(s):
