@@ -251,9 +251,16 @@ impl Amcl {
                 self.monitor.set_ambiguous(true);
                 poses
             }
+            // None has won: the estimate is in doubt while a rival has explained more of the
+            // scans since it was found, or beat it on this one, or the estimate explains this
+            // scan below the tracking bar. A rival that only matches an estimate explaining the
+            // scans as a tracked place does (the other corner of a room, found on the one scan
+            // the estimate explained poorly) is carried on, but leaves the estimate unambiguous.
             None => {
+                let doubted = last.explained < p.tracking_ratio * last.level
+                    || kept.iter().any(|(r, _)| r.evidence > 0.0 || r.streak > 0);
                 self.rivals = kept.into_iter().map(|(r, _)| r).collect();
-                self.monitor.set_ambiguous(!self.rivals.is_empty());
+                self.monitor.set_ambiguous(doubted && !self.rivals.is_empty());
                 return;
             }
         };
