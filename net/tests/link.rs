@@ -484,6 +484,51 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
     srv.bridge.shutdown().await;
 }
 
+/// An operator's e-stop given while a robot's link is down (the robot restarting, reconnecting) is
+/// sent again until the robot confirms it: it reaches the robot once the link is up, and is
+/// confirmed by the robot's report.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operators_estop_reaches_a_robot_whose_link_comes_up_after_it_was_given() {
+    let s = setup("late-estop");
+    let (_up, srv) = server(&s).await;
+    let op_settings = settings(&s);
+    let operator = tokio::spawn(async move {
+        amr_net::operator_estop(
+            &op_settings,
+            "operator",
+            &["robot-a".to_owned()],
+            false,
+            FleetClock::wall(),
+            Duration::from_secs(8),
+        )
+        .await
+    });
+    // The first sends find no robot to take them.
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(!operator.is_finished(), "nothing can have confirmed the e-stop yet");
+    let (mut a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
+    let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop once the link is up").unwrap();
+    assert_eq!(d, Downlink::EStop);
+    for seq in 1..80 {
+        a.up.send(Uplink::Safety {
+            robot: "robot-a".into(),
+            seq,
+            stamp_s: FleetClock::wall().now_s(),
+            state: SafetyState::EStop,
+            stops: 1,
+            mock: false,
+        });
+        if operator.is_finished() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let outcome = operator.await.unwrap().unwrap();
+    assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
+    bridge_a.shutdown().await;
+    srv.bridge.shutdown().await;
+}
+
 /// A stop is never refused, and no sender can speak for another: an operator publishes, on its own
 /// key, resets that claim to come from the server in a session far ahead of the server's, and tries
 /// the server's key. The robot refuses them (forged origin; the server's key is denied by the access

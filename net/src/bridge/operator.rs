@@ -13,6 +13,9 @@ use super::{Stamper, estop_key, new_session, zerr};
 use crate::settings::{NetError, NetSettings, PREFIX};
 use crate::wire::{Envelope, from_downlink, to_uplink};
 
+/// How often an e-stop is sent again to a robot that has not confirmed it.
+const ESTOP_RESEND: Duration = Duration::from_millis(250);
+
 /// What an operator's e-stop (or reset) found: per robot, the safety state it reported after the
 /// message was sent, if it confirmed within the time allowed.
 pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
@@ -20,8 +23,9 @@ pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
 /// E-stop `robots` (or, with `reset`, clear their e-stop) as operator `user`: publish on each
 /// robot's `fleet/<robot>/estop/<user>` at the highest priority, then wait up to `timeout` for each
 /// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
-/// periodically): `EStop`, or after a reset any other state. The server's access control lets only
-/// `user` publish on its own key.
+/// periodically): `EStop`, or after a reset any other state. An e-stop is sent again every
+/// [`ESTOP_RESEND`] to the robots that have not confirmed it; a reset once. The server's access
+/// control lets only `user` publish on its own key.
 pub async fn operator_estop(
     settings: &NetSettings,
     user: &str,
@@ -63,24 +67,43 @@ pub async fn operator_estop(
     }
     let msg = if reset { Downlink::ResetEStop } else { Downlink::EStop };
     let sid = new_session();
-    for robot in robots {
-        let mut stamper = Stamper::new(sid, user, robot);
-        let now = clock.now_s();
-        let (stamp, body) = from_downlink(&msg, now);
-        let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
-        session
-            .put(estop_key(robot, user), bytes)
-            .priority(Priority::RealTime)
-            .congestion_control(CongestionControl::Block)
-            .express(true)
-            .await
-            .map_err(zerr)?;
-    }
+    let mut stampers: BTreeMap<&str, Stamper> =
+        robots.iter().map(|r| (r.as_str(), Stamper::new(sid, user, r))).collect();
     let until = tokio::time::Instant::now() + timeout;
+    let mut next_send = tokio::time::Instant::now();
+    let mut sends = 0u32;
     // Bounded by `timeout`.
     while tokio::time::Instant::now() < until {
-        if seen.lock().unwrap_or_else(PoisonError::into_inner).values().all(Option::is_some) {
+        let pending: Vec<String> = seen
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .iter()
+            .filter(|(_, s)| s.is_none())
+            .map(|(r, _)| r.clone())
+            .collect();
+        if pending.is_empty() {
             break;
+        }
+        // An e-stop is sent again to each robot that has not confirmed it: a stop is taken
+        // whatever its sequence, and one put can be lost (a robot whose link is coming up, a
+        // router that has not yet seen its subscription). A reset is sent once: sent again, it
+        // could clear an e-stop another operator gave after it.
+        if tokio::time::Instant::now() >= next_send && (sends == 0 || !reset) {
+            for robot in &pending {
+                let Some(stamper) = stampers.get_mut(robot.as_str()) else { continue };
+                let now = clock.now_s();
+                let (stamp, body) = from_downlink(&msg, now);
+                let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
+                session
+                    .put(estop_key(robot, user), bytes)
+                    .priority(Priority::RealTime)
+                    .congestion_control(CongestionControl::Block)
+                    .express(true)
+                    .await
+                    .map_err(zerr)?;
+            }
+            sends += 1;
+            next_send += ESTOP_RESEND;
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
