@@ -24,7 +24,7 @@ pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
 /// robot's `fleet/<robot>/estop/<user>` at the highest priority, then wait up to `timeout` for each
 /// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
 /// periodically): `EStop`, or after a reset any other state. An e-stop is sent again every
-/// [`ESTOP_RESEND`] to the robots that have not confirmed it; a reset once. The server's access
+/// 250 ms to the robots that have not confirmed it; a reset once. The server's access
 /// control lets only `user` publish on its own key.
 pub async fn operator_estop(
     settings: &NetSettings,
