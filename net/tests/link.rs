@@ -12,7 +12,8 @@ use amr_actors::clock::FleetClock;
 use amr_actors::link::{RobotEnd, ServerEnd};
 use amr_msgs::{Command, Device, Downlink, Health, SafetyState, Uplink};
 use amr_net::network::NetworkConfig;
-use amr_net::{NetSettings, ServerBridge, start_robot_bridge, start_server_bridge};
+use amr_net::{EstopOutcome, NetError, NetSettings, ServerBridge, start_robot_bridge, start_server_bridge};
+use tokio::task::JoinHandle;
 use tokio::time::timeout;
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -138,6 +139,42 @@ async fn uplink_until_seen(robot: &RobotEnd, server: &mut ServerEnd) -> Uplink {
         }
     }
     panic!("no uplink reached the server");
+}
+
+/// An operator's e-stop of robot-a (`operator_estop` as "operator", 8 s to confirm), on a task.
+fn operator_estops_robot_a(s: &Setup) -> JoinHandle<Result<EstopOutcome, NetError>> {
+    let op_settings = settings(s);
+    tokio::spawn(async move {
+        amr_net::operator_estop(
+            &op_settings,
+            "operator",
+            &["robot-a".to_owned()],
+            false,
+            FleetClock::wall(),
+            Duration::from_secs(8),
+        )
+        .await
+    })
+}
+
+/// robot-a reports its e-stop every 100 ms (a robot tree re-sends its state periodically) until
+/// the operator's call returns (bounded: 8 s); what the operator found.
+async fn confirm_estop(a: &RobotEnd, operator: JoinHandle<Result<EstopOutcome, NetError>>) -> EstopOutcome {
+    for seq in 100..180 {
+        a.up.send(Uplink::Safety {
+            robot: "robot-a".into(),
+            seq,
+            stamp_s: FleetClock::wall().now_s(),
+            state: SafetyState::EStop,
+            stops: 1,
+            mock: false,
+        });
+        if operator.is_finished() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    operator.await.unwrap().unwrap()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -447,36 +484,10 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
     while a.down.try_recv().is_ok() {}
 
     // An operator's: `operator_estop` publishes it and waits for the robot's own report.
-    let op_settings = settings(&s);
-    let operator = tokio::spawn(async move {
-        amr_net::operator_estop(
-            &op_settings,
-            "operator",
-            &["robot-a".to_owned()],
-            false,
-            FleetClock::wall(),
-            Duration::from_secs(8),
-        )
-        .await
-    });
+    let operator = operator_estops_robot_a(&s);
     let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop in time").unwrap();
     assert_eq!(d, Downlink::EStop);
-    // The robot reports its new state (a robot tree re-sends it periodically).
-    for seq in 100..130 {
-        a.up.send(Uplink::Safety {
-            robot: "robot-a".into(),
-            seq,
-            stamp_s: FleetClock::wall().now_s(),
-            state: SafetyState::EStop,
-            stops: 1,
-            mock: false,
-        });
-        if operator.is_finished() {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    let outcome = operator.await.unwrap().unwrap();
+    let outcome = confirm_estop(&a, operator).await;
     assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
     let _ = observer.close().await;
     bridge_a.shutdown().await;
@@ -491,39 +502,14 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
 async fn an_operators_estop_reaches_a_robot_whose_link_comes_up_after_it_was_given() {
     let s = setup("late-estop");
     let (_up, srv) = server(&s).await;
-    let op_settings = settings(&s);
-    let operator = tokio::spawn(async move {
-        amr_net::operator_estop(
-            &op_settings,
-            "operator",
-            &["robot-a".to_owned()],
-            false,
-            FleetClock::wall(),
-            Duration::from_secs(8),
-        )
-        .await
-    });
+    let operator = operator_estops_robot_a(&s);
     // The first sends find no robot to take them.
     tokio::time::sleep(Duration::from_millis(1500)).await;
     assert!(!operator.is_finished(), "nothing can have confirmed the e-stop yet");
     let (mut a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
     let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop once the link is up").unwrap();
     assert_eq!(d, Downlink::EStop);
-    for seq in 1..80 {
-        a.up.send(Uplink::Safety {
-            robot: "robot-a".into(),
-            seq,
-            stamp_s: FleetClock::wall().now_s(),
-            state: SafetyState::EStop,
-            stops: 1,
-            mock: false,
-        });
-        if operator.is_finished() {
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    let outcome = operator.await.unwrap().unwrap();
+    let outcome = confirm_estop(&a, operator).await;
     assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
     bridge_a.shutdown().await;
     srv.bridge.shutdown().await;
