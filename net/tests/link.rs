@@ -141,15 +141,16 @@ async fn uplink_until_seen(robot: &RobotEnd, server: &mut ServerEnd) -> Uplink {
     panic!("no uplink reached the server");
 }
 
-/// An operator's e-stop of robot-a (`operator_estop` as "operator", 8 s to confirm), on a task.
-fn operator_estops_robot_a(s: &Setup) -> JoinHandle<Result<EstopOutcome, NetError>> {
+/// An operator's e-stop (or `reset`) of robot-a (`operator_estop` as "operator", 8 s to confirm),
+/// on a task.
+fn operator_estops_robot_a(s: &Setup, reset: bool) -> JoinHandle<Result<EstopOutcome, NetError>> {
     let op_settings = settings(s);
     tokio::spawn(async move {
         amr_net::operator_estop(
             &op_settings,
             "operator",
             &["robot-a".to_owned()],
-            false,
+            reset,
             FleetClock::wall(),
             Duration::from_secs(8),
         )
@@ -157,15 +158,19 @@ fn operator_estops_robot_a(s: &Setup) -> JoinHandle<Result<EstopOutcome, NetErro
     })
 }
 
-/// robot-a reports its e-stop every 100 ms (a robot tree re-sends its state periodically) until
-/// the operator's call returns (bounded: 8 s); what the operator found.
-async fn confirm_estop(a: &RobotEnd, operator: JoinHandle<Result<EstopOutcome, NetError>>) -> EstopOutcome {
+/// robot-a reports `state` every 100 ms (a robot tree re-sends its state periodically) until the
+/// operator's call returns (bounded: 8 s); what the operator found.
+async fn confirm(
+    a: &RobotEnd,
+    operator: JoinHandle<Result<EstopOutcome, NetError>>,
+    state: SafetyState,
+) -> EstopOutcome {
     for seq in 100..180 {
         a.up.send(Uplink::Safety {
             robot: "robot-a".into(),
             seq,
             stamp_s: FleetClock::wall().now_s(),
-            state: SafetyState::EStop,
+            state,
             stops: 1,
             mock: false,
         });
@@ -484,10 +489,10 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
     while a.down.try_recv().is_ok() {}
 
     // An operator's: `operator_estop` publishes it and waits for the robot's own report.
-    let operator = operator_estops_robot_a(&s);
+    let operator = operator_estops_robot_a(&s, false);
     let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop in time").unwrap();
     assert_eq!(d, Downlink::EStop);
-    let outcome = confirm_estop(&a, operator).await;
+    let outcome = confirm(&a, operator, SafetyState::EStop).await;
     assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
     let _ = observer.close().await;
     bridge_a.shutdown().await;
@@ -502,15 +507,52 @@ async fn the_server_and_an_operator_may_estop_a_robot_no_robot_or_observer_may()
 async fn an_operators_estop_reaches_a_robot_whose_link_comes_up_after_it_was_given() {
     let s = setup("late-estop");
     let (_up, srv) = server(&s).await;
-    let operator = operator_estops_robot_a(&s);
+    let operator = operator_estops_robot_a(&s, false);
     // The first sends find no robot to take them.
     tokio::time::sleep(Duration::from_millis(1500)).await;
     assert!(!operator.is_finished(), "nothing can have confirmed the e-stop yet");
     let (mut a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
     let d = timeout(WAIT, a.down.recv()).await.expect("the operator's e-stop once the link is up").unwrap();
     assert_eq!(d, Downlink::EStop);
-    let outcome = confirm_estop(&a, operator).await;
+    let outcome = confirm(&a, operator, SafetyState::EStop).await;
     assert_eq!(outcome.get("robot-a"), Some(&Some(SafetyState::EStop)));
+    bridge_a.shutdown().await;
+    srv.bridge.shutdown().await;
+}
+
+/// An operator's reset given while a robot's link is down is sent when the robot is first heard
+/// from, and once (sent again, it could clear a newer e-stop of another operator): it reaches the
+/// robot once the link is up, and is confirmed by the robot's report.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_operators_reset_is_sent_once_when_the_robot_is_heard_from() {
+    let s = setup("late-reset");
+    let (_up, srv) = server(&s).await;
+    let operator = operator_estops_robot_a(&s, true);
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert!(!operator.is_finished(), "nothing can have confirmed the reset yet");
+    let (mut a, bridge_a) = start_robot_bridge(&settings(&s), "robot-a", FleetClock::wall()).await.unwrap();
+    // The robot, still e-stopped, says so once its link is up, until the reset comes.
+    let mut got = None;
+    for seq in 1..80 {
+        a.up.send(Uplink::Safety {
+            robot: "robot-a".into(),
+            seq,
+            stamp_s: FleetClock::wall().now_s(),
+            state: SafetyState::EStop,
+            stops: 1,
+            mock: false,
+        });
+        if let Ok(Some(d)) = timeout(Duration::from_millis(100), a.down.recv()).await {
+            got = Some(d);
+            break;
+        }
+    }
+    assert_eq!(got, Some(Downlink::ResetEStop), "the reset once the robot is heard from");
+    let reset = SafetyState::Disarmed(amr_msgs::DisarmReason::EStopReset);
+    let outcome = confirm(&a, operator, reset).await;
+    assert_eq!(outcome.get("robot-a"), Some(&Some(reset)));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert!(a.down.try_recv().is_err(), "a reset is sent once");
     bridge_a.shutdown().await;
     srv.bridge.shutdown().await;
 }

@@ -1,7 +1,7 @@
 //! An operator's e-stop: published on each robot's own e-stop key as that operator, confirmed by
 //! the robots' reports of their safety state.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
@@ -24,7 +24,8 @@ pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
 /// robot's `fleet/<robot>/estop/<user>` at the highest priority, then wait up to `timeout` for each
 /// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
 /// periodically): `EStop`, or after a reset any other state. An e-stop is sent again every
-/// 250 ms to the robots that have not confirmed it; a reset once. The server's access
+/// 250 ms to the robots that have not confirmed it; a reset once, when the robot is first heard
+/// from (its reports come at least once a second). The server's access
 /// control lets only `user` publish on its own key.
 pub async fn operator_estop(
     settings: &NetSettings,
@@ -41,10 +42,12 @@ pub async fn operator_estop(
         .map_err(zerr)?;
     let seen: Arc<Mutex<EstopOutcome>> =
         Arc::new(Mutex::new(robots.iter().map(|r| (r.clone(), None)).collect()));
+    // The robots heard from since the session opened: their links are up.
+    let heard: Arc<Mutex<BTreeSet<String>>> = Arc::default();
     let sent_at = clock.now_s();
     let mut subscribers = Vec::new();
     for robot in robots {
-        let (seen, me) = (Arc::clone(&seen), robot.clone());
+        let (seen, heard, me) = (Arc::clone(&seen), Arc::clone(&heard), robot.clone());
         let sub = session
             .declare_subscriber(format!("{PREFIX}/{robot}/health"))
             .callback(move |sample| {
@@ -52,6 +55,7 @@ pub async fn operator_estop(
                 let Ok(u) = Envelope::decode(&bytes).and_then(|env| to_uplink(env, &me, "health")) else {
                     return;
                 };
+                heard.lock().unwrap_or_else(PoisonError::into_inner).insert(me.clone());
                 if let Uplink::Safety { stamp_s, state, .. } = u
                     && stamp_s >= sent_at
                 {
@@ -71,7 +75,7 @@ pub async fn operator_estop(
         robots.iter().map(|r| (r.as_str(), Stamper::new(sid, user, r))).collect();
     let until = tokio::time::Instant::now() + timeout;
     let mut next_send = tokio::time::Instant::now();
-    let mut sends = 0u32;
+    let mut reset_sent = BTreeSet::new();
     // Bounded by `timeout`.
     while tokio::time::Instant::now() < until {
         let pending: Vec<String> = seen
@@ -86,24 +90,31 @@ pub async fn operator_estop(
         }
         // An e-stop is sent again to each robot that has not confirmed it: a stop is taken
         // whatever its sequence, and one put can be lost (a robot whose link is coming up, a
-        // router that has not yet seen its subscription). A reset is sent once: sent again, it
-        // could clear an e-stop another operator gave after it.
-        if tokio::time::Instant::now() >= next_send && (sends == 0 || !reset) {
-            for robot in &pending {
-                let Some(stamper) = stampers.get_mut(robot.as_str()) else { continue };
-                let now = clock.now_s();
-                let (stamp, body) = from_downlink(&msg, now);
-                let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
-                session
-                    .put(estop_key(robot, user), bytes)
-                    .priority(Priority::RealTime)
-                    .congestion_control(CongestionControl::Block)
-                    .express(true)
-                    .await
-                    .map_err(zerr)?;
-            }
-            sends += 1;
+        // router that has not yet seen its subscription). A reset is sent once (sent again, it
+        // could clear an e-stop another operator gave after it), when the robot is first heard
+        // from: sent before its link is up, it would be lost.
+        let to_send: Vec<&String> = if reset {
+            let heard = heard.lock().unwrap_or_else(PoisonError::into_inner);
+            pending.iter().filter(|r| heard.contains(*r) && !reset_sent.contains(*r)).collect()
+        } else if tokio::time::Instant::now() >= next_send {
             next_send += ESTOP_RESEND;
+            pending.iter().collect()
+        } else {
+            Vec::new()
+        };
+        for robot in to_send {
+            reset_sent.insert(robot.clone());
+            let Some(stamper) = stampers.get_mut(robot.as_str()) else { continue };
+            let now = clock.now_s();
+            let (stamp, body) = from_downlink(&msg, now);
+            let Some(bytes) = stamper.encode(stamp, now, body) else { continue };
+            session
+                .put(estop_key(robot, user), bytes)
+                .priority(Priority::RealTime)
+                .congestion_control(CongestionControl::Block)
+                .express(true)
+                .await
+                .map_err(zerr)?;
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
