@@ -317,10 +317,9 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
     assert_eq!(rows, SCANS, "one pose per scan, the damaged ones skipped");
     // Measured (2026-12-06, seed 3): final 2.0 cm, worst 3.3 cm after the first 10 scans, heading
     // 0.012 rad, both bags alike; over seeds 1–10: final 1.8–2.1 cm, worst 3.0–3.4 cm, heading
-    // 0.011–0.013 rad, `tracking` on 115–118 scans of 120 (the first two are `uncertain`). Before
-    // the writer's stamps carried a time a hair below a whole second into the seconds, the
-    // odometry sample of each whole second was stamped a second early, and the scan before it
-    // was given odometry 0.3 m ahead: worst 13.6 cm. Broken readers, measured by breaking ours:
+    // 0.011–0.013 rad, `tracking` on 115–118 scans of 120 (the first two are `uncertain`). A
+    // stamp that wraps a time a hair below a whole second to the second before (each whole
+    // second's odometry a second early) makes it 13.6 cm. Broken readers, measured by breaking ours:
     // the beam increment taken as 1° → 7.9 m off; odometry x and y swapped → worst 0.47 m; the
     // /tf_static mounting dropped → worst 0.86 m, heading 1.0 rad; big endian read as little →
     // the scans skipped.
