@@ -615,7 +615,7 @@ fn a_rival_at_the_truth_beats_an_estimate_that_explains_most_of_the_scan() {
 /// of the level, below the uncertain bar, and the search finds, beside the truth, the corridor's
 /// mirror image (the building turned by 180°), which explains the scans as well. Neither leads the
 /// other, so neither wins; both beat the estimate, which is wrong whichever is right: the filter
-/// is `lost` (before, it stayed `uncertain` at the wrong place, the twins blocking each other), and
+/// is `lost` (not `uncertain` at the wrong place while the twins block each other), and
 /// not `tracking` anywhere while the twins explain the scans alike, even where its estimate has
 /// gone to one of them. Measured: `lost` on the 3rd scan, the estimate moving between the truth
 /// and the twin (3 m off, turned 180°) and on the truth from the 9th and the 6th scan, `lost` and
