@@ -158,6 +158,18 @@ fn operator_estops_robot_a(s: &Setup, reset: bool) -> JoinHandle<Result<EstopOut
     })
 }
 
+/// robot-a reports its safety state `state`, stamped now.
+fn report(a: &RobotEnd, seq: u64, state: SafetyState) {
+    a.up.send(Uplink::Safety {
+        robot: "robot-a".into(),
+        seq,
+        stamp_s: FleetClock::wall().now_s(),
+        state,
+        stops: 1,
+        mock: false,
+    });
+}
+
 /// robot-a reports `state` every 100 ms (a robot tree re-sends its state periodically) until the
 /// operator's call returns (bounded: 8 s); what the operator found.
 async fn confirm(
@@ -166,14 +178,7 @@ async fn confirm(
     state: SafetyState,
 ) -> EstopOutcome {
     for seq in 100..180 {
-        a.up.send(Uplink::Safety {
-            robot: "robot-a".into(),
-            seq,
-            stamp_s: FleetClock::wall().now_s(),
-            state,
-            stops: 1,
-            mock: false,
-        });
+        report(a, seq, state);
         if operator.is_finished() {
             break;
         }
@@ -534,14 +539,7 @@ async fn an_operators_reset_is_sent_once_when_the_robot_is_heard_from() {
     // The robot, still e-stopped, says so once its link is up, until the reset comes.
     let mut got = None;
     for seq in 1..80 {
-        a.up.send(Uplink::Safety {
-            robot: "robot-a".into(),
-            seq,
-            stamp_s: FleetClock::wall().now_s(),
-            state: SafetyState::EStop,
-            stops: 1,
-            mock: false,
-        });
+        report(&a, seq, SafetyState::EStop);
         if let Ok(Some(d)) = timeout(Duration::from_millis(100), a.down.recv()).await {
             got = Some(d);
             break;
