@@ -23,10 +23,10 @@ pub type EstopOutcome = BTreeMap<String, Option<amr_msgs::SafetyState>>;
 /// E-stop `robots` (or, with `reset`, clear their e-stop) as operator `user`: publish on each
 /// robot's `fleet/<robot>/estop/<user>` at the highest priority, then wait up to `timeout` for each
 /// robot's own report (its safety state comes up `fleet/<robot>/health` on every change and
-/// periodically): `EStop`, or after a reset any other state. An e-stop is sent again every
-/// 250 ms to the robots that have not confirmed it; a reset once, when the robot is first heard
-/// from (its reports come at least once a second). The server's access
-/// control lets only `user` publish on its own key.
+/// periodically): `EStop`, or after a reset any other state. An e-stop is sent again every 250 ms
+/// to the robots that have not confirmed it; a reset once, when the robot is first heard from (its
+/// reports come at least once a second). The server's access control lets only `user` publish on
+/// its own key.
 pub async fn operator_estop(
     settings: &NetSettings,
     user: &str,
