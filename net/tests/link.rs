@@ -549,8 +549,8 @@ async fn an_operators_reset_is_sent_once_when_the_robot_is_heard_from() {
     let reset = SafetyState::Disarmed(amr_msgs::DisarmReason::EStopReset);
     let outcome = confirm(&a, operator, reset).await;
     assert_eq!(outcome.get("robot-a"), Some(&Some(reset)));
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert!(a.down.try_recv().is_err(), "a reset is sent once");
+    let again = timeout(Duration::from_millis(300), a.down.recv()).await;
+    assert!(again.is_err(), "a reset is sent once: {again:?}");
     bridge_a.shutdown().await;
     srv.bridge.shutdown().await;
 }
