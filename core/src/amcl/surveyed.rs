@@ -251,12 +251,16 @@ fn tracks_a_surveyed_map_where_nav2_defaults_get_lost() {
     let nav2 = localise(&map, &nav2_defaults(), 1);
     eprintln!("nav2 defaults: {nav2:?}");
     let nav2_rmse = nav2.translation.unwrap().rmse;
-    // The odometry faults bite: without the slip samples the filter is pulled 0.5 m off by them.
+    // The odometry faults bite: without the slip samples the particle filter alone (the integrity
+    // monitor off) is pulled 0.5 m off by them on every seed (measured 0.90–0.95 m; with the
+    // monitor on, which re-localises a filter pulled off, 0.13–0.95 m).
     let mut no_slip = params.clone();
     no_slip.odom_slip_share = crate::config::value::Fraction::new(0.0).unwrap();
-    let worst =
-        (1..=3).map(|seed| localise(&map, &no_slip, seed).translation.unwrap().max).fold(0.0, f64::max);
-    assert!(worst > 0.5, "without odom_slip_share the worst scan is only {worst:.3} m off");
+    no_slip.integrity.enabled = false;
+    let least = (1..=3)
+        .map(|seed| localise(&map, &no_slip, seed).translation.unwrap().max)
+        .fold(f64::INFINITY, f64::min);
+    assert!(least > 0.5, "without odom_slip_share a seed's worst scan is only {least:.3} m off");
     // The unseen turn bites too: with nav2's update thresholds (0.25 m / 0.2 rad) the filter does not
     // run while the robot creeps and turns, and the heading lags (measured: 1.6–1.9° RMSE against
     // 0.8–1.2° with 0.05 / 0.05).
