@@ -556,8 +556,8 @@ fn a_simulation_records_as_a_ros2_bag() {
 /// keep it off for a few scans), and a scan of a corner is explained as fully at the room's other
 /// corners: the filter must come back to the corner it was at, not go to another. Measured
 /// (seeds 1–10, nav2's defaults): final 3.2–16.2 cm, worst 0.36–0.37 m (the scans given the
-/// glitch); before rivals at the estimate's own place were kept first and counted among twins,
-/// seeds 3 and 4 ended 1.48 m and 2.50 m off at other corners (worst 5.8 m). Our amcl.toml (its
+/// glitch). Without a rival at the estimate's own place kept first and counted among twins,
+/// seeds 3 and 4 end 1.48 m and 2.50 m off at other corners (worst 5.8 m). Our amcl.toml (its
 /// slip samples take the glitch): final 3.8–6.7 cm, worst 10–16 cm (seeds 1–10), heading at worst
 /// 0.04–0.10 rad (seeds 1–3).
 #[test]
