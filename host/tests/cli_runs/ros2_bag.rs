@@ -113,6 +113,10 @@ pub(crate) fn simulate(dir: &Path) -> Run {
     Run { truth: truths, data }
 }
 
+/// A nav2 params file with nav2's defaults but for the start pose (the bags' first pose).
+const NAV2_DEFAULTS: &str =
+    "amcl:\n  ros__parameters:\n    set_initial_pose: true\n    initial_pose: {x: 1.0, y: 1.0, yaw: 0.0}\n";
+
 /// Writes the two bags with rosbags (its own CDR serializer, little and big endian).
 const WRITER: &str = r#"
 import json, math, sys
@@ -366,8 +370,7 @@ fn simulated_ros2_bags_are_localised_end_to_end() {
         stderr.contains("nav2 parameters without an effect here") && stderr.contains("alpha5"),
         "{stderr}"
     );
-    std::fs::write(&nav2, "amcl:\n  ros__parameters:\n    set_initial_pose: true\n    initial_pose: {x: 1.0, y: 1.0, yaw: 0.0}\n")
-        .unwrap();
+    std::fs::write(&nav2, NAV2_DEFAULTS).unwrap();
     let (theirs, _) = run_nav2(&nav2, &dir.path().join("bag1-nav2-defaults.csv"));
     assert_ne!(theirs, csv, "nav2's defaults are not our tuning");
     let (rows, last, worst, _) = errors(&theirs, &run.truth);
@@ -575,8 +578,7 @@ fn an_odometry_glitch_does_not_send_the_filter_to_a_corner_that_looks_alike() {
         }),
     );
     let nav2 = dir.path().join("nav2_params.yaml");
-    std::fs::write(&nav2, "amcl:\n  ros__parameters:\n    set_initial_pose: true\n    initial_pose: {x: 1.0, y: 1.0, yaw: 0.0}\n")
-        .unwrap();
+    std::fs::write(&nav2, NAV2_DEFAULTS).unwrap();
     let run_with = |args: &[&str], seed: u64| {
         let csv = dir.path().join(format!("glitched-{seed}.csv"));
         let r = Command::new(env!("CARGO_BIN_EXE_amr"))
