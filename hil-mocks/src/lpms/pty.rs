@@ -166,10 +166,43 @@ impl Drop for MockImuHandle {
     }
 }
 
+/// Default symlinks are `amr-mock-imu-<pid>-<n>` in the temp dir.
+const LINK_PREFIX: &str = "amr-mock-imu-";
+
 fn default_link_path() -> PathBuf {
     static NEXT: AtomicU64 = AtomicU64::new(0);
     let n = NEXT.fetch_add(1, Ordering::Relaxed);
-    std::env::temp_dir().join(format!("amr-mock-imu-{}-{n}", std::process::id()))
+    let dir = std::env::temp_dir();
+    if n == 0 {
+        remove_stale_links(&dir);
+    }
+    dir.join(format!("{LINK_PREFIX}{}-{n}", std::process::id()))
+}
+
+/// Removes the default symlinks (and their temporary `.new` names) that processes no longer
+/// running left in `dir`: a mock stopped by a signal (Ctrl-C on `amr sim`, a test killing it)
+/// never runs its `Drop`. A link is left alone unless its process is known to be gone, which
+/// needs `/proc`; without it nothing is removed.
+fn remove_stale_links(dir: &Path) {
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix(LINK_PREFIX))
+            .and_then(|rest| rest.split(['-', '.']).next())
+            .and_then(|pid| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let is_link = entry.file_type().is_ok_and(|t| t.is_symlink());
+        if is_link && !Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 /// Opens a pty pair, points `link_path` at the slave and returns the master. The mock does not keep
@@ -500,5 +533,40 @@ mod memory_tests {
         assert!((380..=470).contains(&runs[0].len()), "{} samples", runs[0].len());
         assert!(runs[0].iter().any(|(t, _)| *t > 3_000_000), "streaming again after the replug");
         assert_eq!(runs[0], runs[1]);
+    }
+}
+
+#[cfg(test)]
+mod link_tests {
+    #![allow(clippy::unwrap_used, reason = "tests")]
+
+    use super::{LINK_PREFIX, remove_stale_links};
+
+    /// Links left by a process that is gone are removed; this process's, another file of the same
+    /// name pattern that is not a link, and unrelated links are kept.
+    #[test]
+    fn links_of_processes_that_are_gone_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        let gone = child.id();
+        child.wait().unwrap();
+        let me = std::process::id();
+        let link = |name: String| {
+            let path = dir.path().join(name);
+            std::os::unix::fs::symlink("/dev/null", &path).unwrap();
+            path
+        };
+        let stale = link(format!("{LINK_PREFIX}{gone}-0"));
+        let stale_tmp = link(format!("{LINK_PREFIX}{gone}-1.new"));
+        let mine = link(format!("{LINK_PREFIX}{me}-0"));
+        let other = link("serial0".to_owned());
+        let not_a_link = dir.path().join(format!("{LINK_PREFIX}{gone}-2"));
+        std::fs::write(&not_a_link, b"").unwrap();
+        remove_stale_links(dir.path());
+        assert!(!stale.exists() && stale.symlink_metadata().is_err());
+        assert!(stale_tmp.symlink_metadata().is_err());
+        assert!(mine.symlink_metadata().is_ok());
+        assert!(other.symlink_metadata().is_ok());
+        assert!(not_a_link.exists());
     }
 }
