@@ -182,7 +182,8 @@ fn default_link_path() -> PathBuf {
 /// Removes the default symlinks (and their temporary `.new` names) that processes no longer
 /// running left in `dir`: a mock stopped by a signal (Ctrl-C on `amr sim`, a test killing it)
 /// never runs its `Drop`. A link is left alone unless its process is known to be gone, which
-/// needs `/proc`; without it nothing is removed.
+/// needs `/proc`; without it nothing is removed. (A process in another PID namespace that shares
+/// the temp dir looks gone: give such mocks their own `link_path`.)
 fn remove_stale_links(dir: &Path) {
     if !Path::new("/proc/self").exists() {
         return;
