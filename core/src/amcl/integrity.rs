@@ -116,6 +116,11 @@ pub struct IntegrityParams {
     /// explain the scan far better than the estimate (rivals, judged on the next scans). 0: no
     /// search.
     pub alternative_draws: usize,
+    /// On turning `Lost`, half the re-seeded particles go around the places an exhaustive search
+    /// of the whole map finds for the scan ([`super::places::PlaceSearch`]), the other half to
+    /// uniform draws; off, all of them to uniform draws, which find the robot's basin with a
+    /// chance that falls with the map's area.
+    pub place_search: bool,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
     /// At most this many particles are re-seeded in one update: bounds what an update costs
@@ -150,6 +155,7 @@ impl Default for IntegrityParams {
             recover: 3,
             reseed_share: 0.5,
             alternative_draws: 100,
+            place_search: true,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,

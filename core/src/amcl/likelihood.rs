@@ -57,6 +57,9 @@ pub struct LikelihoodField {
     width: usize,
     resolution: f64,
     model: LaserModel,
+    /// The exhaustive place search's grids, built when first asked for (a filter that is never
+    /// lost never needs them).
+    places: std::sync::OnceLock<super::places::PlaceSearch>,
 }
 
 /// Points in a robot's frame as fixed-point metres (× 2¹⁶, 15 µm), converted once per scan for the
@@ -223,6 +226,7 @@ impl LikelihoodField {
             width: w,
             resolution: res,
             model,
+            places: std::sync::OnceLock::new(),
         }
     }
 
@@ -398,10 +402,59 @@ impl LikelihoodField {
         self.resolution
     }
 
-    /// Bytes held by the field's grids (the resident cost of a map).
+    /// The map in square blocks of `k` map cells, for the exhaustive place search
+    /// ([`super::places::PlaceSearch`]): the block grid's width and height, and per block
+    /// (row-major from the bottom row, as the map) whether some point in it is within `tol_m` of a
+    /// mapped surface by the field's distances, and whether it holds a free cell.
+    pub(super) fn blocks(&self, k: usize, tol_m: f64) -> (usize, usize, Vec<bool>, Vec<bool>) {
+        let k = k.max(1);
+        let w = self.width;
+        let sub = self.fine_width.checked_div(w).unwrap_or(1).max(1);
+        let h = self.fine_height / sub;
+        let (bw, bh) = (w.div_ceil(k), h.div_ceil(k));
+        let mut near = vec![false; bw * bh];
+        let mut free = vec![false; bw * bh];
+        let q = self.quantum_of(tol_m);
+        let fine_k = k * sub;
+        for (idx, &d) in self.cells.iter().enumerate() {
+            if u16::from(d) <= q {
+                let (a, b) = (idx % self.fine_width, idx / self.fine_width);
+                if let Some(cell) = near.get_mut((b / fine_k) * bw + a / fine_k) {
+                    *cell = true;
+                }
+            }
+        }
+        let mut before = 0u64;
+        for (&start, &end) in self.free.starts.iter().zip(&self.free.ends) {
+            let len = (end - before) as usize;
+            before = end;
+            let start = start as usize;
+            let (i0, j) = (start % w.max(1), start / w.max(1));
+            for bi in i0 / k..=(i0 + len.max(1) - 1) / k {
+                if let Some(cell) = free.get_mut((j / k) * bw + bi) {
+                    *cell = true;
+                }
+            }
+        }
+        (bw, bh, near, free)
+    }
+
+    /// The map's origin: map-frame poses to the world.
+    pub(super) fn map_to_world(&self) -> Se2 {
+        self.map_to_world
+    }
+
+    /// The exhaustive place search over this map (its grids built on the first call).
+    pub fn place_search(&self) -> &super::places::PlaceSearch {
+        self.places.get_or_init(|| super::places::PlaceSearch::new(self))
+    }
+
+    /// Bytes held by the field's grids (the resident cost of a map; the place search's once built).
     #[must_use]
     pub fn heap_bytes(&self) -> usize {
-        self.cells.len() + self.free.bytes()
+        self.cells.len()
+            + self.free.bytes()
+            + self.places.get().map_or(0, super::places::PlaceSearch::heap_bytes)
     }
 }
 

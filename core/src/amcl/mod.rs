@@ -17,6 +17,7 @@ pub mod likelihood;
 pub mod log;
 pub mod motion;
 pub mod particles;
+pub mod places;
 mod rivals;
 
 use std::sync::Arc;
@@ -491,7 +492,35 @@ impl Amcl {
         let slots: Vec<usize> =
             if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
         let need = self.replace_need();
-        let places = self.better_places(points, slots.len(), Stream::Filter, need);
+        // On turning lost, half of them around the places the whole map's search finds; the rest
+        // (all of them if it finds none) the best of uniform draws.
+        let searched = match need {
+            Some(need) if share >= 1.0 && self.monitor.params().place_search => {
+                self.searched_places(points, need)
+            }
+            _ => Vec::new(),
+        };
+        // Two or more places explain the scan: the scans to come tell them apart, judged as
+        // twins are (rivals.rs), and the estimate is ambiguous until then.
+        if searched.len() >= 2
+            && let Some(odom) = self.last_odom
+        {
+            self.rivals = searched.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
+            self.twins = true;
+            self.monitor.set_ambiguous(true);
+        }
+        let around = if searched.is_empty() { 0 } else { slots.len() / 2 };
+        let mut places: Vec<Option<Se2>> = (0..around)
+            .map(|i| {
+                let at = searched[i % searched.len()];
+                Some(Se2::new(
+                    at.x + self.rng.gaussian(PLACE_SPREAD_M),
+                    at.y + self.rng.gaussian(PLACE_SPREAD_M),
+                    at.theta + self.rng.gaussian(PLACE_SPREAD_RAD),
+                ))
+            })
+            .collect();
+        places.extend(self.better_places(points, slots.len() - around, Stream::Filter, need));
         let w = 1.0 / n as f64;
         let mut placed = 0usize;
         for (at, pose) in slots.into_iter().zip(places) {
@@ -506,6 +535,34 @@ impl Amcl {
         self.renormalise();
         self.reseeds += 1;
         true
+    }
+
+    /// The places the exhaustive search of the map ([`places::PlaceSearch`]) finds for this scan
+    /// whose endpoints it counts as explained at `need` of them, each climbed to its optimum and
+    /// kept if the integrity measure, judged as the estimate was, finds `need` there: at most
+    /// [`SEARCHED_PLACES`], the best first.
+    fn searched_places(&mut self, points: &[[f64; 2]], need: f64) -> Vec<Se2> {
+        let p = *self.monitor.params();
+        let field = Arc::clone(&self.field);
+        let beams = subsample(points, self.params.max_beams.usize());
+        let (found, _) = field.place_search().search(
+            &beams,
+            need,
+            SEARCHED_PLACES * 4,
+            (PLACES_APART_M, PLACES_APART_RAD),
+            SEARCH_BUDGET,
+        );
+        let fixed = FixedPoints::new(&beams);
+        let judged = subsample(points, p.max_points);
+        found
+            .into_iter()
+            .map(|q| refine(&field, &fixed, q.pose))
+            .filter(|pose| {
+                integrity::explained_share(&field, pose, &judged, self.sensor_origin, &p).unwrap_or(0.0)
+                    >= need
+            })
+            .take(SEARCHED_PLACES)
+            .collect()
     }
 
     /// The share of the scan a replacement (a re-seeded particle) must explain: clearly more than
@@ -819,6 +876,17 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
     (slipped, kept)
 }
 
+/// Places of the whole map's search that a filter turning lost re-seeds around, at most.
+const SEARCHED_PLACES: usize = 8;
+/// The places of one search stand at least this far apart (or turned this much), m and rad.
+const PLACES_APART_M: f64 = 1.0;
+const PLACES_APART_RAD: f64 = 0.35;
+/// Squares one search counts at most (bounds the update that turns lost).
+const SEARCH_BUDGET: u64 = 4_000_000;
+/// The spread of the particles placed around a searched place, m and rad.
+const PLACE_SPREAD_M: f64 = 0.05;
+const PLACE_SPREAD_RAD: f64 = 0.02;
+
 /// How much looser than the integrity measure's own distances the re-seeding's comparison is.
 const COARSE: f64 = 3.0;
 
@@ -927,6 +995,8 @@ fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
     )
 }
 
+#[cfg(test)]
+mod open_site;
 #[cfg(test)]
 mod scenarios;
 #[cfg(test)]

@@ -25,7 +25,6 @@ pub(super) struct Rival {
 
 impl Rival {
     /// A rival just found at `pose` when the odometry read `odom`, judged on no scan yet.
-    #[cfg(test)]
     pub(super) fn found(pose: Se2, odom: Se2) -> Self {
         Rival { pose, odom, evidence: 0.0, judged: 0, streak: 0 }
     }
