@@ -494,9 +494,9 @@ impl Amcl {
         let need = self.replace_need();
         // On turning lost, half of them around the places the whole map's search finds; the rest
         // (all of them if it finds none) the best of uniform draws.
-        let searched = match need {
-            Some(need) if share >= 1.0 && self.monitor.params().place_search => {
-                self.searched_places(points, need)
+        let searched = match self.search_need() {
+            Some(bar) if share >= 1.0 && self.monitor.params().place_search => {
+                self.searched_places(points, bar)
             }
             _ => Vec::new(),
         };
@@ -549,8 +549,8 @@ impl Amcl {
             &beams,
             need,
             SEARCHED_PLACES * 4,
-            (PLACES_APART_M, PLACES_APART_RAD),
-            SEARCH_BUDGET,
+            places::PLACES_APART,
+            places::SEARCH_BUDGET,
         );
         let fixed = FixedPoints::new(&beams);
         let judged = subsample(points, p.max_points);
@@ -578,6 +578,22 @@ impl Amcl {
             .monitor
             .last()
             .map_or(0.0, |i| (i.explained + p.switch_margin).max(p.tracking_ratio * i.level));
+        (need <= 1.0).then_some(need)
+    }
+
+    /// The share of the scan a place found by the exhaustive search must explain for a filter
+    /// turning lost to re-seed around it: `switch_margin` more than the estimate, as a uniform
+    /// draw needs, and at least the lost bar (`lost_ratio` × level: where the map explains little
+    /// of the scan anywhere, a region it does not cover, nothing is moved), but not the tracking
+    /// bar a draw needs. The search's places are the best the whole map holds for the scan, not
+    /// one draw's luck; where the robot was carried among clutter the map does not hold, the
+    /// truth explains less than a tracked place usually does, and a bar it cannot reach left the
+    /// filter lost for good (`open_site.rs`). The scans after judge the places, as they judge
+    /// any re-seeded particle. `None` when no place could.
+    fn search_need(&self) -> Option<f64> {
+        let p = self.monitor.params();
+        let need =
+            self.monitor.last().map_or(0.0, |i| (i.explained + p.switch_margin).max(p.lost_ratio * i.level));
         (need <= 1.0).then_some(need)
     }
 
@@ -878,11 +894,6 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
 
 /// Places of the whole map's search that a filter turning lost re-seeds around, at most.
 const SEARCHED_PLACES: usize = 8;
-/// The places of one search stand at least this far apart (or turned this much), m and rad.
-const PLACES_APART_M: f64 = 1.0;
-const PLACES_APART_RAD: f64 = 0.35;
-/// Squares one search counts at most (bounds the update that turns lost).
-const SEARCH_BUDGET: u64 = 4_000_000;
 /// The spread of the particles placed around a searched place, m and rad.
 const PLACE_SPREAD_M: f64 = 0.05;
 const PLACE_SPREAD_RAD: f64 = 0.02;

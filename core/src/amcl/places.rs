@@ -5,11 +5,10 @@
 //! endpoints as the score.
 //!
 //! Uniform draws (the re-seeding's best-of-many poses) find the robot's basin with a probability
-//! that falls with the map's free area: each draw lands within a basin of about 1 m² and 20° with
-//! a chance of 1 in (area × 18), so the 100 000 draws of a lost update put several in the basin on a
-//! building of 800 m² and fewer than one on a campus of 26 000 m². The search here looks at every
+//! that falls with the map's free area (docs/integrity.md, "The whole map searched": about one
+//! draw in 100 × the area in m² indoors, one in 300 × outdoors). The search here looks at every
 //! block of the map at every heading, and its cost grows with the places that nearly explain the
-//! scan, not with the area.
+//! scan more than with the area.
 //!
 //! The map is cut into square blocks ([`BLOCK_M`]); a block is "near" when some point of it lies
 //! within [`NEAR_M`] of a mapped surface. Level `l` of the precomputed grids holds, for block
@@ -24,17 +23,24 @@ use super::likelihood::LikelihoodField;
 use crate::se2::Se2;
 
 /// The side of a block, m (rounded to whole map cells).
-pub const BLOCK_M: f64 = 0.2;
+pub const BLOCK_M: f64 = 0.1;
 /// An endpoint in a block that holds a point this close to a mapped surface is counted, m.
-pub const NEAR_M: f64 = 0.3;
+pub const NEAR_M: f64 = 0.15;
+/// Places counting this share of the endpoints fewer than the best place found are not looked
+/// for: the search's bar rises with the best it has found.
+pub const SLACK: f64 = 0.1;
+/// The filter's searches: places stand at least this far apart (or turned this much), m and rad.
+pub const PLACES_APART: (f64, f64) = (1.0, 0.35);
+/// The filter's searches count at most this many squares (bounds the update that turns lost).
+pub const SEARCH_BUDGET: u64 = 4_000_000;
 /// Levels above the blocks: the top level's squares are 2^6 blocks (12.8 m) a side.
-const LEVELS: usize = 6;
+const LEVELS: usize = 7;
 /// Candidates kept while searching: past this, the better half is kept and the count sought
 /// rises to the worst of them (memory stays bounded on a map where the scan fits everywhere).
 const KEPT: usize = 20_000;
 /// Headings: at least this step (the far endpoints of a scan whose farthest return is a metre
 /// away would ask for thousands of headings), at most this one, rad.
-const MIN_STEP_RAD: f64 = 0.0035;
+const MIN_STEP_RAD: f64 = 0.007;
 const MAX_STEP_RAD: f64 = 0.035;
 
 /// The precomputed grids of one map (built once per map, shared by its filters).
@@ -122,12 +128,19 @@ impl PlaceSearch {
         budget: u64,
     ) -> (Vec<Place>, SearchCost) {
         let mut cost = SearchCost::default();
+        // Endpoints that are no place (not finite) are left out.
+        let finite: Vec<[f64; 2]> =
+            points.iter().filter(|p| p[0].is_finite() && p[1].is_finite()).copied().collect();
+        let points = &finite[..];
         let n = points.len();
         let Some((x0, y0, x1, y1)) = self.bounds else { return (Vec::new(), cost) };
         if n == 0 || max_places == 0 || !(min_share.is_finite()) {
             return (Vec::new(), cost);
         }
-        let mut need = ((min_share.clamp(0.0, 1.0) * n as f64).ceil() as usize).max(1);
+        let floor = ((min_share.clamp(0.0, 1.0) * n as f64).ceil() as usize).max(1);
+        let slack = (SLACK * n as f64).ceil() as usize;
+        let mut need = floor;
+        let mut best = 0usize;
         // The heading step moves the farthest endpoint by about a block.
         let far = points.iter().map(|p| p[0].hypot(p[1])).fold(0.0, f64::max);
         let step =
@@ -135,43 +148,60 @@ impl PlaceSearch {
         let headings = (2.0 * PI / step).ceil() as usize;
         let step = 2.0 * PI / headings as f64;
         let top = self.levels.len() - 1;
+        // Every heading's endpoints as block offsets from the robot's block.
+        let offsets: Vec<Vec<(isize, isize)>> = (0..headings)
+            .map(|hk| {
+                let (s, c) = (hk as f64 * step).sin_cos();
+                points
+                    .iter()
+                    .map(|p| {
+                        let u = (c * p[0] - s * p[1]) / self.block_m;
+                        let v = (s * p[0] + c * p[1]) / self.block_m;
+                        ((0.5 + u).floor() as isize, (0.5 + v).floor() as isize)
+                    })
+                    .collect()
+            })
+            .collect();
+        cost.headings = headings;
+        // The top level's squares at every heading, the best bound first: the best places are met
+        // early, and the bar rises with them (as Cartographer's matcher orders its candidates).
+        let side = 1usize << top;
+        let mut tops: Vec<(usize, usize, usize, usize)> = Vec::new(); // (bound, i, j, heading)
+        'top: for (hk, off) in offsets.iter().enumerate() {
+            for j in (y0..=y1).step_by(side) {
+                for i in (x0..=x1).step_by(side) {
+                    if cost.squares >= budget {
+                        cost.cut = true;
+                        break 'top;
+                    }
+                    cost.squares += 1;
+                    let bound = self.count(top, i, j, off, need);
+                    if bound >= need {
+                        tops.push((bound, i, j, hk));
+                    }
+                }
+            }
+        }
+        tops.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
         let mut found: Vec<(usize, usize, usize, usize)> = Vec::new(); // (count, i, j, heading)
-        let mut offsets = vec![(0isize, 0isize); n];
-        let mut stack: Vec<(usize, usize, usize)> = Vec::new();
-        'headings: for hk in 0..headings {
-            cost.headings += 1;
-            let (s, c) = (hk as f64 * step).sin_cos();
-            for (o, p) in offsets.iter_mut().zip(points) {
-                let u = (c * p[0] - s * p[1]) / self.block_m;
-                let v = (s * p[0] + c * p[1]) / self.block_m;
-                *o = ((0.5 + u).floor() as isize, (0.5 + v).floor() as isize);
+        let mut stack: Vec<(usize, usize, usize, usize)> = Vec::new(); // (bound, i, j, level)
+        let mut children: Vec<(usize, usize, usize)> = Vec::with_capacity(4);
+        'tops: for &(bound, i, j, hk) in &tops {
+            if bound < need {
+                break;
             }
-            let side = 1usize << top;
-            let mut j0 = y0;
-            while j0 <= y1 {
-                let mut i0 = x0;
-                while i0 <= x1 {
-                    stack.push((i0, j0, top));
-                    i0 += side;
-                }
-                j0 += side;
-            }
-            while let Some((i, j, l)) = stack.pop() {
-                if cost.squares >= budget {
-                    cost.cut = true;
-                    stack.clear();
-                    break 'headings;
-                }
-                cost.squares += 1;
-                if l == 0 && !self.free[j * self.width + i] {
-                    continue;
-                }
-                let count = self.count(l, i, j, &offsets, need);
-                if count < need {
+            let off = &offsets[hk];
+            stack.push((bound, i, j, top));
+            while let Some((bound, i, j, l)) = stack.pop() {
+                if bound < need {
                     continue;
                 }
                 if l == 0 {
-                    found.push((count, i, j, hk));
+                    if bound > best {
+                        best = bound;
+                        need = need.max(best.saturating_sub(slack));
+                    }
+                    found.push((bound, i, j, hk));
                     if found.len() >= KEPT {
                         found.sort_by_key(|f| std::cmp::Reverse(f.0));
                         found.truncate(KEPT / 2);
@@ -180,13 +210,28 @@ impl PlaceSearch {
                     continue;
                 }
                 let s = 1usize << (l - 1);
+                children.clear();
                 for (di, dj) in [(0, 0), (s, 0), (0, s), (s, s)] {
-                    if i + di <= x1 && j + dj <= y1 {
-                        stack.push((i + di, j + dj, l - 1));
+                    let (ci, cj) = (i + di, j + dj);
+                    if ci > x1 || cj > y1 || (l == 1 && !self.free[cj * self.width + ci]) {
+                        continue;
+                    }
+                    if cost.squares >= budget {
+                        cost.cut = true;
+                        break 'tops;
+                    }
+                    cost.squares += 1;
+                    let b = self.count(l - 1, ci, cj, off, need);
+                    if b >= need {
+                        children.push((b, ci, cj));
                     }
                 }
+                // The best child popped first.
+                children.sort_by_key(|c| c.0);
+                stack.extend(children.iter().map(|&(b, ci, cj)| (b, ci, cj, l - 1)));
             }
         }
+        found.retain(|f| f.0 >= need);
         found.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
         let mut places: Vec<Place> = Vec::new();
         for (count, i, j, hk) in found {
@@ -217,7 +262,7 @@ impl PlaceSearch {
         let clamp = |a: isize| if a < 0 && a + side > 0 { 0 } else { a };
         let mut hits = 0;
         for (k, (du, dv)) in offsets.iter().enumerate() {
-            let (u, v) = (clamp(i as isize + du), clamp(j as isize + dv));
+            let (u, v) = (clamp((i as isize).saturating_add(*du)), clamp((j as isize).saturating_add(*dv)));
             if u >= 0
                 && v >= 0
                 && (u as usize) < self.width
@@ -326,7 +371,8 @@ mod tests {
     }
 
     /// The bound prunes nothing it should not: on a small map every block and heading whose count
-    /// reaches the bar (counted directly, all blocks) is found by the search.
+    /// reaches the bar (counted directly, all blocks: the asked share, or a tenth of the endpoints
+    /// below the best count where that is higher) is found by the search.
     #[test]
     fn the_search_finds_what_counting_every_block_finds() {
         let g = rooms();
@@ -339,7 +385,7 @@ mod tests {
         let n = points.len();
         let need = (0.7 * n as f64).ceil() as usize;
         let step = 2.0 * PI / cost.headings as f64;
-        let mut direct = 0usize;
+        let mut counts: Vec<usize> = Vec::new();
         for hk in 0..cost.headings {
             let (s, c) = (hk as f64 * step).sin_cos();
             let offsets: Vec<(isize, isize)> = points
@@ -352,13 +398,17 @@ mod tests {
                 .collect();
             for j in 0..search.height {
                 for i in 0..search.width {
-                    if search.free[j * search.width + i] && search.count(0, i, j, &offsets, 0) >= need {
-                        direct += 1;
+                    if search.free[j * search.width + i] {
+                        // Below the asked share it is not counted to the end.
+                        counts.push(search.count(0, i, j, &offsets, need));
                     }
                 }
             }
         }
-        assert!(direct > 0);
+        let best = counts.iter().copied().max().unwrap_or(0);
+        let bar = need.max(best.saturating_sub((SLACK * n as f64).ceil() as usize));
+        let direct = counts.iter().filter(|c| **c >= bar).count();
+        assert!(direct > 0 && bar > need, "best {best} of {n}, bar {bar}");
         assert_eq!(places.len(), direct, "the search and the direct count disagree");
         assert!(places.iter().all(|q| q.share >= 0.7));
         let all = (search.width * search.height * cost.headings) as u64;
@@ -375,5 +425,9 @@ mod tests {
         assert!(cost.cut && cost.squares == 1_000, "{cost:?}");
         assert!(search.search(&[], 0.8, 10, (1.0, 0.35), u64::MAX).0.is_empty());
         assert!(search.search(&points, f64::NAN, 10, (1.0, 0.35), u64::MAX).0.is_empty());
+        // Endpoints that are no place, or far off any map, are not a reason to fail.
+        let odd = [[f64::NAN, 1.0], [f64::INFINITY, 0.0], [1e300, -1e300], [3.0, 4.0], [-2.0, 0.5]];
+        let (_, cost) = search.search(&odd, 0.5, 10, (1.0, 0.35), 100_000);
+        assert!(cost.squares > 0);
     }
 }

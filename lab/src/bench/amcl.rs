@@ -68,6 +68,60 @@ pub struct RealLog {
     pub speedup_10000_100: Option<f64>,
     /// The integrity monitor's cost on this log's map and scan.
     pub integrity_cost: Vec<IntegrityCost>,
+    /// The exhaustive place search on this log's map and first scan.
+    pub place_search: PlaceSearchCost,
+}
+
+/// What the exhaustive place search (`amr_core::amcl::places`) costs on one map and scan, as a
+/// filter turning lost runs it (60 beams, the tracking bar at the starting level, the filter's
+/// budget).
+#[derive(Debug, Clone, Serialize)]
+pub struct PlaceSearchCost {
+    /// Building its grids (once per map), seconds, and what they hold, MB.
+    pub build_s: f64,
+    pub grids_mb: f64,
+    pub search: Timing,
+    /// Headings and squares looked at, places found, and whether the budget cut the search short.
+    pub headings: usize,
+    pub squares: u64,
+    pub places: usize,
+    pub cut: bool,
+    /// Where the reference pose ranks among the places found (within 0.5 m and 10°), if it does.
+    pub reference_rank: Option<usize>,
+}
+
+impl PlaceSearchCost {
+    fn measure(
+        params: &amr_core::config::AmclParams,
+        field: &amr_core::amcl::LikelihoodField,
+        reference: amr_core::se2::Se2,
+        points: &[[f64; 2]],
+        runs: usize,
+    ) -> Self {
+        use amr_core::amcl::places;
+        let t = Instant::now();
+        let search = field.place_search();
+        let build_s = t.elapsed().as_secs_f64();
+        let beams = amr_core::amcl::subsample(points, params.max_beams.usize());
+        let bar = params.integrity.tracking_ratio * params.integrity.initial_level;
+        let go = || search.search(&beams, bar, 32, places::PLACES_APART, places::SEARCH_BUDGET);
+        let (found, cost) = go();
+        let timing = time(runs, go);
+        let reference_rank = found.iter().position(|q| {
+            let d = reference.inverse() * q.pose;
+            d.translation_norm() < 0.5 && d.theta.abs() < 10f64.to_radians()
+        });
+        PlaceSearchCost {
+            build_s,
+            grids_mb: search.heap_bytes() as f64 / 1e6,
+            search: timing,
+            headings: cost.headings,
+            squares: cost.squares,
+            places: found.len(),
+            cut: cost.cut,
+            reference_rank,
+        }
+    }
 }
 
 impl LargeMap {
@@ -243,6 +297,7 @@ fn real_log(
     let ours_2000_60 = fixed_updates(params, &field, pose, &points, 2000, 60, 40 * scale)?;
     let ours_10000_100 = fixed_updates(params, &field, pose, &points, 10_000, 100, 10 * scale)?;
     let integrity_cost = integrity_cost(params, &field, pose, &points, scale)?;
+    let place_search = PlaceSearchCost::measure(params, &field, pose, &points, 4 * scale);
     let (mut nav2_2000_60_ms, mut nav2_10000_100_ms) = (None, None);
     if let Some(bin) = &extras.nav2 {
         let out = std::process::Command::new(bin)
@@ -279,6 +334,7 @@ fn real_log(
         speedup_2000_60: nav2_2000_60_ms.map(|n| n / ours_2000_60.median_ms),
         speedup_10000_100: nav2_10000_100_ms.map(|n| n / ours_10000_100.median_ms),
         integrity_cost,
+        place_search,
         ours_2000_60,
         ours_10000_100,
         nav2_2000_60_ms,
@@ -427,6 +483,23 @@ pub fn amcl_markdown(r: &AmclReport) -> String {
             l.ours_10000_100.median_ms,
             f(l.nav2_10000_100_ms, 3),
             f(l.speedup_10000_100, 1)
+        );
+    }
+    if let Some(l) = &r.real_log {
+        let s = &l.place_search;
+        let _ = write!(
+            out,
+            "\nThe exhaustive place search (what a filter turning lost runs) on {}'s map and first scan: grids built in {:.2} s ({:.1} MB); a search {:.1} ms median, {:.1} ms P95 ({} headings, {} squares{}); {} places found, the reference pose {}.\n",
+            l.log,
+            s.build_s,
+            s.grids_mb,
+            s.search.median_ms,
+            s.search.p95_ms,
+            s.headings,
+            s.squares,
+            if s.cut { ", cut short by the budget" } else { "" },
+            s.places,
+            s.reference_rank.map_or("not among them".to_owned(), |r| format!("ranked {}", r + 1)),
         );
     }
     if let Some(m) = &r.large_map {
