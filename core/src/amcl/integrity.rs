@@ -292,6 +292,12 @@ impl Monitor {
         &self.params
     }
 
+    /// The learned level: what this sensor explains where it is tracked (share).
+    #[must_use]
+    pub fn level(&self) -> f64 {
+        self.level
+    }
+
     #[must_use]
     pub fn state(&self) -> IntegrityState {
         self.state

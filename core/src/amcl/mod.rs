@@ -258,9 +258,38 @@ impl Amcl {
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
-    fn place_globally(&mut self, points: &[[f64; 2]]) {
+    /// The first scan of global localisation: every particle the best of `global_candidates`
+    /// uniform poses; then, with the place search on, every other one around the places the
+    /// exhaustive search finds for the scan at the tracking bar of the starting level, and two or
+    /// more such places carried as twins (the estimate ambiguous until the scans tell them apart).
+    fn place_globally(&mut self, odom: Se2, points: &[[f64; 2]]) {
         self.place_globally_with(points, self.global_candidates);
         self.global_pending = false;
+        let p = *self.monitor.params();
+        if !(p.enabled && p.place_search) || points.len() < p.min_points {
+            return;
+        }
+        let searched = self.searched_places(points, p.tracking_ratio * self.monitor.level());
+        if searched.is_empty() {
+            return;
+        }
+        let n = self.particles.len();
+        for (k, slot) in (0..n).step_by(2).enumerate() {
+            let at = searched[k % searched.len()];
+            let q = Se2::new(
+                at.x + self.rng.gaussian(PLACE_SPREAD_M),
+                at.y + self.rng.gaussian(PLACE_SPREAD_M),
+                at.theta + self.rng.gaussian(PLACE_SPREAD_RAD),
+            );
+            if let Some(particle) = self.particles.get_mut(slot) {
+                particle.pose = q;
+            }
+        }
+        if searched.len() >= 2 {
+            self.rivals = searched.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
+            self.twins = true;
+            self.monitor.set_ambiguous(true);
+        }
     }
 
     /// Every particle the best of `candidates` uniform poses for `points`.
@@ -280,7 +309,7 @@ impl Amcl {
             return UpdateOutcome::NotInitialised;
         }
         if self.global_pending && !points.is_empty() {
-            self.place_globally(points);
+            self.place_globally(odom, points);
         }
         if let Some(last) = self.last_odom {
             let (dx, dy, da) = (odom.x - last.x, odom.y - last.y, angle_diff(odom.theta, last.theta));
