@@ -275,12 +275,7 @@ impl Amcl {
         }
         let n = self.particles.len();
         for (k, slot) in (0..n).step_by(2).enumerate() {
-            let at = searched[k % searched.len()];
-            let q = Se2::new(
-                at.x + self.rng.gaussian(PLACE_SPREAD_M),
-                at.y + self.rng.gaussian(PLACE_SPREAD_M),
-                at.theta + self.rng.gaussian(PLACE_SPREAD_RAD),
-            );
+            let q = self.around(searched[k % searched.len()]);
             if let Some(particle) = self.particles.get_mut(slot) {
                 particle.pose = q;
             }
@@ -539,16 +534,8 @@ impl Amcl {
             self.monitor.set_ambiguous(true);
         }
         let around = if searched.is_empty() { 0 } else { slots.len() / 2 };
-        let mut places: Vec<Option<Se2>> = (0..around)
-            .map(|i| {
-                let at = searched[i % searched.len()];
-                Some(Se2::new(
-                    at.x + self.rng.gaussian(PLACE_SPREAD_M),
-                    at.y + self.rng.gaussian(PLACE_SPREAD_M),
-                    at.theta + self.rng.gaussian(PLACE_SPREAD_RAD),
-                ))
-            })
-            .collect();
+        let mut places: Vec<Option<Se2>> =
+            (0..around).map(|i| Some(self.around(searched[i % searched.len()]))).collect();
         places.extend(self.better_places(points, slots.len() - around, Stream::Filter, need));
         let w = 1.0 / n as f64;
         let mut placed = 0usize;
@@ -564,6 +551,15 @@ impl Amcl {
         self.renormalise();
         self.reseeds += 1;
         true
+    }
+
+    /// A pose drawn around a searched place (`PLACE_SPREAD_M`, `PLACE_SPREAD_RAD`).
+    fn around(&mut self, at: Se2) -> Se2 {
+        Se2::new(
+            at.x + self.rng.gaussian(PLACE_SPREAD_M),
+            at.y + self.rng.gaussian(PLACE_SPREAD_M),
+            at.theta + self.rng.gaussian(PLACE_SPREAD_RAD),
+        )
     }
 
     /// The places the exhaustive search of the map ([`places::PlaceSearch`]) finds for this scan
