@@ -407,11 +407,6 @@ impl Amcl {
             if self.reseeds == reseeds_before && self.polish_in_doubt() {
                 self.polish(points);
             }
-            // Tracking: the pose reported is the one that fits this scan best near the cloud's
-            // mean, judged on the next scan like the mean would have been.
-            if self.params.match_estimate && self.reseeds == reseeds_before {
-                self.match_reported(points);
-            }
         }
         UpdateOutcome::Updated { resampled }
     }
@@ -482,26 +477,6 @@ impl Amcl {
             return;
         }
         self.move_estimate_to(&e, &matched);
-    }
-
-    /// While tracking, the reported estimate (not the particles) is moved to the pose nearest it
-    /// that fits this scan best (a climb of the likelihood), if that is within [`MATCH_MAX_M`] and
-    /// [`MATCH_MAX_RAD`]. The cloud's mean averages the particles' poses, which the motion noise
-    /// spreads by a few centimetres every update; the climb takes the one this scan tells.
-    fn match_reported(&mut self, points: &[[f64; 2]]) {
-        if self.monitor.state() != IntegrityState::Tracking || points.len() < self.monitor.params().min_points {
-            return;
-        }
-        let Some(e) = self.estimate.as_ref().map(|e| e.pose) else { return };
-        let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
-        let matched = refine(&self.field, &beams, e);
-        let moved = e.inverse() * matched;
-        if moved.translation_norm() <= MATCH_MAX_M
-            && moved.theta.abs() <= MATCH_MAX_RAD
-            && let Some(estimate) = self.estimate.as_mut()
-        {
-            estimate.pose = matched;
-        }
     }
 
     /// Every particle moved as one, so that the estimate `from` lands on `to` (the cloud keeps its
@@ -1041,11 +1016,6 @@ const POLISH_MAX_M: f64 = 0.5;
 const POLISH_MAX_RAD: f64 = 0.087;
 /// The match is taken when the map explains this much more of the scan there, share.
 const POLISH_GAIN: f64 = 0.02;
-/// The reported estimate is matched to the scan ([`Amcl::match_reported`]) if the match is at most
-/// this far from the cloud's mean, m and rad: the mean's own scatter on the real logs is a few
-/// centimetres; a farther fit is another place's, not a better view of this one.
-const MATCH_MAX_M: f64 = 0.2;
-const MATCH_MAX_RAD: f64 = 0.05;
 
 fn random_free_pose(field: &LikelihoodField, rng: &mut Rng) -> Se2 {
     let n = field.free_count();

@@ -277,28 +277,6 @@ fn tracks_a_surveyed_map_where_nav2_defaults_get_lost() {
     assert!(nav2_rmse > 0.25, "this world is kinder than the real logs: {nav2:?}");
 }
 
-/// `match_estimate`: the pose reported while tracking is the scan's best fit near the particles'
-/// mean, and it is closer to the truth than the mean on every seed (the mean scatters with the
-/// motion noise; the fit is held by the surveyed map's 2 cm error). The particles are the same
-/// with and without (the match does not move them), so the runs differ only in what is reported.
-#[test]
-fn the_estimate_matched_to_the_scan_is_closer_than_the_particles_mean() {
-    let map = surveyed_map(&walls());
-    let matched = shipped_params();
-    assert!(matched.match_estimate, "shipped on");
-    let mut mean = matched.clone();
-    mean.match_estimate = false;
-    for seed in 1..=8 {
-        let (a, b) = (localise(&map, &matched, seed), localise(&map, &mean, seed));
-        let (ta, tb) = (a.translation.unwrap(), b.translation.unwrap());
-        eprintln!(
-            "seed {seed}: matched RMSE {:.3} m median {:.3} m; mean RMSE {:.3} m median {:.3} m",
-            ta.rmse, ta.median, tb.rmse, tb.median
-        );
-        assert_eq!(a.matched, b.matched);
-    }
-}
-
 /// The same world as a CARMEN log with raw odometry and a reference CSV of corrected poses: the files
 /// that are made, for the public Radish CARMEN logs stored in the GitHub repository `acschaefer/ple`,
 /// from real logs, through what `amr localize` and `amr bench localize` run: the log reader,

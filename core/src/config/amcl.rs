@@ -55,12 +55,6 @@ pub struct AmclParams {
     /// share (every trying sample believed). Needs `odom_slip_share > 0` if above 0.
     #[serde(default)]
     pub odom_slip_probability: Option<Fraction>,
-    /// Not in nav2: while the filter is tracking, the reported estimate is the pose nearest the
-    /// particles' mean that fits the scan best (a climb of the likelihood, at most 0.2 m and
-    /// 0.05 rad from the mean); the particles are not moved. The mean scatters with the motion
-    /// noise by a few centimetres every update. Absent: off (nav2's mean).
-    #[serde(default)]
-    pub match_estimate: bool,
     /// Distance-map cutoff of the likelihood field.
     pub laser_likelihood_max_dist: Positive,
     /// ≤ 0: use the scan's own maximum range (nav2 convention).

@@ -4,7 +4,7 @@
 //! |---|---|---|
 //! | `server.toml` | [`ServerConfig`] | the formation, fusion weights and gates, the T1–T4 switch |
 //! | `vamr.toml` | [`VamrParams`] | the Virtual-AMR pipeline parameters (paper Table 2) |
-//! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names; `odom_slip_share`, `odom_slip_probability` and `match_estimate` are ours) |
+//! | `amcl.toml` | [`AmclParams`] | AMCL parameters (nav2_amcl names; `odom_slip_share` and `odom_slip_probability` are ours) |
 //! | `scenarios/<name>.toml` | [`ScenarioConfig`] | an experiment: start, spacing, V's path, on a map |
 //! | `robot-<id>.toml` | [`ChassisConfig`], [`KinematicsConfig`], [`MountConfig`], [`MotionLimits`], [`SafetyConfig`] | a robot's body; its `[devices.*]` are the drivers' |
 //!
