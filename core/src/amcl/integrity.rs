@@ -121,11 +121,6 @@ pub struct IntegrityParams {
     /// uniform draws; off, all of them to uniform draws, which find the robot's basin with a
     /// chance that falls with the map's area.
     pub place_search: bool,
-    /// While still `lost` (with `place_search`), every this many updates the whole map is searched
-    /// with the scans of those updates at once, carried to the last one's frame by the odometry:
-    /// a half view among clutter can be explained better at another place than at the robot's,
-    /// a drive of several scans rarely. 0: not searched again after turning lost.
-    pub stitched_scans: usize,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
     /// At most this many particles are re-seeded in one update: bounds what an update costs
@@ -161,7 +156,6 @@ impl Default for IntegrityParams {
             reseed_share: 0.5,
             alternative_draws: 100,
             place_search: true,
-            stitched_scans: 5,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,

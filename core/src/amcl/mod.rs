@@ -85,10 +85,6 @@ pub struct Amcl {
     twins: bool,
     /// Scans since the last judged one.
     unjudged: u32,
-    /// While `lost`: the scans of the updates since it turned lost or was last searched with
-    /// (the odometry at each, its points), for the search of the map with several scans at once
-    /// ([`Self::research_stitched`]).
-    since_loss: std::collections::VecDeque<(Se2, Vec<[f64; 2]>)>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -142,7 +138,6 @@ impl Amcl {
             rivals: Vec::new(),
             twins: false,
             unjudged: 0,
-            since_loss: std::collections::VecDeque::new(),
         }
     }
 
@@ -208,7 +203,6 @@ impl Amcl {
     /// the next odometry pose as the reference, with no motion step from the old frame to the new.
     pub fn odometry_restarted(&mut self) {
         self.last_odom = None;
-        self.since_loss.clear();
     }
 
     fn max(&self) -> usize {
@@ -219,7 +213,6 @@ impl Amcl {
         self.w_slow = 0.0;
         self.w_fast = 0.0;
         self.last_odom = None;
-        self.since_loss.clear();
     }
 
     /// Start from `pose` with Gaussian spread (nav2 `initial_pose` / `/initialpose`): `max_particles`
@@ -383,9 +376,7 @@ impl Amcl {
                     if self.twins {
                         self.judge_rivals(odom, points);
                     }
-                    if !(p.place_search && self.research_stitched(odom, points)) {
-                        self.reseed(points, p.reseed_share);
-                    }
+                    self.reseed(points, p.reseed_share);
                 }
                 // Not lost: the rivals are judged on this scan; more are looked for while
                 // uncertain, and while tracking from the first scan the estimate explains poorly
@@ -403,9 +394,6 @@ impl Amcl {
                         self.search_rivals(odom, points);
                     }
                 }
-            }
-            if self.monitor.state() != IntegrityState::Lost {
-                self.since_loss.clear();
             }
             if self.monitor.state() == IntegrityState::Lost && !self.twins {
                 self.rivals.clear();
@@ -559,84 +547,6 @@ impl Amcl {
         }
         if placed == 0 {
             return false;
-        }
-        self.renormalise();
-        self.reseeds += 1;
-        true
-    }
-
-    /// Still lost: this scan joins those of the updates since the filter turned lost (or was
-    /// last searched so), and every `stitched_scans`th the whole map is searched with all of them
-    /// at once, each carried to this scan's frame by the odometry. One scan of a half view among
-    /// clutter can be explained better at a place where the next ones are not (on the synthetic
-    /// site with a 180° sensor the robot's place was not among the places found for the scan that
-    /// turned the filter lost); a drive of several scans is one place's. The places that explain
-    /// the stitched scans more than the estimate does by half `switch_margin`, and at least the
-    /// lost bar, get half the re-seeded particles, as on turning lost (twins if two or more).
-    /// Whether it re-seeded.
-    fn research_stitched(&mut self, odom: Se2, points: &[[f64; 2]]) -> bool {
-        let p = *self.monitor.params();
-        if p.stitched_scans == 0 {
-            return false;
-        }
-        self.since_loss.push_back((odom, subsample(points, self.params.max_beams.usize())));
-        while self.since_loss.len() > p.stitched_scans {
-            self.since_loss.pop_front();
-        }
-        if self.since_loss.len() < p.stitched_scans {
-            return false;
-        }
-        let stitched: Vec<[f64; 2]> = self
-            .since_loss
-            .iter()
-            .flat_map(|(at, pts)| {
-                let to_now = odom.inverse() * *at;
-                pts.iter().map(move |q| {
-                    let r = to_now * Se2::new(q[0], q[1], 0.0);
-                    [r.x, r.y]
-                })
-            })
-            .collect();
-        self.since_loss.clear();
-        let Some((estimate, last)) = self.pose_at(&odom).zip(self.monitor.last()) else { return false };
-        let field = Arc::clone(&self.field);
-        let beams = subsample(&stitched, 2 * self.params.max_beams.usize());
-        let share = |pose: &Se2| integrity::explained_share(&field, pose, &beams, None, &p).unwrap_or(0.0);
-        let need = (share(&estimate) + p.switch_margin / 2.0).max(p.lost_ratio * last.level);
-        if need > 1.0 {
-            return false;
-        }
-        let (found, _) = field.place_search().search(
-            &beams,
-            need,
-            SEARCHED_PLACES * 4,
-            places::PLACES_APART,
-            places::SEARCH_BUDGET,
-        );
-        let fixed = FixedPoints::new(&beams);
-        let places: Vec<Se2> = found
-            .into_iter()
-            .map(|q| refine(&field, &fixed, q.pose))
-            .filter(|pose| share(pose) >= need)
-            .take(SEARCHED_PLACES)
-            .collect();
-        if places.is_empty() {
-            return false;
-        }
-        if places.len() >= 2 {
-            self.rivals = places.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
-            self.twins = true;
-            self.monitor.set_ambiguous(true);
-        }
-        let n = self.particles.len();
-        let k = n.min(p.reseed_max_particles) / 2;
-        let w = 1.0 / n as f64;
-        for i in 0..k {
-            let pose = self.around(places[i % places.len()]);
-            let at = self.rng.below(n);
-            if let Some(q) = self.particles.get_mut(at) {
-                *q = Particle { pose, weight: w };
-            }
         }
         self.renormalise();
         self.reseeds += 1;
