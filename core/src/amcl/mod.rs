@@ -280,8 +280,14 @@ impl Amcl {
                 particle.pose = q;
             }
         }
-        if searched.len() >= 2 {
-            self.rivals = searched.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
+        self.carry_as_twins(&searched, odom);
+    }
+
+    /// Two or more places explain the scan: they are carried as twins, judged on the scans to
+    /// come as twins are (rivals.rs), and the estimate is ambiguous until those tell them apart.
+    fn carry_as_twins(&mut self, places: &[Se2], odom: Se2) {
+        if places.len() >= 2 {
+            self.rivals = places.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
             self.twins = true;
             self.monitor.set_ambiguous(true);
         }
@@ -524,14 +530,8 @@ impl Amcl {
             }
             _ => Vec::new(),
         };
-        // Two or more places explain the scan: the scans to come tell them apart, judged as
-        // twins are (rivals.rs), and the estimate is ambiguous until then.
-        if searched.len() >= 2
-            && let Some(odom) = self.last_odom
-        {
-            self.rivals = searched.iter().map(|at| rivals::Rival::found(*at, odom)).collect();
-            self.twins = true;
-            self.monitor.set_ambiguous(true);
+        if let Some(odom) = self.last_odom {
+            self.carry_as_twins(&searched, odom);
         }
         let around = if searched.is_empty() { 0 } else { slots.len() / 2 };
         let mut places: Vec<Option<Se2>> =
