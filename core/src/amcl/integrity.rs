@@ -121,6 +121,13 @@ pub struct IntegrityParams {
     /// uniform draws; off, all of them to uniform draws, which find the robot's basin with a
     /// chance that falls with the map's area.
     pub place_search: bool,
+    /// While still `lost` (with `place_search`), every this many lost updates the whole map is
+    /// searched again with that update's scan, and half the particles re-seeded then go around
+    /// the place found if the search singles one out (two or more: none, see `Amcl::reseed`):
+    /// the scan that turned the filter lost may be one the robot's place explains poorly
+    /// (clutter, a half view), and uniform draws rarely reach a place on a large map. 0: searched
+    /// only on turning lost.
+    pub search_again_every: u32,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
     /// At most this many particles are re-seeded in one update: bounds what an update costs
@@ -156,6 +163,7 @@ impl Default for IntegrityParams {
             reseed_share: 0.5,
             alternative_draws: 100,
             place_search: true,
+            search_again_every: 5,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,

@@ -85,6 +85,8 @@ pub struct Amcl {
     twins: bool,
     /// Scans since the last judged one.
     unjudged: u32,
+    /// Updates since the filter turned lost (0 while not lost).
+    lost_updates: u32,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -138,6 +140,7 @@ impl Amcl {
             rivals: Vec::new(),
             twins: false,
             unjudged: 0,
+            lost_updates: 0,
         }
     }
 
@@ -374,15 +377,20 @@ impl Amcl {
             match self.monitor.state() {
                 // Turned lost just now: every particle is a candidate for replacement (as the
                 // global localiser's first scan, which finds the robot on the real logs from one
-                // scan); while it stays lost, `reseed_share` of them at each update.
+                // scan); while it stays lost, `reseed_share` of them at each update, and every
+                // `search_again_every` updates the whole map searched again with that one scan.
                 IntegrityState::Lost if before != Some(IntegrityState::Lost) && p.reseed_share > 0.0 => {
-                    self.reseed(points, 1.0);
+                    self.lost_updates = 0;
+                    self.reseed(points, 1.0, Search::Turning);
                 }
                 IntegrityState::Lost => {
                     if self.twins {
                         self.judge_rivals(odom, points);
                     }
-                    self.reseed(points, p.reseed_share);
+                    self.lost_updates = self.lost_updates.saturating_add(1);
+                    let again =
+                        p.search_again_every > 0 && self.lost_updates.is_multiple_of(p.search_again_every);
+                    self.reseed(points, p.reseed_share, if again { Search::Again } else { Search::No });
                 }
                 // Not lost: the rivals are judged on this scan; more are looked for while
                 // uncertain, and while tracking from the first scan the estimate explains poorly
@@ -511,7 +519,7 @@ impl Amcl {
     /// filter keeps tracking on odometry: replacing it there put a tracked filter 12 m off in our
     /// surveyed world. The rest stay where they were; the weighting of the next scan keeps
     /// whichever fits. Whether any particle was replaced.
-    fn reseed(&mut self, points: &[[f64; 2]], share: f64) -> bool {
+    fn reseed(&mut self, points: &[[f64; 2]], share: f64, search: Search) -> bool {
         let n = self.particles.len();
         let k =
             (((n as f64) * share).round() as usize).min(n).min(self.monitor.params().reseed_max_particles);
@@ -523,13 +531,20 @@ impl Amcl {
             if k >= n { (0..n).collect() } else { (0..k).map(|_| self.rng.below(n)).collect() };
         let need = self.replace_need();
         // On turning lost, half of them around the places the whole map's search finds; the rest
-        // (all of them if it finds none) the best of uniform draws.
-        let searched = match self.search_need() {
-            Some(bar) if share >= 1.0 && self.monitor.params().place_search => {
+        // (all of them if it finds none) the best of uniform draws. Searched again while still
+        // lost, only around a place the search singles out: in a building of look-alike rooms,
+        // a filter lost while the odometry failed (a real log kept out of tuning) was sent by a
+        // search made then to a look-alike room, where without it the particles it kept came
+        // back to the robot once the odometry did (docs/results.md).
+        let mut searched = match self.search_need() {
+            Some(bar) if search != Search::No && self.monitor.params().place_search => {
                 self.searched_places(points, bar)
             }
             _ => Vec::new(),
         };
+        if search == Search::Again && searched.len() > 1 {
+            searched.clear();
+        }
         if let Some(odom) = self.last_odom {
             self.carry_as_twins(&searched, odom);
         }
@@ -906,6 +921,19 @@ impl Amcl {
             self.injections += 1;
         }
     }
+}
+
+/// Whether a lost filter's re-seeding searches the whole map for the scan
+/// ([`places::PlaceSearch`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Search {
+    No,
+    /// The update that turns the filter lost: every place found is re-seeded around, two or more
+    /// carried as twins.
+    Turning,
+    /// Still lost, every `search_again_every` updates: only a place the search singles out (the
+    /// one it finds within a tenth of the endpoints of the best).
+    Again,
 }
 
 /// The importance weights of a slipped and of a kept motion sample when `share` of the samples try

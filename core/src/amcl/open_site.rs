@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use super::scenarios::ray_cast;
 use super::{Amcl, IntegrityState, LikelihoodField, scan_points, tests::shipped_params};
+use crate::config::AmclParams;
 use crate::geometry::Polygon;
 use crate::map::{FREE, OCCUPIED, OccupancyGrid};
 use crate::rng::Rng;
@@ -79,9 +80,17 @@ fn site(seed: u64) -> Site {
 }
 
 impl Site {
-    /// A 360-beam, 360° scan from `pose`, out to 30 m, with range noise.
-    fn scan(&self, pose: &Se2, rng: &mut Rng) -> Scan {
-        let geom = Scan::new(-PI, 1f64.to_radians(), 0.05, 30.0, vec![f64::NAN; 360]);
+    /// A scan of `view` (one beam a degree, centred ahead) from `pose`, out to 30 m, with range
+    /// noise.
+    fn scan(&self, pose: &Se2, rng: &mut Rng, view: View) -> Scan {
+        let n = view.fov_deg as usize;
+        let geom = Scan::new(
+            -f64::from(view.fov_deg).to_radians() / 2.0,
+            1f64.to_radians(),
+            0.05,
+            30.0,
+            vec![f64::NAN; n],
+        );
         let scene: Vec<Polygon> = self.walls.iter().chain(&self.clutter).cloned().collect();
         ray_cast(&scene, pose, geom, rng)
     }
@@ -93,9 +102,23 @@ impl Site {
     }
 }
 
+/// How the robot sees and drives: the sensor's field of view, the distance between scans and the
+/// odometry's noise (a share of each increment, and as much sideways and 0.6× in radians per metre).
+#[derive(Debug, Clone, Copy)]
+struct View {
+    fov_deg: u16,
+    step_m: f64,
+    odom_noise: f64,
+}
+
+/// 360°, a scan every 0.1 m, the odometry exact.
+const FULL: View = View { fov_deg: 360, step_m: 0.1, odom_noise: 0.0 };
+/// 180° (the SICKs of the real logs), a scan every 0.3 m, the odometry 3 % off.
+const HALF: View = View { fov_deg: 180, step_m: 0.3, odom_noise: 0.03 };
+
 /// A start and a destination 3–5 m from it, turned 1–3 rad, each with 4 m to drive clear ahead;
 /// the start where the map explains most of the scan.
-fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng) -> (Se2, Se2) {
+fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng, view: View) -> (Se2, Se2) {
     loop {
         let start = Se2::new(rng.range(10.0, 90.0), rng.range(10.0, 90.0), rng.range(-PI, PI));
         let d = rng.range(3.0, 5.0);
@@ -111,7 +134,7 @@ fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng) -> (S
         // start among clutter is called lost before anything happened, which is not what is
         // tested here. The start is where the map explains most of the scan.
         let explained = |p: &Se2| {
-            let points = scan_points(&s.scan(p, &mut Rng::seed(1)), &Se2::IDENTITY, &shipped_params());
+            let points = scan_points(&s.scan(p, &mut Rng::seed(1), view), &Se2::IDENTITY, &shipped_params());
             super::integrity::explained_share(field, p, &points, None, &shipped_params().integrity)
         };
         if clear(&start) && clear(&dest) && explained(&start).is_some_and(|e| e >= 0.7) {
@@ -124,41 +147,50 @@ fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng) -> (S
 /// every estimate is within 0.3 m and 10° of the truth, and the first `Tracking` within 0.3 m.
 #[derive(Debug)]
 struct Outcome {
+    /// Reported `Lost` while tracked along the start (a half view among clutter can explain too
+    /// little there): not a kidnapping to judge.
+    lost_before: bool,
     lost: Option<usize>,
     back: Option<usize>,
     tracking: Option<usize>,
 }
 
 /// The robot tracked along 3 m, then carried 3–5 m off and turned, driving on 4 m; the odometry
-/// sees the driving, not the jump.
-fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, place_search: bool, seed: u64) -> Outcome {
+/// sees the driving (with `view`'s noise), not the jump.
+fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: u64, view: View) -> Outcome {
     let mut rng = Rng::seed(100 + seed);
-    let (start, dest) = start_and_destination(s, field, &mut rng);
-    let before: Vec<Se2> = (0..30).map(|k| start * Se2::new(0.1 * f64::from(k), 0.0, 0.0)).collect();
-    let after: Vec<Se2> = (0..40).map(|k| dest * Se2::new(0.1 * f64::from(k), 0.0, 0.0)).collect();
-    let mut params = shipped_params();
-    params.integrity.place_search = place_search;
+    let mut noise = Rng::seed(900 + seed);
+    let (start, dest) = start_and_destination(s, field, &mut rng, view);
+    let drive = |from: Se2, m: f64| -> Vec<Se2> {
+        (0..(m / view.step_m).round() as i32)
+            .map(|k| from * Se2::new(view.step_m * f64::from(k), 0.0, 0.0))
+            .collect()
+    };
+    let (before, after) = (drive(start, 3.0), drive(dest, 4.0));
     let mut amcl = Amcl::new(params.clone(), Arc::clone(field), 7 + seed);
     amcl.init_pose(before[0], 0.05, 0.02);
-    // The odometry: the true increments, the jump left out.
     let mut odom = Se2::new(1.0, 2.0, 0.3);
-    let mut out = Outcome { lost: None, back: None, tracking: None };
+    let mut out = Outcome { lost_before: false, lost: None, back: None, tracking: None };
     let mut last_bad = None;
     for (k, t) in before.iter().chain(&after).enumerate() {
         if k > 0 && k != before.len() {
             let prev = if k < before.len() { before[k - 1] } else { after[k - before.len() - 1] };
-            odom = odom * (prev.inverse() * *t);
+            let step = prev.inverse() * *t;
+            let d = step.translation_norm() * view.odom_noise;
+            odom = odom
+                * Se2::new(
+                    step.x + noise.gaussian(d),
+                    step.y + noise.gaussian(d),
+                    step.theta + noise.gaussian(0.6 * d),
+                );
         }
-        let scan = s.scan(t, &mut rng);
-        amcl.update(odom, &scan_points(&scan, &Se2::IDENTITY, &params), true);
+        let scan = s.scan(t, &mut rng, view);
+        amcl.update(odom, &scan_points(&scan, &Se2::IDENTITY, params), true);
         let Some(e) = amcl.estimate().map(|e| e.pose) else { continue };
         let ok =
             (e.x - t.x).hypot(e.y - t.y) <= 0.3 && angle_diff(e.theta, t.theta).abs() <= 10f64.to_radians();
         if k < before.len() {
-            assert!(
-                amcl.integrity_state() != IntegrityState::Lost,
-                "seed {seed}: lost at {k} before the kidnapping"
-            );
+            out.lost_before |= amcl.integrity_state() == IntegrityState::Lost;
             continue;
         }
         let n = k - before.len();
@@ -196,10 +228,13 @@ fn a_robot_kidnapped_on_a_large_site_is_found_again() {
     let s = site(3);
     let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
     let (mut tracked, mut without_back) = (0, 0);
+    let mut uniform = shipped_params();
+    uniform.integrity.place_search = false;
     for seed in 0..4 {
-        let with = kidnapped(&s, &field, true, seed);
-        let without = kidnapped(&s, &field, false, seed);
+        let with = kidnapped(&s, &field, &shipped_params(), seed, FULL);
+        let without = kidnapped(&s, &field, &uniform, seed, FULL);
         eprintln!("seed {seed}: with the search {with:?}; uniform draws alone {without:?}");
+        assert!(!with.lost_before && !without.lost_before, "seed {seed}: lost before the kidnapping");
         assert!(with.lost.is_some_and(|l| l < 3), "seed {seed}: {with:?}");
         assert!(with.back.is_some_and(|b| b < 10), "seed {seed}: {with:?}");
         tracked += usize::from(with.tracking.is_some_and(|t| t < 10));
@@ -226,7 +261,7 @@ fn global_localisation_on_a_large_site_finds_the_robot_on_the_first_scan() {
     for seed in 0..4 {
         let run = |place_search: bool| {
             let mut rng = Rng::seed(200 + seed);
-            let (start, _) = start_and_destination(&s, &field, &mut rng);
+            let (start, _) = start_and_destination(&s, &field, &mut rng, FULL);
             let mut params = shipped_params();
             params.integrity.place_search = place_search;
             let mut amcl = Amcl::new(params.clone(), Arc::clone(&field), 11 + seed);
@@ -236,7 +271,7 @@ fn global_localisation_on_a_large_site_finds_the_robot_on_the_first_scan() {
             for k in 0..20 {
                 let t = start * Se2::new(0.1 * f64::from(k), 0.0, 0.0);
                 let odom = Se2::new(2.0, -1.0, 0.5) * Se2::new(0.1 * f64::from(k), 0.0, 0.0);
-                let scan = s.scan(&t, &mut rng);
+                let scan = s.scan(&t, &mut rng, FULL);
                 amcl.update(odom, &scan_points(&scan, &Se2::IDENTITY, &params), true);
                 let Some(e) = amcl.estimate().map(|e| e.pose) else { continue };
                 let ok = (e.x - t.x).hypot(e.y - t.y) <= 0.3
@@ -263,5 +298,47 @@ fn global_localisation_on_a_large_site_finds_the_robot_on_the_first_scan() {
     assert!(
         uniform_found <= 2,
         "uniform draws within 0.3 m after the first update on {uniform_found} of 4 seeds"
+    );
+}
+
+/// A sensor with a half view (180°, as the SICKs of the real logs), a scan every 0.3 m and the
+/// odometry 3 % off, on the same site: one scan facing clutter can be explained better at other
+/// places than at the robot's, and the places found for the scan that turned the filter lost may
+/// not hold it. Searching the map again while still lost (`search_again_every`, every 5 lost
+/// updates) finds the robot on more seeds, never later (measured: of 23 seeds not lost before the
+/// kidnapping, back on it by the end of the drive on 16 against 13 with the search on turning lost
+/// alone).
+#[test]
+fn a_robot_with_a_half_view_is_found_again_by_searching_again() {
+    let s = site(3);
+    let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
+    let again = shipped_params();
+    assert!(again.integrity.search_again_every > 0, "the shipped filter searches again");
+    let mut single = shipped_params();
+    single.integrity.search_again_every = 0;
+    let (mut back, mut back_single, mut tracking, mut tracking_single) = (0, 0, 0, 0);
+    for seed in 0..24 {
+        let with = kidnapped(&s, &field, &again, seed, HALF);
+        let without = kidnapped(&s, &field, &single, seed, HALF);
+        eprintln!("seed {seed}: searching again {with:?}; on turning lost alone {without:?}");
+        if with.lost_before || without.lost_before {
+            continue;
+        }
+        let within = |o: Option<usize>| o.is_some_and(|b| b < 10);
+        back += usize::from(with.back.is_some());
+        back_single += usize::from(without.back.is_some());
+        tracking += usize::from(within(with.tracking));
+        tracking_single += usize::from(within(without.tracking));
+        assert!(
+            without.back.is_none() || with.back.is_some_and(|b| Some(b) <= without.back),
+            "seed {seed}: back later searching again: {with:?} against {without:?}"
+        );
+    }
+    eprintln!(
+        "back at all: {back} against {back_single}; tracking within 10: {tracking} against {tracking_single}"
+    );
+    assert!(
+        back >= back_single + 2,
+        "back {back}/{back_single}, tracking within 10 {tracking}/{tracking_single}"
     );
 }
