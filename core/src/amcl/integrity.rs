@@ -128,6 +128,12 @@ pub struct IntegrityParams {
     /// (clutter, a half view), and uniform draws rarely reach a place on a large map. 0: searched
     /// only on turning lost.
     pub search_again_every: u32,
+    /// The search made again while lost also checks the estimate: if the estimate is among the
+    /// places it finds, explains the scan at least as a tracked place does at the lowest level
+    /// (`tracking_ratio` × `floor`), and no place elsewhere explains it within this share of
+    /// what the estimate does, the whole map holds no other answer and the filter is `Tracking`
+    /// again ([`Monitor::verify`]). 0: the estimate is never verified so, only by its share.
+    pub verify_margin: f64,
     /// Uniform candidate poses per re-seeded particle; the best-fitting is kept.
     pub reseed_candidates: usize,
     /// At most this many particles are re-seeded in one update: bounds what an update costs
@@ -164,6 +170,7 @@ impl Default for IntegrityParams {
             alternative_draws: 100,
             place_search: true,
             search_again_every: 5,
+            verify_margin: 0.05,
             reseed_candidates: 200,
             reseed_max_particles: 500,
             switch_margin: 0.3,
@@ -195,6 +202,7 @@ impl IntegrityParams {
             ("reseed_share", self.reseed_share),
             ("switch_margin", self.switch_margin),
             ("unique_margin", self.unique_margin),
+            ("verify_margin", self.verify_margin),
         ] {
             if !share(v) {
                 return Err(format!("{name} must be within 0..=1 (got {v})"));
@@ -451,6 +459,28 @@ impl Monitor {
             }
         }
     }
+
+    /// The whole map was searched for the scan and the estimate is the one place that explains
+    /// it, `explained` of it (the caller's search, [`IntegrityParams::verify_margin`]): `Tracking`
+    /// now. The level is what this sensor explains where it is tracked, and here, where it is
+    /// tracked, it explains `explained`: a level above `explained / tracking_ratio` (learned where
+    /// the map explains more of the scans, say indoors before a stretch among parked cars) comes
+    /// down to it, never below `floor`, so that the judgements that follow hold the estimate to
+    /// what the map explains here. A level learned elsewhere would otherwise keep a robot that
+    /// is where the map says `lost` for as long as it stays in such a stretch.
+    pub fn verify(&mut self, explained: f64) {
+        let p = self.params;
+        self.level = (explained / p.tracking_ratio).min(self.level).clamp(p.floor, 1.0);
+        self.state = IntegrityState::Tracking;
+        self.ambiguous = false;
+        self.below_lost = 0;
+        self.below_uncertain = 0;
+        self.above_tracking = p.recover;
+        self.vouchable = None;
+        self.recent.clear();
+        self.recent.push_back(explained);
+        self.last = Some(Integrity { state: self.state, explained, level: self.level, ambiguous: false });
+    }
 }
 
 #[cfg(test)]
@@ -596,6 +626,41 @@ mod tests {
             m.vouch();
         }
         assert_eq!(m.state(), IntegrityState::Lost);
+    }
+
+    #[test]
+    fn a_verified_estimate_tracks_and_brings_the_level_down_to_what_it_explains() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..300 {
+            m.observe(0.95);
+        }
+        let level = m.level();
+        assert!(level > 0.9, "{level}");
+        // Among clutter the right place explains 0.56: lost, and lost it stays by the share.
+        for _ in 0..20 {
+            m.observe(0.56);
+        }
+        assert_eq!(m.state(), IntegrityState::Lost);
+        assert!((m.level() - level).abs() < 1e-12, "a lost filter does not learn");
+        m.verify(0.56);
+        assert_eq!(m.state(), IntegrityState::Tracking);
+        assert!((m.level() - 0.56 / p.tracking_ratio).abs() < 1e-12, "level {}", m.level());
+        assert_eq!(m.last().map(|i| (i.state, i.explained)), Some((IntegrityState::Tracking, 0.56)));
+        // The scans there keep it tracking; a kidnapping (little explained) still loses it.
+        for _ in 0..20 {
+            assert_eq!(m.observe(0.55).state, IntegrityState::Tracking);
+        }
+        for _ in 0..p.confirm {
+            m.observe(0.3);
+        }
+        assert_eq!(m.state(), IntegrityState::Lost);
+        // Never below the floor, never raised: a verified place explaining more leaves it.
+        m.verify(0.2);
+        assert!((m.level() - p.floor).abs() < 1e-12, "level {}", m.level());
+        let floor_level = m.level();
+        m.verify(0.99);
+        assert!((m.level() - floor_level).abs() < 1e-12, "level {}", m.level());
     }
 
     #[test]

@@ -12,6 +12,7 @@
 //! particles, generator, averages and integrity monitor; the parts that need none of it are the
 //! submodules.
 
+mod again;
 pub mod integrity;
 pub mod likelihood;
 pub mod log;
@@ -21,6 +22,8 @@ pub mod places;
 mod rivals;
 
 use std::sync::Arc;
+
+use again::Again;
 
 use crate::config::AmclParams;
 use crate::rng::Rng;
@@ -388,9 +391,15 @@ impl Amcl {
                         self.judge_rivals(odom, points);
                     }
                     self.lost_updates = self.lost_updates.saturating_add(1);
-                    let again =
-                        p.search_again_every > 0 && self.lost_updates.is_multiple_of(p.search_again_every);
-                    self.reseed(points, p.reseed_share, if again { Search::Again } else { Search::No });
+                    let again = p.place_search
+                        && p.search_again_every > 0
+                        && self.lost_updates.is_multiple_of(p.search_again_every);
+                    match if again { self.search_again(points) } else { Again::Places(Vec::new()) } {
+                        Again::Verified => {}
+                        Again::Places(found) => {
+                            self.reseed(points, p.reseed_share, Search::Found(found));
+                        }
+                    }
                 }
                 // Not lost: the rivals are judged on this scan; more are looked for while
                 // uncertain, and while tracking from the first scan the estimate explains poorly
@@ -532,19 +541,14 @@ impl Amcl {
         let need = self.replace_need();
         // On turning lost, half of them around the places the whole map's search finds; the rest
         // (all of them if it finds none) the best of uniform draws. Searched again while still
-        // lost, only around a place the search singles out: in a building of look-alike rooms,
-        // a filter lost while the odometry failed (a real log kept out of tuning) was sent by a
-        // search made then to a look-alike room, where without it the particles it kept came
-        // back to the robot once the odometry did (docs/results.md).
-        let mut searched = match self.search_need() {
-            Some(bar) if search != Search::No && self.monitor.params().place_search => {
+        // lost, around the place that search singled out, if any (`again.rs`).
+        let searched = match (search, self.search_need()) {
+            (Search::Turning, Some(bar)) if self.monitor.params().place_search => {
                 self.searched_places(points, bar)
             }
+            (Search::Found(places), _) => places,
             _ => Vec::new(),
         };
-        if search == Search::Again && searched.len() > 1 {
-            searched.clear();
-        }
         if let Some(odom) = self.last_odom {
             self.carry_as_twins(&searched, odom);
         }
@@ -582,27 +586,7 @@ impl Amcl {
     /// kept if the integrity measure, judged as the estimate was, finds `need` there: at most
     /// [`SEARCHED_PLACES`], the best first.
     fn searched_places(&mut self, points: &[[f64; 2]], need: f64) -> Vec<Se2> {
-        let p = *self.monitor.params();
-        let field = Arc::clone(&self.field);
-        let beams = subsample(points, self.params.max_beams.usize());
-        let (found, _) = field.place_search().search(
-            &beams,
-            need,
-            SEARCHED_PLACES * 4,
-            places::PLACES_APART,
-            places::SEARCH_BUDGET,
-        );
-        let fixed = FixedPoints::new(&beams);
-        let judged = subsample(points, p.max_points);
-        found
-            .into_iter()
-            .map(|q| refine(&field, &fixed, q.pose))
-            .filter(|pose| {
-                integrity::explained_share(&field, pose, &judged, self.sensor_origin, &p).unwrap_or(0.0)
-                    >= need
-            })
-            .take(SEARCHED_PLACES)
-            .collect()
+        self.scored_places(points, need).0.into_iter().map(|(q, _)| q).take(SEARCHED_PLACES).collect()
     }
 
     /// The share of the scan a replacement (a re-seeded particle) must explain: clearly more than
@@ -925,15 +909,13 @@ impl Amcl {
 
 /// Whether a lost filter's re-seeding searches the whole map for the scan
 /// ([`places::PlaceSearch`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 enum Search {
-    No,
     /// The update that turns the filter lost: every place found is re-seeded around, two or more
     /// carried as twins.
     Turning,
-    /// Still lost, every `search_again_every` updates: only a place the search singles out (the
-    /// one it finds within a tenth of the endpoints of the best).
-    Again,
+    /// Still lost: the places already found ([`Amcl::search_again`]), most often none.
+    Found(Vec<Se2>),
 }
 
 /// The importance weights of a slipped and of a kept motion sample when `share` of the samples try

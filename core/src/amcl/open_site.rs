@@ -153,6 +153,9 @@ struct Outcome {
     lost: Option<usize>,
     back: Option<usize>,
     tracking: Option<usize>,
+    /// Updates reported `Tracking` more than 0.3 m or 10° off once the loss was reported (what
+    /// a server would drive on after the filter knew it was lost).
+    tracking_off: usize,
 }
 
 /// The robot tracked along 3 m, then carried 3–5 m off and turned, driving on 4 m; the odometry
@@ -170,7 +173,7 @@ fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: 
     let mut amcl = Amcl::new(params.clone(), Arc::clone(field), 7 + seed);
     amcl.init_pose(before[0], 0.05, 0.02);
     let mut odom = Se2::new(1.0, 2.0, 0.3);
-    let mut out = Outcome { lost_before: false, lost: None, back: None, tracking: None };
+    let mut out = Outcome { lost_before: false, lost: None, back: None, tracking: None, tracking_off: 0 };
     let mut last_bad = None;
     for (k, t) in before.iter().chain(&after).enumerate() {
         if k > 0 && k != before.len() {
@@ -206,6 +209,8 @@ fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: 
         }
         if !ok {
             last_bad = Some(n);
+            out.tracking_off +=
+                usize::from(out.lost.is_some() && amcl.integrity_state() == IntegrityState::Tracking);
         }
     }
     out.back = match last_bad {
@@ -216,11 +221,11 @@ fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: 
     out
 }
 
-/// With the place search, on every seed: `Lost` within 3 updates of the kidnapping and within
-/// 0.3 m and 10° from within 10 on; `Tracking` within 10 on three of the four (measured: back from
-/// the 2nd update on every seed, `tracking` from the 4th, 7th, 14th and 4th: where the scans at
-/// the destination hold more clutter than where the level was learned, the estimate at the robot
-/// explains the scans about as well as the tracking bar asks, and waits). With uniform draws
+/// With the place search, on every seed: `Lost` within 3 updates of the kidnapping, within
+/// 0.3 m and 10° from within 10 on, and `Tracking` within 10 (measured: back from the 2nd update
+/// on every seed, `tracking` from the 4th, 6th, 6th and 4th; where the scans at the destination
+/// hold more clutter than where the level was learned, the estimate at the robot is verified by
+/// the search made again while lost, see the test after). With uniform draws
 /// alone the same filter is back within 10 updates on at most one seed (measured: seed 3 from the
 /// 3rd, seed 2 from the 19th, never on seeds 0 and 1).
 #[test]
@@ -240,7 +245,7 @@ fn a_robot_kidnapped_on_a_large_site_is_found_again() {
         tracked += usize::from(with.tracking.is_some_and(|t| t < 10));
         without_back += usize::from(without.back.is_some_and(|b| b < 10));
     }
-    assert!(tracked >= 3, "tracking within 10 updates on {tracked} of 4 seeds");
+    assert_eq!(tracked, 4, "tracking within 10 updates on {tracked} of 4 seeds");
     assert!(without_back <= 1, "uniform draws came back within 10 updates on {without_back} of 4 seeds");
 }
 
@@ -341,4 +346,34 @@ fn a_robot_with_a_half_view_is_found_again_by_searching_again() {
         back >= back_single + 2,
         "back {back}/{back_single}, tracking within 10 {tracking}/{tracking_single}"
     );
+}
+
+/// Found again among clutter the map does not hold, the estimate at the robot explains the scans
+/// less than where the level was learned, below the tracking bar, and a filter that waits for
+/// the bar waits as long as the clutter lasts. The search made again while lost finds that no
+/// other place explains the scan as well as the estimate (`verify_margin`), and the filter tracks
+/// again; never at a wrong place. Measured (360° view, seeds 0–7): `tracking` within 10 updates
+/// on all 8 (from the 4th or 6th), against 6 without (seed 2 from the 14th, seed 4 not by the
+/// end of the drive); no update `tracking` off the robot once lost, with or without.
+#[test]
+fn a_robot_found_again_among_clutter_is_verified_by_the_whole_map() {
+    let s = site(3);
+    let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
+    let verified = shipped_params();
+    assert!(verified.integrity.verify_margin > 0.0, "the shipped filter verifies");
+    let mut by_share = shipped_params();
+    by_share.integrity.verify_margin = 0.0;
+    let within = |o: &Outcome| o.tracking.is_some_and(|t| t < 10);
+    let (mut with, mut without) = (0, 0);
+    for seed in 0..8 {
+        let a = kidnapped(&s, &field, &verified, seed, FULL);
+        let b = kidnapped(&s, &field, &by_share, seed, FULL);
+        eprintln!("seed {seed}: verified {a:?}; by the share alone {b:?}");
+        assert!(!a.lost_before && a.lost.is_some_and(|l| l < 3), "seed {seed}: {a:?}");
+        assert_eq!((a.tracking_off, b.tracking_off), (0, 0), "seed {seed}: tracking off the robot");
+        assert!(within(&a), "seed {seed}: not tracking within 10 updates: {a:?}");
+        with += usize::from(within(&a));
+        without += usize::from(within(&b));
+    }
+    assert!(without + 2 <= with, "tracking within 10: {with} verified, {without} by the share alone");
 }

@@ -42,7 +42,7 @@ const RIVAL_SCANS: u32 = 50;
 const RIVALS: usize = 3;
 
 /// Whether `a` is where `b` is: within [`SAME_PLACE_M`] and [`SAME_PLACE_RAD`].
-fn same_place(a: &Se2, b: &Se2) -> bool {
+pub(super) fn same_place(a: &Se2, b: &Se2) -> bool {
     within(a, b, SAME_PLACE_M, SAME_PLACE_RAD)
 }
 

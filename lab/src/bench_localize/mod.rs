@@ -137,6 +137,9 @@ pub struct IntegrityCounts {
     pub false_lost: usize,
     /// Scans on reported `Uncertain`.
     pub uncertain_on: usize,
+    /// Scans on reported `Lost`: a server holds on them as on a loss (the hysteresis after a real
+    /// loss, and a filter that doubts a right estimate for long, not only the false alarms).
+    pub lost_on: usize,
     /// Scans off reported `Tracking`: what a server would drive on.
     pub tracking_off: usize,
     /// Runs of off scans shorter than a loss.
@@ -166,6 +169,7 @@ pub fn integrity_counts(per_scan: &[(Option<PoseError>, IntegrityState)], reseed
             c.on += 1;
             let s = scored[k].1;
             c.uncertain_on += usize::from(s == IntegrityState::Uncertain);
+            c.lost_on += usize::from(s == IntegrityState::Lost);
             let entered = s == IntegrityState::Lost && k > 0 && scored[k - 1].1 != IntegrityState::Lost;
             let settled = k >= DETECT_WITHIN && (k - DETECT_WITHIN..k).all(|j| !off(j));
             c.false_lost += usize::from(entered && settled);

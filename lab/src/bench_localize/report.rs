@@ -14,7 +14,7 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
     let i = run.map_or("– | – | – | – | – | – | –".to_owned(), |r| {
         let c = &r.integrity;
         format!(
-            "{}/{} | {}/{} | {} | {} | {} / {} | {} | {}",
+            "{}/{} | {}/{} | {} | {} | {} / {} / {} | {} | {}",
             c.detected,
             c.losses,
             c.recovered,
@@ -22,6 +22,7 @@ fn row(out: &mut String, name: &str, what: &str, s: &Score, run: Option<&Run>) {
             c.excursions,
             c.false_lost,
             c.uncertain_on,
+            c.lost_on,
             c.on,
             c.tracking_off,
             c.reseeds
@@ -46,14 +47,14 @@ pub fn markdown(r: &Report) -> String {
          is off there when its estimate is more than 0.5 m or {OFF_HEADING_DEG}° off, else on): \
          losses (runs of at least {DETECT_WITHIN} off scans) reported lost within {DETECT_WITHIN} \
          scans, losses recovered, brief excursions (shorter runs), false alarms (turned lost with \
-         the estimate on for {DETECT_WITHIN} scans), scans on reported uncertain / all scans on, \
+         the estimate on for {DETECT_WITHIN} scans), scans on reported uncertain / lost / all scans on, \
          scans off reported tracking (what a server would drive on), updates that re-seeded \
          particles.\n",
         r.seeds
     );
     let _ = writeln!(
         out,
-        "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms | detected | recovered | brief | false lost | uncertain / on | tracking while off | re-seeds |"
+        "| log | run | RMSE | P95 | max | heading RMSE (°) | off (%) | from | update ms | detected | recovered | brief | false lost | uncertain / lost / on | tracking while off | re-seeds |"
     );
     let _ = writeln!(out, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for l in &r.logs {

@@ -35,6 +35,7 @@ fn counts_tell_detected_losses_from_false_alarms_and_driving_off() {
     assert_eq!(c.excursions, 1);
     assert_eq!(c.false_lost, 1);
     assert_eq!(c.uncertain_on, 1);
+    assert_eq!(c.lost_on, 1);
     assert_eq!(c.on, 8);
     assert_eq!(c.tracking_off, 3);
     assert_eq!(c.reseeds, 7);

@@ -1,0 +1,95 @@
+//! The whole map searched again while the filter stays lost (`search_again_every`): the search
+//! re-seeds around a place it singles out, and it verifies the estimate when the estimate is the
+//! one place that explains the scan (docs/integrity.md, "Searched again while lost").
+
+use std::sync::Arc;
+
+use super::likelihood::FixedPoints;
+use super::{Amcl, SEARCHED_PLACES, integrity, places, refine, rivals, subsample};
+use crate::se2::Se2;
+
+/// What a search made again while lost found.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) enum Again {
+    /// The estimate is the one place: the filter tracks again, nothing is re-seeded.
+    Verified,
+    /// Places to re-seed around: the one place the search singled out among those that explain
+    /// the scan clearly better than the estimate, or none.
+    Places(Vec<Se2>),
+}
+
+impl Amcl {
+    /// The whole map searched for this scan (a filter still lost): first whether the estimate is
+    /// the one place that explains it (`verify_margin`), then whether the search singles out a
+    /// place that explains it clearly better ([`Amcl::search_need`]). Only a lone place is
+    /// re-seeded around: in a building of look-alike rooms, a filter lost while the odometry
+    /// failed (a real log kept out of tuning) was sent by a search made then to a look-alike room,
+    /// where without it the particles it kept came back to the robot once the odometry did
+    /// (docs/results.md).
+    pub(super) fn search_again(&mut self, points: &[[f64; 2]]) -> Again {
+        let p = *self.monitor.params();
+        let reseed_bar = self.search_need();
+        let estimate = self.estimate.as_ref().map(|e| e.pose);
+        let verify_bar = p.tracking_ratio * p.floor;
+        let verifiable = p.verify_margin > 0.0
+            && !self.twins
+            && self.monitor.last().is_some_and(|i| i.explained >= verify_bar - p.verify_margin);
+        let bar = match (reseed_bar, verifiable) {
+            (Some(r), true) => r.min(verify_bar),
+            (Some(r), false) => r,
+            (None, true) => verify_bar,
+            (None, false) => return Again::Places(Vec::new()),
+        };
+        let (found, complete) = self.scored_places(points, bar);
+        if verifiable
+            && complete
+            && let Some(at) = estimate
+            && let Some((own, share)) = found
+                .iter()
+                .filter(|(q, _)| rivals::same_place(q, &at))
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .copied()
+            && share >= verify_bar
+            && found.iter().all(|(q, s)| rivals::same_place(q, &at) || *s < share - p.verify_margin)
+        {
+            // The estimate is matched to the place found at it (its optimum for this scan).
+            self.move_estimate_to(&at, &own);
+            self.monitor.verify(share);
+            return Again::Verified;
+        }
+        let Some(need) = reseed_bar else { return Again::Places(Vec::new()) };
+        let better: Vec<Se2> =
+            found.into_iter().filter(|(_, s)| *s >= need).map(|(q, _)| q).take(SEARCHED_PLACES).collect();
+        Again::Places(if better.len() == 1 { better } else { Vec::new() })
+    }
+
+    /// The places the exhaustive search of the map ([`places::PlaceSearch`]) finds for this scan
+    /// whose endpoints it counts as explained at `need` of them, each climbed to its optimum,
+    /// with the share of the scan the integrity measure (judged as the estimate is) finds there,
+    /// kept if at least `need`; the best the search found first. And whether the search looked
+    /// at the whole map (it stops at a budget).
+    pub(super) fn scored_places(&mut self, points: &[[f64; 2]], need: f64) -> (Vec<(Se2, f64)>, bool) {
+        let p = *self.monitor.params();
+        let field = Arc::clone(&self.field);
+        let beams = subsample(points, self.params.max_beams.usize());
+        let (found, cost) = field.place_search().search(
+            &beams,
+            need,
+            SEARCHED_PLACES * 4,
+            places::PLACES_APART,
+            places::SEARCH_BUDGET,
+        );
+        let fixed = FixedPoints::new(&beams);
+        let judged = subsample(points, p.max_points);
+        let scored = found
+            .into_iter()
+            .map(|q| refine(&field, &fixed, q.pose))
+            .map(|pose| {
+                let share = integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p);
+                (pose, share.unwrap_or(0.0))
+            })
+            .filter(|(_, share)| *share >= need)
+            .collect();
+        (scored, !cost.cut)
+    }
+}
