@@ -54,7 +54,9 @@ impl Amcl {
         {
             // The estimate is matched to the place found at it (its optimum for this scan).
             self.move_estimate_to(&at, &own);
-            self.monitor.verify(share);
+            let judged = subsample(points, p.max_points);
+            let at_own = integrity::judge(&self.field, &own, &judged, self.sensor_origin, &p);
+            self.monitor.verify(&at_own);
             return Again::Verified;
         }
         let Some(need) = reseed_bar else { return Again::Places(Vec::new()) };

@@ -393,10 +393,10 @@ pub fn kidnapped_text(text: &str, every: usize, seed: u64) -> Result<(String, Ve
 pub const DISPLACEMENTS: [(f64, f64); 4] =
     [(0.3, 0.0), (0.5, 0.0), (1.0, 0.0), (0.0, 10.0 * std::f64::consts::PI / 180.0)];
 
-/// The explained share ([`super::integrity::explained_share`]) of every scan that has a reference
-/// pose, at that pose and at each of [`DISPLACEMENTS`] from it (each in a direction drawn from
-/// `seed`'s generator, a rotation of either sign): `shares[0]` at the references, `shares[1 + k]`
-/// displaced by `DISPLACEMENTS[k]`.
+/// The integrity measure ([`super::integrity::judge`]: the endpoints explained, by range band) of
+/// every scan that has a reference pose, at that pose and at each of [`DISPLACEMENTS`] from it
+/// (each in a direction drawn from `seed`'s generator, a rotation of either sign): `judged[0]` at
+/// the references, `judged[1 + k]` displaced by `DISPLACEMENTS[k]`, scan for scan.
 #[must_use]
 pub fn integrity_separation(
     grid: &crate::map::OccupancyGrid,
@@ -404,7 +404,7 @@ pub fn integrity_separation(
     reference: &[RefPose],
     params: &AmclParams,
     seed: u64,
-) -> Vec<Vec<f64>> {
+) -> Vec<Vec<super::integrity::Judged>> {
     let mut out = vec![Vec::new(); 1 + DISPLACEMENTS.len()];
     let mut field: Option<LikelihoodField> = None;
     let mut rng = crate::rng::Rng::seed(seed);
@@ -426,16 +426,13 @@ pub fn integrity_separation(
             continue;
         }
         let origin = Some([l.laser_in_robot.x, l.laser_in_robot.y]);
-        let share = |pose: &Se2| super::integrity::explained_share(field, pose, &points, origin, &p);
-        let Some(at_ref) = share(&g.pose) else { continue };
-        out[0].push(at_ref);
+        let judge = |pose: &Se2| super::integrity::judge(field, pose, &points, origin, &p);
+        out[0].push(judge(&g.pose));
         for (k, &(d, a)) in DISPLACEMENTS.iter().enumerate() {
             let dir = rng.range(-std::f64::consts::PI, std::f64::consts::PI);
             let sign = if rng.below(2) == 0 { -1.0 } else { 1.0 };
             let moved = Se2::new(g.pose.x + d * dir.cos(), g.pose.y + d * dir.sin(), g.pose.theta + sign * a);
-            if let Some(s) = share(&moved) {
-                out[1 + k].push(s);
-            }
+            out[1 + k].push(judge(&moved));
         }
     }
     out

@@ -275,7 +275,9 @@ impl Amcl {
         if !(p.enabled && p.place_search) || points.len() < p.min_points {
             return;
         }
-        let searched = self.searched_places(points, p.tracking_ratio * self.monitor.level());
+        let level =
+            self.monitor.expected(&integrity::bands(&subsample(points, p.max_points), self.sensor_origin));
+        let searched = self.searched_places(points, p.tracking_ratio * level);
         if searched.is_empty() {
             return;
         }
@@ -443,13 +445,12 @@ impl Amcl {
         }
         let judged = subsample(points, p.max_points);
         self.unjudged = 0;
-        match integrity::explained_share(&self.field, pose, &judged, self.sensor_origin, &p) {
-            Some(share) => {
-                self.monitor.observe(share);
-                true
-            }
-            None => false,
+        let judgement = integrity::judge(&self.field, pose, &judged, self.sensor_origin, &p);
+        if judgement.total() == 0 {
+            return false;
         }
+        self.monitor.observe(&judgement);
+        true
     }
 
     /// Whether an update's estimate is matched to the map ([`Self::polish`]) after it was judged:

@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use amr_core::amcl::integrity::{self, Judged as Banded};
 use amr_core::amcl::log::{Kidnap, LogLocalizer, RefPose, Score, Start, parse_reference, score};
 use amr_core::amcl::{IntegrityState, UpdateOutcome};
 use amr_core::carmen::{Record, parse_line};
@@ -212,11 +213,42 @@ pub struct LogReport {
     pub nav2_kidnapped: Vec<(u64, Vec<KidnapOutcome>)>,
     /// The integrity measure at the reference poses and displaced from them.
     pub separation: Vec<SeparationRow>,
+    /// At the reference poses, the endpoints of each range band and the share of them explained.
+    pub by_range: Vec<BandRow>,
+}
+
+/// One range band's endpoints over a log's scans at the reference poses.
+#[derive(Debug, Clone, Serialize)]
+pub struct BandRow {
+    /// The band, `from–to m`.
+    pub band: String,
+    pub endpoints: u64,
+    /// Share of them the map explains.
+    pub explained: f64,
+}
+
+/// The endpoints of every scan at the reference poses, by range band.
+fn band_rows(at_ref: &[Banded]) -> Vec<BandRow> {
+    let bounds: Vec<f64> =
+        std::iter::once(0.0).chain(integrity::RANGE_BANDS_M).chain(std::iter::once(f64::INFINITY)).collect();
+    (0..integrity::BANDS)
+        .map(|b| {
+            let n: u64 = at_ref.iter().map(|j| u64::from(j.points[b])).sum();
+            let e: u64 = at_ref.iter().map(|j| u64::from(j.explained[b])).sum();
+            let band = match (bounds.get(b), bounds.get(b + 1)) {
+                (Some(from), Some(to)) if to.is_finite() => format!("{from}–{to} m"),
+                (Some(from), _) => format!("{from} m and beyond"),
+                _ => String::new(),
+            };
+            BandRow { band, endpoints: n, explained: if n == 0 { 0.0 } else { e as f64 / n as f64 } }
+        })
+        .collect()
 }
 
 /// The explained share over one log's scans at one displacement from the reference, and how many
-/// scans the monitor's thresholds would call uncertain or lost (taking as the tracked level the
-/// mean share at the references, which the monitor's running mean learns).
+/// scans the monitor's thresholds would call uncertain or lost (taking as each range band's level
+/// the share of that band's endpoints explained at the references, which the monitor's running
+/// means learn, and as each scan's level what its bands explain, [`integrity::Monitor::expected`]).
 #[derive(Debug, Clone, Serialize)]
 pub struct SeparationRow {
     pub displacement: String,
@@ -229,13 +261,14 @@ pub struct SeparationRow {
     pub below_lost: f64,
 }
 
-fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRow> {
+fn separation_rows(judged: &[Vec<Banded>], params: &AmclParams) -> Vec<SeparationRow> {
     let p = params.integrity;
-    let at_ref = shares.first().map_or(&[][..], Vec::as_slice);
-    let level = if at_ref.is_empty() {
-        p.initial_level
-    } else {
-        (at_ref.iter().sum::<f64>() / at_ref.len() as f64).clamp(p.floor, 1.0)
+    let at_ref = judged.first().map_or(&[][..], Vec::as_slice);
+    let levels: Vec<f64> = band_rows(at_ref).iter().map(|b| b.explained).collect();
+    let level_of = |j: &Banded| {
+        let n = f64::from(j.total().max(1));
+        let sum: f64 = j.points.iter().zip(&levels).map(|(&c, l)| f64::from(c) * l).sum();
+        (sum / n).clamp(p.floor, 1.0)
     };
     let labels = std::iter::once("reference".to_owned()).chain(
         amr_core::amcl::log::DISPLACEMENTS
@@ -243,12 +276,13 @@ fn separation_rows(shares: &[Vec<f64>], params: &AmclParams) -> Vec<SeparationRo
             .map(|(d, a)| if *a == 0.0 { format!("{d} m") } else { format!("{:.0}°", a.to_degrees()) }),
     );
     labels
-        .zip(shares)
-        .map(|(displacement, v)| {
-            let mut v = v.clone();
+        .zip(judged)
+        .map(|(displacement, scans)| {
+            let ratios: Vec<f64> = scans.iter().filter_map(|j| Some(j.share()? / level_of(j))).collect();
+            let mut v: Vec<f64> = scans.iter().filter_map(Banded::share).collect();
             v.sort_by(f64::total_cmp);
-            let n = v.len().max(1) as f64;
-            let below = |r: f64| v.iter().filter(|s| **s < r * level).count() as f64 / n;
+            let n = ratios.len().max(1) as f64;
+            let below = |r: f64| ratios.iter().filter(|s| **s < r).count() as f64 / n;
             SeparationRow {
                 displacement,
                 scans: v.len(),
@@ -535,7 +569,7 @@ pub fn run(
             }
             None => None,
         };
-        let shares = amr_core::amcl::log::integrity_separation(&grid, &records, &reference, params, 1);
+        let judged = amr_core::amcl::log::integrity_separation(&grid, &records, &reference, params, 1);
         logs.push(LogReport {
             name,
             scans,
@@ -545,7 +579,8 @@ pub fn run(
             kidnapped,
             nav2,
             nav2_kidnapped,
-            separation: separation_rows(&shares, params),
+            separation: separation_rows(&judged, params),
+            by_range: band_rows(judged.first().map_or(&[][..], Vec::as_slice)),
         });
     }
     Ok(Report { seeds: seeds.to_vec(), logs, skipped })

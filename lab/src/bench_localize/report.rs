@@ -199,8 +199,9 @@ fn separation_table(r: &Report, out: &mut String) {
         out,
         "\nIntegrity measure (share of the scan explained by the map) at the reference poses and \
          displaced from them (direction and sign drawn per scan); 'uncertain' and 'lost' are the \
-         shares of scans below the monitor's ratios × the mean share at the references (false \
-         alarms on the reference row, detections on the others).\n"
+         shares of scans below the monitor's ratios × the scan's level (each range band's share \
+         explained at the references, weighted by the scan's endpoints in it): false alarms on \
+         the reference row, detections on the others.\n"
     );
     let _ = writeln!(out, "| log | pose | scans | median | P5 | P95 | uncertain (%) | lost (%) |");
     let _ = writeln!(out, "|---|---|---|---|---|---|---|---|");
@@ -219,5 +220,29 @@ fn separation_table(r: &Report, out: &mut String) {
                 s.below_lost * 100.0
             );
         }
+    }
+    let Some(first) = r.logs.first() else { return };
+    let _ = writeln!(
+        out,
+        "\nShare of the endpoints explained at the reference poses by their range from the sensor \
+         (in brackets: the share of the log's endpoints in the band).\n"
+    );
+    let head: Vec<&str> = first.by_range.iter().map(|b| b.band.as_str()).collect();
+    let _ = writeln!(out, "| log | {} |", head.join(" | "));
+    let _ = writeln!(out, "|---|{}", "---|".repeat(head.len()));
+    for l in &r.logs {
+        let total: u64 = l.by_range.iter().map(|b| b.endpoints).sum::<u64>().max(1);
+        let cells: Vec<String> = l
+            .by_range
+            .iter()
+            .map(|b| {
+                if b.endpoints == 0 {
+                    "–".to_owned()
+                } else {
+                    format!("{:.2} ({:.0} %)", b.explained, 100.0 * b.endpoints as f64 / total as f64)
+                }
+            })
+            .collect();
+        let _ = writeln!(out, "| {} | {} |", l.name, cells.join(" | "));
     }
 }
