@@ -16,10 +16,10 @@
 //!
 //! - any state → `Lost` after `confirm` updates in a row below `lost_ratio` × level (a robot
 //!   carried off: the map explains little of the scan at once);
-//! - `Tracking` → `Uncertain` when the median share of the last `window` updates falls below
-//!   `uncertain_ratio` × level (a filter that settled on a plausible wrong place, say a corridor
-//!   a few metres off, explains most of the scan, but persistently less than where it is right;
-//!   a scan or two full of people do not move the median);
+//! - `Tracking` → `Uncertain` when the median of the last `window` updates' shares, each relative
+//!   to its scan's level, falls below `uncertain_ratio` (a filter that settled on a plausible
+//!   wrong place, say a corridor a few metres off, explains most of the scan, but persistently
+//!   less than where it is right; a scan or two full of people do not move the median);
 //! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
 //!   `tracking_ratio` × level;
 //! - `Lost` also when the filter found a place that explains the scan far better than the
@@ -103,10 +103,11 @@ pub struct IntegrityParams {
     /// Where the level of every range band starts, share.
     pub initial_level: f64,
     /// Weight of each update in the level's running mean (after the first `1 / level_alpha`
-    /// updates, which it averages alike); a range band learns by the share of the update's
-    /// endpoints it holds.
+    /// updates, which it averages alike); a range band holding fewer than ten of the update's
+    /// endpoints learns in proportion to them.
     pub level_alpha: f64,
-    /// Updates whose median share `uncertain_ratio` is judged on.
+    /// Updates whose median share (each relative to its scan's level) `uncertain_ratio` is
+    /// judged on.
     pub window: usize,
     pub uncertain_ratio: f64,
     pub lost_ratio: f64,
@@ -518,6 +519,7 @@ impl Monitor {
                 ambiguous: self.ambiguous,
             });
         };
+        // The level this scan is judged by, reported with it (the learning below is for the next).
         self.level = self.expected(&judged.points);
         let ratio = explained / self.level;
         self.recent.push_back(ratio);
@@ -557,11 +559,15 @@ impl Monitor {
         // learns from the upper part of a broad spread of shares, and the bar follows the level
         // up (on an outdoor log a level of 0.88 where the references explain 0.74 on average).
         // Each band learns from its own endpoints, with the update's weight if it holds at least
-        // `BAND_FULL_POINTS` of them, in proportion if fewer.
+        // `BAND_FULL_POINTS` of them, in proportion if fewer. While the first `1 / level_alpha`
+        // updates are averaged alike, so are a band's endpoints; a band first seen later starts at
+        // the whole scans' level and learns at the running mean's pace from then on (one scan of a
+        // new range, maybe a robot carried off, does not set its level).
         let learns = (self.state == IntegrityState::Tracking && ratio >= p.lost_ratio)
             || (self.state != IntegrityState::Lost && ratio >= p.uncertain_ratio);
         if learns {
             self.updates += 1;
+            let warming = (self.updates as f64) < 1.0 / p.level_alpha.max(1e-6);
             let w = p.level_alpha.max(1.0 / self.updates as f64);
             self.overall = (self.overall + w * (explained - self.overall)).clamp(p.floor, 1.0);
             for b in 0..BANDS {
@@ -573,11 +579,18 @@ impl Monitor {
                 let (Some(learned), Some(level)) = (self.learned.get_mut(b), self.levels.get_mut(b)) else {
                     continue;
                 };
+                let slow = p.level_alpha * (c / BAND_FULL_POINTS).min(1.0);
+                let w = if warming {
+                    slow.max(c / (*learned + c))
+                } else {
+                    if *learned == 0.0 {
+                        *level = self.overall;
+                    }
+                    slow
+                };
                 *learned += c;
-                let w = (p.level_alpha * (c / BAND_FULL_POINTS).min(1.0)).max(c / *learned);
                 *level = (*level + w * (f64::from(e) / c - *level)).clamp(0.0, 1.0);
             }
-            self.level = self.expected(&judged.points);
         }
         self.vouchable = (self.state != IntegrityState::Tracking
             && ratio >= p.uncertain_ratio
@@ -615,7 +628,7 @@ impl Monitor {
     }
 
     /// The whole map was searched for the scan and the estimate is the one place that explains
-    /// it, `explained` of it (the caller's search, [`IntegrityParams::verify_margin`]): `Tracking`
+    /// it, as `judged` there (the caller's search, [`IntegrityParams::verify_margin`]): `Tracking`
     /// now. The level is left as it was learned: the scans that follow are judged against it as
     /// any other (a verified robot among clutter that explains much less than the level turns
     /// `uncertain` or `lost` again, and is verified again by a later search). A level brought
@@ -909,8 +922,26 @@ mod tests {
         }
         let unseen = m.expected(&bands(&[[30.0, 0.0]], None));
         assert!((unseen - 0.66).abs() < 0.01, "{unseen}");
-        for _ in 0..20 {
-            assert_eq!(m.observe(&mixed(0, 0.0, 180, 0.64)).state, IntegrityState::Tracking);
+        // Given a pose again: `recover` scans of the new range at 0.64 bring `Tracking` (at the
+        // starting level, 0.75, they would stay below the tracking bar, 0.69).
+        m.restart(IntegrityState::Uncertain);
+        for k in 1..=p.recover {
+            let state = m.observe(&mixed(0, 0.0, 180, 0.64)).state;
+            let want = if k < p.recover { IntegrityState::Uncertain } else { IntegrityState::Tracking };
+            assert_eq!(state, want, "scan {k}");
         }
+        // One scan of a range first seen after the level was learned does not set that band's
+        // level: a robot carried off among far endpoints is lost as anywhere else.
+        let mut m = Monitor::new(p);
+        for _ in 0..500 {
+            m.observe(&mixed(180, 0.85, 0, 0.0));
+        }
+        let mut far = Judged::default();
+        far.points[3] = 180;
+        far.explained[3] = 112;
+        assert_eq!(m.observe(&far).state, IntegrityState::Tracking, "0.62 of 0.85: one scan, still tracking");
+        far.explained[3] = 90;
+        m.observe(&far);
+        assert_eq!(m.observe(&far).state, IntegrityState::Lost, "0.50 of about 0.85, twice: lost");
     }
 }

@@ -266,7 +266,8 @@ impl Amcl {
 
     /// The first scan of global localisation: every particle the best of `global_candidates`
     /// uniform poses; then, with the place search on, every other one around the places the
-    /// exhaustive search finds for the scan at the tracking bar of the starting level, and two or
+    /// exhaustive search finds for the scan at the tracking bar of the level expected for the
+    /// scan's ranges (the starting level, on a first scan), and two or
     /// more such places carried as twins (the estimate ambiguous until the scans tell them apart).
     fn place_globally(&mut self, odom: Se2, points: &[[f64; 2]]) {
         self.place_globally_with(points, self.global_candidates);

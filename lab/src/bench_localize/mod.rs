@@ -248,7 +248,8 @@ fn band_rows(at_ref: &[Banded]) -> Vec<BandRow> {
 /// The explained share over one log's scans at one displacement from the reference, and how many
 /// scans the monitor's thresholds would call uncertain or lost (taking as each range band's level
 /// the share of that band's endpoints explained at the references, which the monitor's running
-/// means learn, and as each scan's level what its bands explain, [`integrity::Monitor::expected`]).
+/// means learn, and as each scan's level what its bands explain as [`integrity::Monitor::expected`]
+/// weighs them; without the monitor's pull of a little-seen band towards the whole scans' level).
 #[derive(Debug, Clone, Serialize)]
 pub struct SeparationRow {
     pub displacement: String,
