@@ -158,6 +158,11 @@ pub struct IntegrityParams {
     /// 0 (the default): no such search, `Tracking` needs the bar. Measured in docs/results.md:
     /// faster returns to `Tracking` indoors, more false alarms on an outdoor log.
     pub unique_margin: f64,
+    /// While `lost`, when re-seeded particles take the estimate to another place, the place it
+    /// left is carried on by the odometry and judged against the new estimate: if it explains
+    /// `switch_margin` more of each of `confirm` scans in a row (and at least the lost bar), the
+    /// particles go back there (`left.rs`). Off: the place left is forgotten.
+    pub return_to_left: bool,
 }
 
 impl Default for IntegrityParams {
@@ -186,6 +191,7 @@ impl Default for IntegrityParams {
             reseed_max_particles: 500,
             switch_margin: 0.3,
             unique_margin: 0.0,
+            return_to_left: true,
         }
     }
 }

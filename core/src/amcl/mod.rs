@@ -14,6 +14,7 @@
 
 mod again;
 pub mod integrity;
+mod left;
 pub mod likelihood;
 pub mod log;
 pub mod motion;
@@ -90,6 +91,9 @@ pub struct Amcl {
     unjudged: u32,
     /// Updates since the filter turned lost (0 while not lost).
     lost_updates: u32,
+    /// The place a lost filter's estimate left for re-seeded particles, judged against it on
+    /// the scans after (`left.rs`).
+    left: Option<left::Left>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -144,6 +148,7 @@ impl Amcl {
             twins: false,
             unjudged: 0,
             lost_updates: 0,
+            left: None,
         }
     }
 
@@ -243,6 +248,7 @@ impl Amcl {
         self.rest_polishes = 0;
         self.rivals.clear();
         self.twins = false;
+        self.left = None;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -261,6 +267,7 @@ impl Amcl {
         self.global_pending = true;
         self.rivals.clear();
         self.twins = false;
+        self.left = None;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -362,6 +369,8 @@ impl Amcl {
             }
             self.predict(&last, &odom);
         }
+        // The estimate before this update, carried by the odometry to it (`left.rs`).
+        let carried = self.pose_at(&odom);
         self.rest_polishes = 0;
         self.last_odom = Some(odom);
         self.weigh(points);
@@ -379,6 +388,10 @@ impl Amcl {
         // fits the scan it was chosen on better than the truth does (clutter and all), which let
         // re-seeding pull a tracking filter away on the real logs.
         if judged {
+            // A place left earlier is judged on this scan; one left on this update is not: the
+            // scan whose weighting took the estimate away is the one its new place was chosen on.
+            self.judge_left(odom, points);
+            self.remember_left(carried, before, odom);
             let p = *self.monitor.params();
             match self.monitor.state() {
                 // Turned lost just now: every particle is a candidate for replacement (as the

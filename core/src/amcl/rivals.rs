@@ -36,7 +36,7 @@ const SAME_PLACE_RAD: f64 = 0.175;
 
 /// Scans a rival is judged on at most: two places that explain the scans alike for this long
 /// are twins the scans cannot tell, and the filter keeps its estimate (the rival is dropped).
-const RIVAL_SCANS: u32 = 50;
+pub(super) const RIVAL_SCANS: u32 = 50;
 
 /// Rivals carried at most.
 const RIVALS: usize = 3;
@@ -271,11 +271,20 @@ impl Amcl {
                 return;
             }
         };
+        self.place_around(&targets, odom);
+    }
+
+    /// Up to `reseed_max_particles` particles, drawn at random, placed around `targets` (poses at
+    /// odometry `odom`), in turn: a rival that won, twins, the place a lost estimate left.
+    pub(super) fn place_around(&mut self, targets: &[Se2], odom: Se2) {
         let n = self.particles.len();
-        let k = n.min(p.reseed_max_particles);
+        if targets.is_empty() || n == 0 {
+            return;
+        }
+        let k = n.min(self.monitor.params().reseed_max_particles);
         let w = 1.0 / n as f64;
         for i in 0..k {
-            // The particles are where the last update left them, at its odometry: the rival is
+            // The particles are where the last update left them, at its odometry: the target is
             // placed there too.
             let pose = targets[i % targets.len()];
             let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
