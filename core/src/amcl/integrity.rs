@@ -15,7 +15,8 @@
 //! the share relative to it, with hysteresis:
 //!
 //! - any state → `Lost` after `confirm` updates in a row below `lost_ratio` × level (a robot
-//!   carried off: the map explains little of the scan at once);
+//!   carried off: the map explains little of the scan at once), unless the filter finds no place
+//!   of the map that explains the scan better and holds it `Uncertain` ([`Monitor::hold`]);
 //! - `Tracking` → `Uncertain` when the median of the last `window` updates' shares, each relative
 //!   to its scan's level, falls below `uncertain_ratio` (a filter that settled on a plausible
 //!   wrong place, say a corridor a few metres off, explains most of the scan, but persistently
@@ -163,6 +164,14 @@ pub struct IntegrityParams {
     /// `switch_margin` more of each of `confirm` scans in a row (and at least the lost bar), the
     /// particles go back there (`left.rs`). Off: the place left is forgotten.
     pub return_to_left: bool,
+    /// A filter turns `lost` on its shares only when the whole map holds a place that explains
+    /// the scan clearly better than the estimate (the search made on turning lost finds one at
+    /// the bar its re-seeding uses); when a search that covered the whole map finds none, the
+    /// scan is one the map explains poorly anywhere (clutter, people, a region mapped from
+    /// elsewhere), and the filter is held `uncertain` ([`Monitor::hold`]) for one judged scan, then
+    /// searched again if its scans are still below the lost bar; each hold in a row lasts twice as
+    /// long as the one before, up to 4 scans. Off: the shares alone turn it lost.
+    pub lost_needs_place: bool,
 }
 
 impl Default for IntegrityParams {
@@ -192,6 +201,7 @@ impl Default for IntegrityParams {
             switch_margin: 0.3,
             unique_margin: 0.0,
             return_to_left: true,
+            lost_needs_place: true,
         }
     }
 }
@@ -385,6 +395,9 @@ pub struct Monitor {
     /// not `Tracking` until the scans tell them apart.
     ambiguous: bool,
     last: Option<Integrity>,
+    /// Judged scans for which shares below the lost bar do not turn the filter lost
+    /// ([`Monitor::hold`]).
+    held: u32,
 }
 
 impl Monitor {
@@ -405,6 +418,7 @@ impl Monitor {
             vouchable: None,
             ambiguous: false,
             last: None,
+            held: 0,
         }
     }
 
@@ -465,6 +479,22 @@ impl Monitor {
         self.above_tracking = 0;
         self.vouchable = None;
         self.ambiguous = false;
+        self.held = 0;
+    }
+
+    /// The filter just turned `lost` on its shares, and no place of the map explains the scan
+    /// clearly better than the estimate: `uncertain` instead, and shares below the lost bar do
+    /// not turn it lost for the next `scans` judged scans (then one more does, and the map is
+    /// searched again). Nothing else changes: the level, the window, the runs.
+    pub fn hold(&mut self, scans: u32) {
+        if self.state != IntegrityState::Lost {
+            return;
+        }
+        self.state = IntegrityState::Uncertain;
+        self.held = scans;
+        if let Some(last) = &mut self.last {
+            last.state = IntegrityState::Uncertain;
+        }
     }
 
     /// The last judgement was below the lost ratio: one more confirms a loss.
@@ -503,6 +533,7 @@ impl Monitor {
     /// the scan far better): `Lost` now, and `recover` good updates in a row to track again.
     pub fn declare_lost(&mut self) {
         self.state = IntegrityState::Lost;
+        self.held = 0;
         self.ambiguous = false;
         self.below_lost = self.params.confirm;
         self.above_tracking = 0;
@@ -540,8 +571,10 @@ impl Monitor {
         let run = self.above_tracking;
         self.above_tracking = if ratio >= p.tracking_ratio { run + 1 } else { 0 };
         let before = self.state;
+        let held = self.held > 0;
+        self.held = self.held.saturating_sub(1);
         self.state = match self.state {
-            _ if self.below_lost >= p.confirm => IntegrityState::Lost,
+            _ if self.below_lost >= p.confirm && !held => IntegrityState::Lost,
             IntegrityState::Tracking if self.below_uncertain > 0 || self.ambiguous => {
                 IntegrityState::Uncertain
             }

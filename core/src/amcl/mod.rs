@@ -94,6 +94,12 @@ pub struct Amcl {
     /// The place a lost filter's estimate left for re-seeded particles, judged against it on
     /// the scans after (`left.rs`).
     left: Option<left::Left>,
+    /// The places the search made when this scan turned the filter lost found
+    /// ([`Amcl::doubt_loss`]), for its re-seeding.
+    turning_places: Option<Vec<Se2>>,
+    /// Holds in a row since the filter last tracked or a search found a place
+    /// ([`Amcl::doubt_loss`]).
+    holds: u32,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -149,6 +155,8 @@ impl Amcl {
             unjudged: 0,
             lost_updates: 0,
             left: None,
+            turning_places: None,
+            holds: 0,
         }
     }
 
@@ -249,6 +257,7 @@ impl Amcl {
         self.rivals.clear();
         self.twins = false;
         self.left = None;
+        self.holds = 0;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -268,6 +277,7 @@ impl Amcl {
         self.rivals.clear();
         self.twins = false;
         self.left = None;
+        self.holds = 0;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -463,8 +473,49 @@ impl Amcl {
         if judgement.total() == 0 {
             return false;
         }
+        let before = self.monitor.state();
         self.monitor.observe(&judgement);
+        self.doubt_loss(before, points);
         true
+    }
+
+    /// This scan turned the filter lost on its shares (`lost_needs_place`): the whole map is
+    /// searched for a place that explains it clearly better than the estimate
+    /// ([`Self::search_need`]), and if a search that covered the whole map finds none, the
+    /// filter is held `uncertain` ([`integrity::Monitor::hold`]); the places found are kept for
+    /// this update's re-seeding. The first hold lasts one judged scan, each next one in a row
+    /// twice as long, up to [`HOLD_MAX_SCANS`]: a robot kidnapped to a place whose first scan
+    /// (a half view of clutter) no place explains better is found by the search on the next, and
+    /// a filter held for five scans was taken for `tracking` at the wrong place before it searched
+    /// again (a synthetic site, `open_site.rs`); a long stretch of clutter is searched every
+    /// [`HOLD_MAX_SCANS`] scans.
+    fn doubt_loss(&mut self, before: IntegrityState, points: &[[f64; 2]]) {
+        self.turning_places = None;
+        let p = *self.monitor.params();
+        if self.monitor.state() == IntegrityState::Tracking {
+            self.holds = 0;
+        }
+        if !p.lost_needs_place
+            || !p.place_search
+            || before == IntegrityState::Lost
+            || self.monitor.state() != IntegrityState::Lost
+        {
+            return;
+        }
+        let hold = 1u32.checked_shl(self.holds).unwrap_or(u32::MAX).min(HOLD_MAX_SCANS);
+        let Some(need) = self.search_need() else {
+            self.holds = self.holds.saturating_add(1);
+            self.monitor.hold(hold);
+            return;
+        };
+        let (found, complete) = self.scored_places(points, need);
+        if found.is_empty() && complete {
+            self.holds = self.holds.saturating_add(1);
+            self.monitor.hold(hold);
+            return;
+        }
+        self.holds = 0;
+        self.turning_places = Some(found.into_iter().map(|(q, _)| q).take(SEARCHED_PLACES).collect());
     }
 
     /// Whether an update's estimate is matched to the map ([`Self::polish`]) after it was judged:
@@ -559,7 +610,10 @@ impl Amcl {
         // lost, around the place that search singled out, if any (`again.rs`).
         let searched = match (search, self.search_need()) {
             (Search::Turning, Some(bar)) if self.monitor.params().place_search => {
-                self.searched_places(points, bar)
+                match self.turning_places.take() {
+                    Some(found) => found,
+                    None => self.searched_places(points, bar),
+                }
             }
             (Search::Found(places), _) => places,
             _ => Vec::new(),
@@ -941,6 +995,10 @@ fn slip_weights(share: f64, probability: f64) -> (f64, f64) {
     let kept = if share < 1.0 { (1.0 - probability) / (1.0 - share) } else { 1.0 };
     (slipped, kept)
 }
+
+/// Judged scans a filter is held `uncertain` for at most, before it searches the map again
+/// ([`Amcl::doubt_loss`]).
+const HOLD_MAX_SCANS: u32 = 4;
 
 /// Places of the whole map's search that a filter turning lost re-seeds around, at most.
 const SEARCHED_PLACES: usize = 8;

@@ -473,3 +473,58 @@ fn a_filter_taken_off_the_robot_goes_back_to_the_place_it_left() {
         }
     }
 }
+
+/// A filter on the robot whose scans the map explains poorly for a while (half the beams returned
+/// short of the walls at random, by things the map does not hold: a crowd, spray) but no other
+/// place explains better: with `lost_needs_place` the search made when it would turn lost finds no such
+/// place, and the filter is held `uncertain` (a formation holds either way), keeps its particles
+/// and stays on the robot; on its shares alone it turns `lost` on the same scans (the scenario
+/// bites) and re-seeds.
+#[test]
+fn a_filter_on_the_robot_among_clutter_is_held_uncertain_not_lost() {
+    use super::IntegrityState;
+    let world = walls();
+    let map = surveyed_map(&world);
+    let taken = 40;
+    for seed in 1..=3 {
+        let mut states = Vec::new();
+        for needs_place in [true, false] {
+            let mut params = shipped_params();
+            params.integrity.lost_needs_place = needs_place;
+            let (truth, scans, odom) = log(&world, seed);
+            let field = Arc::new(LikelihoodField::new(&map, &params, 30.0));
+            let mut amcl = Amcl::new(params.clone(), field, seed);
+            amcl.set_sensor_origin(Some([0.0, 0.0]));
+            let (sxy, syaw) = super::log::CLI_SPREAD;
+            amcl.init_pose(truth[0], sxy, syaw);
+            for (s, o) in scans.iter().zip(&odom).take(taken) {
+                amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
+            }
+            let mut rng = Rng::seed(seed + 10);
+            let mut seen = Vec::new();
+            let mut worst: f64 = 0.0;
+            for k in taken..taken + 15 {
+                let t = truth[k];
+                let clear = scan(&world, &t, &mut rng);
+                let ranges: Vec<f64> = clear
+                    .ranges_m()
+                    .iter()
+                    .map(|r| if r.is_finite() && rng.below(2) == 0 { rng.range(0.3, *r) } else { *r })
+                    .collect();
+                let points = scan_points(&clear.with_ranges(ranges), &Se2::IDENTITY, &params);
+                amcl.update(odom[k], &points, false);
+                let e = amcl.estimate().map(|e| e.pose).unwrap();
+                worst = worst.max((e.x - t.x).hypot(e.y - t.y));
+                seen.push(amcl.integrity_state());
+            }
+            let lost = seen.iter().filter(|s| **s == IntegrityState::Lost).count();
+            eprintln!(
+                "seed {seed}, lost_needs_place {needs_place}: {lost} lost, worst {worst:.2} m, {seen:?}"
+            );
+            states.push((lost, worst));
+        }
+        let (held, shares_alone) = (states[0], states[1]);
+        assert!(shares_alone.0 > 0, "seed {seed}: the clutter never turned the filter lost: {states:?}");
+        assert!(held.0 == 0 && held.1 < 0.5, "seed {seed}: {states:?}");
+    }
+}
