@@ -316,7 +316,7 @@ fn global_localisation_on_a_large_site_finds_the_robot_on_the_first_scan() {
 /// places than at the robot's, and the places found for the scan that turned the filter lost may
 /// not hold it. Searching the map again while still lost (`search_again_every`, every 5 lost
 /// updates) finds the robot on more seeds, never later (measured: of 23 seeds not lost before the
-/// kidnapping, back on it by the end of the drive on 17 against 15 with the search on turning lost
+/// kidnapping, back on it by the end of the drive on 16 against 13 with the search on turning lost
 /// alone).
 #[test]
 fn a_robot_with_a_half_view_is_found_again_by_searching_again() {
