@@ -174,7 +174,7 @@ pub struct IntegrityParams {
     /// long as the one before, up to 4 scans. Off (the default): the shares alone turn it lost.
     /// Measured in docs/results.md ("Lost needs a better place"): on a cluttered log kept out of
     /// tuning far fewer scans on the robot reported `lost`, but the searches made again so soon
-    /// found places in the clutter that turned it lost and re-seeded it, two runs off by metres.
+    /// found places in the clutter that turned it lost and re-seeded it, three runs off by metres.
     pub lost_needs_place: bool,
 }
 

@@ -13,21 +13,9 @@
 //! the place it left explained half or more.
 
 use super::likelihood::FixedPoints;
-use super::rivals::{RIVAL_SCANS, same_place};
-use super::{Amcl, IntegrityState, integrity, refine, subsample};
+use super::rivals::{RIVAL_SCANS, Rival, same_place};
+use super::{Amcl, IntegrityState, subsample};
 use crate::se2::Se2;
-
-/// The pose the estimate left, at odometry `odom`, with its evidence against the estimate since
-/// (the sum over the scans judged of its share less the estimate's), the scans judged, and how
-/// many of the last of them in a row it beat the estimate on.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Left {
-    pose: Se2,
-    odom: Se2,
-    evidence: f64,
-    judged: u32,
-    streak: u32,
-}
 
 impl Amcl {
     /// Called after an update's estimate is taken, with the estimate before it carried by the
@@ -44,7 +32,7 @@ impl Amcl {
         }
         let (Some(from), Some(now)) = (carried, self.estimate.as_ref().map(|e| e.pose)) else { return };
         if !same_place(&from, &now) {
-            self.left = Some(Left { pose: from, odom, evidence: 0.0, judged: 0, streak: 0 });
+            self.left = Some(Rival::found(from, odom));
         }
     }
 
@@ -62,10 +50,7 @@ impl Amcl {
             return;
         }
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
-        let pose = refine(&self.field, &beams, left.pose * (left.odom.inverse() * odom));
-        let judged_points = subsample(points, p.max_points);
-        let share = integrity::explained_share(&self.field, &pose, &judged_points, self.sensor_origin, &p)
-            .unwrap_or(0.0);
+        let (pose, share) = self.carried_to(&left, odom, &beams, &subsample(points, p.max_points));
         let evidence = left.evidence + (share - last.explained);
         let judged = left.judged + 1;
         let beaten = share >= last.explained + p.switch_margin && share >= p.lost_ratio * last.level;
@@ -77,6 +62,6 @@ impl Amcl {
             self.place_around(&[pose], odom);
             return;
         }
-        self.left = Some(Left { pose, odom, evidence, judged, streak });
+        self.left = Some(Rival { pose, odom, evidence, judged, streak });
     }
 }

@@ -92,8 +92,8 @@ pub struct Amcl {
     /// Updates since the filter turned lost (0 while not lost).
     lost_updates: u32,
     /// The place a lost filter's estimate left for re-seeded particles, judged against it on
-    /// the scans after (`left.rs`).
-    left: Option<left::Left>,
+    /// the scans after as a rival is (`left.rs`).
+    left: Option<rivals::Rival>,
     /// The places the search made when this scan turned the filter lost found
     /// ([`Amcl::doubt_loss`]), for its re-seeding.
     turning_places: Option<Vec<Se2>>,

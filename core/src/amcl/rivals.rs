@@ -9,18 +9,19 @@ use super::{Amcl, IntegrityState, Particle, integrity, refine, subsample};
 use crate::se2::Se2;
 
 /// A rival to the estimate: `pose` when the odometry read `odom`, found because it explained a
-/// scan far better than the estimate, then judged against it on every scan after: `evidence` is
+/// scan far better than the estimate (or the place a lost estimate left, `left.rs`), then judged
+/// against it on every scan after: `evidence` is
 /// the sum over those scans of its share less the estimate's, `judged` their number, `streak` the
 /// last of them in a row on which it explained `switch_margin` more than the estimate. A filter
 /// keeps up to [`RIVALS`] of them, distinct places, so that twins (places the scan cannot tell
 /// apart) are carried side by side until the scans tell them apart.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct Rival {
-    pose: Se2,
-    odom: Se2,
-    evidence: f64,
-    judged: u32,
-    streak: u32,
+    pub(super) pose: Se2,
+    pub(super) odom: Se2,
+    pub(super) evidence: f64,
+    pub(super) judged: u32,
+    pub(super) streak: u32,
 }
 
 impl Rival {
@@ -102,7 +103,7 @@ impl Amcl {
         }
         for (_, pose) in found {
             if self.rivals.len() < RIVALS && !self.rivals.iter().any(|r| same_place(&r.pose, &pose)) {
-                self.rivals.push(Rival { pose, odom, evidence: 0.0, judged: 0, streak: 0 });
+                self.rivals.push(Rival::found(pose, odom));
             }
         }
         // A place that explains this scan far better: the estimate is in doubt from now.
@@ -183,10 +184,7 @@ impl Amcl {
         let judged_points = subsample(points, p.max_points);
         let mut kept: Vec<(Rival, f64)> = Vec::new();
         for rival in rivals {
-            let pose = refine(&self.field, &beams, rival.pose * (rival.odom.inverse() * odom));
-            let share =
-                integrity::explained_share(&self.field, &pose, &judged_points, self.sensor_origin, &p)
-                    .unwrap_or(0.0);
+            let (pose, share) = self.carried_to(&rival, odom, &beams, &judged_points);
             let evidence = rival.evidence + (share - last.explained);
             let judged = rival.judged + 1;
             // A scan counts towards the rival when it explains `switch_margin` more of it than the
@@ -272,6 +270,22 @@ impl Amcl {
             }
         };
         self.place_around(&targets, odom);
+    }
+
+    /// `rival` carried by the odometry to `odom`, climbed to this scan (`beams`), and the share of
+    /// the scan (`judged`, the integrity measure's points) explained there.
+    pub(super) fn carried_to(
+        &self,
+        rival: &Rival,
+        odom: Se2,
+        beams: &FixedPoints,
+        judged: &[[f64; 2]],
+    ) -> (Se2, f64) {
+        let p = self.monitor.params();
+        let pose = refine(&self.field, beams, rival.pose * (rival.odom.inverse() * odom));
+        let share =
+            integrity::explained_share(&self.field, &pose, judged, self.sensor_origin, p).unwrap_or(0.0);
+        (pose, share)
     }
 
     /// Up to `reseed_max_particles` particles, drawn at random, placed around `targets` (poses at
