@@ -100,6 +100,10 @@ pub struct Amcl {
     /// Holds in a row since the filter last tracked or a search found a place
     /// ([`Amcl::doubt_loss`]).
     holds: u32,
+    /// Places the search made on turning lost found that explain the scan clearly better than the
+    /// estimate but less than a tracked place does: the filter is held, and they are judged on the
+    /// next scan before it turns lost ([`Amcl::doubt_loss`]).
+    unconfirmed: Vec<rivals::Rival>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -157,6 +161,7 @@ impl Amcl {
             left: None,
             turning_places: None,
             holds: 0,
+            unconfirmed: Vec::new(),
         }
     }
 
@@ -370,7 +375,7 @@ impl Amcl {
                         || self.monitor.loss_pending()
                         || self.unjudged >= REST_JUDGE_EVERY)
                     && let Some(pose) = self.pose_at(&odom)
-                    && self.judge(&pose, points)
+                    && self.judge(&pose, odom, points)
                 {
                     self.judge_rivals(odom, points);
                     self.vouch_if_unique(&pose, points);
@@ -392,7 +397,8 @@ impl Amcl {
         self.estimate = particles::cluster_estimate(&self.particles);
         let before = self.monitor.last().map(|i| i.state);
         let reseeds_before = self.reseeds;
-        let judged = self.estimate.as_ref().map(|e| e.pose).is_some_and(|pose| self.judge(&pose, points));
+        let judged =
+            self.estimate.as_ref().map(|e| e.pose).is_some_and(|pose| self.judge(&pose, odom, points));
         // Re-seeded after this update's estimate, so that the next scan, not the one that chose
         // them, judges the new poses: each is the best of many for this scan, and a best-of-many
         // fits the scan it was chosen on better than the truth does (clutter and all), which let
@@ -462,7 +468,7 @@ impl Amcl {
 
     /// Judge the estimate `pose` against the map (`integrity`): at most `max_points` of the scan,
     /// and not a scan of fewer than `min_points`. Whether it was judged.
-    fn judge(&mut self, pose: &Se2, points: &[[f64; 2]]) -> bool {
+    fn judge(&mut self, pose: &Se2, odom: Se2, points: &[[f64; 2]]) -> bool {
         let p = *self.monitor.params();
         if !p.enabled || points.len() < p.min_points {
             return false;
@@ -475,7 +481,7 @@ impl Amcl {
         }
         let before = self.monitor.state();
         self.monitor.observe(&judgement);
-        self.doubt_loss(before, points);
+        self.doubt_loss(before, odom, points);
         true
     }
 
@@ -489,17 +495,44 @@ impl Amcl {
     /// a filter held for five scans was taken for `tracking` at the wrong place before it searched
     /// again (a synthetic site, `open_site.rs`); a long stretch of clutter is searched every
     /// [`HOLD_MAX_SCANS`] scans.
-    fn doubt_loss(&mut self, before: IntegrityState, points: &[[f64; 2]]) {
+    ///
+    /// A place the search finds is the best the whole map holds for one scan, and among clutter a
+    /// wrong one beats the estimate on the scan it was chosen on. When none explains the scan as
+    /// a tracked place does (`tracking_ratio` × level), the filter is held too, and the places are
+    /// judged on the next scan (carried by the odometry, climbed to it): the filter turns lost, and
+    /// re-seeds around them, only if one of them explains that scan clearly better than the
+    /// estimate as well. A robot carried off is found on both scans; a place that fitted one
+    /// scan of clutter seldom fits the next.
+    fn doubt_loss(&mut self, before: IntegrityState, odom: Se2, points: &[[f64; 2]]) {
         self.turning_places = None;
+        let unconfirmed = std::mem::take(&mut self.unconfirmed);
         let p = *self.monitor.params();
         if self.monitor.state() == IntegrityState::Tracking {
             self.holds = 0;
         }
-        if !p.lost_needs_place
-            || !p.place_search
-            || before == IntegrityState::Lost
-            || self.monitor.state() != IntegrityState::Lost
+        if !p.lost_needs_place || !p.place_search {
+            return;
+        }
+        if !unconfirmed.is_empty()
+            && self.monitor.state() == IntegrityState::Uncertain
+            && let Some(need) = self.search_need()
         {
+            let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
+            let judged = subsample(points, p.max_points);
+            let confirmed: Vec<Se2> = unconfirmed
+                .iter()
+                .map(|place| self.carried_to(place, odom, &beams, &judged))
+                .filter(|(_, share)| *share >= need)
+                .map(|(q, _)| q)
+                .collect();
+            if !confirmed.is_empty() {
+                self.holds = 0;
+                self.monitor.declare_lost();
+                self.turning_places = Some(confirmed);
+                return;
+            }
+        }
+        if before == IntegrityState::Lost || self.monitor.state() != IntegrityState::Lost {
             return;
         }
         let hold = 1u32.checked_shl(self.holds).unwrap_or(u32::MAX).min(HOLD_MAX_SCANS);
@@ -509,9 +542,12 @@ impl Amcl {
             return;
         };
         let (found, complete) = self.scored_places(points, need);
-        if found.is_empty() && complete {
+        let tracked = self.monitor.last().map_or(1.0, |i| p.tracking_ratio * i.level);
+        if complete && found.iter().all(|(_, share)| *share < tracked) {
             self.holds = self.holds.saturating_add(1);
             self.monitor.hold(hold);
+            self.unconfirmed =
+                found.into_iter().take(SEARCHED_PLACES).map(|(q, _)| rivals::Rival::found(q, odom)).collect();
             return;
         }
         self.holds = 0;
