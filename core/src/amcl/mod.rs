@@ -97,8 +97,7 @@ pub struct Amcl {
     /// The places the search made when this scan turned the filter lost found
     /// ([`Amcl::doubt_loss`]), for its re-seeding.
     turning_places: Option<Vec<Se2>>,
-    /// Holds in a row since the filter last tracked or a search found a place
-    /// ([`Amcl::doubt_loss`]).
+    /// Holds in a row since the filter last tracked or was lost ([`Amcl::doubt_loss`]).
     holds: u32,
     /// Places the search made on turning lost found that explain the scan clearly better than the
     /// estimate but less than a tracked place does: the filter is held, and they are judged on the
@@ -507,7 +506,11 @@ impl Amcl {
         self.turning_places = None;
         let unconfirmed = std::mem::take(&mut self.unconfirmed);
         let p = *self.monitor.params();
-        if self.monitor.state() == IntegrityState::Tracking {
+        // The holds in a row end where the filter tracks again or stays lost (a rival won, a
+        // search found a place): the next turn to lost is held one scan first.
+        if self.monitor.state() == IntegrityState::Tracking
+            || (self.monitor.state() == IntegrityState::Lost && before == IntegrityState::Lost)
+        {
             self.holds = 0;
         }
         if !p.lost_needs_place || !p.place_search {
