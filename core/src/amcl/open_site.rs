@@ -348,10 +348,7 @@ fn a_robot_with_a_half_view_is_found_again_by_searching_again() {
     eprintln!(
         "back at all: {back} against {back_single}; tracking within 10: {tracking} against {tracking_single}"
     );
-    assert!(
-        back > back_single,
-        "back {back}/{back_single}, tracking within 10 {tracking}/{tracking_single}"
-    );
+    assert!(back > back_single, "back {back}/{back_single}, tracking within 10 {tracking}/{tracking_single}");
 }
 
 /// Found again among clutter the map does not hold, the estimate at the robot explains the scans
