@@ -474,6 +474,56 @@ fn a_filter_taken_off_the_robot_goes_back_to_the_place_it_left() {
     }
 }
 
+/// The surveyed log of `seed` tracked from its first true pose for `taken` scans, then for `n`
+/// more whose scans `scan_at(k, truth, rng)` makes in place of the log's (`rng` seeded
+/// `rng_seed`), `lost_needs_place` as given; per one of those: the state, how far the estimate is
+/// from the truth (m) and the share of the scan it explains.
+fn tracked_then(
+    world: &[Polygon],
+    map: &OccupancyGrid,
+    (seed, rng_seed): (u64, u64),
+    needs_place: bool,
+    (taken, n): (usize, usize),
+    mut scan_at: impl FnMut(usize, &Se2, &mut Rng) -> Scan,
+) -> Vec<(super::IntegrityState, f64, Option<f64>)> {
+    let mut params = shipped_params();
+    params.integrity.lost_needs_place = needs_place;
+    let (truth, scans, odom) = log(world, seed);
+    let field = Arc::new(LikelihoodField::new(map, &params, 30.0));
+    let mut amcl = Amcl::new(params.clone(), field, seed);
+    amcl.set_sensor_origin(Some([0.0, 0.0]));
+    let (sxy, syaw) = super::log::CLI_SPREAD;
+    amcl.init_pose(truth[0], sxy, syaw);
+    for (s, o) in scans.iter().zip(&odom).take(taken) {
+        amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
+    }
+    let mut rng = Rng::seed(rng_seed);
+    let mut seen = Vec::new();
+    for k in taken..taken + n {
+        let t = truth[k];
+        let points = scan_points(&scan_at(k, &t, &mut rng), &Se2::IDENTITY, &params);
+        amcl.update(odom[k], &points, false);
+        let e = amcl.estimate().map(|e| e.pose).unwrap();
+        seen.push((
+            amcl.integrity_state(),
+            (e.x - t.x).hypot(e.y - t.y),
+            amcl.integrity().map(|i| i.explained),
+        ));
+    }
+    seen
+}
+
+/// `scan` with each return, with probability `1 / every`, cut short at random (clutter the map
+/// does not hold).
+fn cut_short(scan: &Scan, every: usize, rng: &mut Rng) -> Scan {
+    let ranges: Vec<f64> = scan
+        .ranges_m()
+        .iter()
+        .map(|r| if r.is_finite() && rng.below(every) == 0 { rng.range(0.3, *r) } else { *r })
+        .collect();
+    scan.with_ranges(ranges)
+}
+
 /// A filter on the robot whose scans the map explains poorly for a while (half the beams returned
 /// short of the walls at random, by things the map does not hold: a crowd, spray) but no other
 /// place explains better: with `lost_needs_place` the search made when it would turn lost finds no such
@@ -485,39 +535,16 @@ fn a_filter_on_the_robot_among_clutter_is_held_uncertain_not_lost() {
     use super::IntegrityState;
     let world = walls();
     let map = surveyed_map(&world);
-    let taken = 40;
     for seed in 1..=3 {
         let mut states = Vec::new();
         for needs_place in [true, false] {
-            let mut params = shipped_params();
-            params.integrity.lost_needs_place = needs_place;
-            let (truth, scans, odom) = log(&world, seed);
-            let field = Arc::new(LikelihoodField::new(&map, &params, 30.0));
-            let mut amcl = Amcl::new(params.clone(), field, seed);
-            amcl.set_sensor_origin(Some([0.0, 0.0]));
-            let (sxy, syaw) = super::log::CLI_SPREAD;
-            amcl.init_pose(truth[0], sxy, syaw);
-            for (s, o) in scans.iter().zip(&odom).take(taken) {
-                amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
-            }
-            let mut rng = Rng::seed(seed + 10);
-            let mut seen = Vec::new();
-            let mut worst: f64 = 0.0;
-            for k in taken..taken + 15 {
-                let t = truth[k];
-                let clear = scan(&world, &t, &mut rng);
-                let ranges: Vec<f64> = clear
-                    .ranges_m()
-                    .iter()
-                    .map(|r| if r.is_finite() && rng.below(2) == 0 { rng.range(0.3, *r) } else { *r })
-                    .collect();
-                let points = scan_points(&clear.with_ranges(ranges), &Se2::IDENTITY, &params);
-                amcl.update(odom[k], &points, false);
-                let e = amcl.estimate().map(|e| e.pose).unwrap();
-                worst = worst.max((e.x - t.x).hypot(e.y - t.y));
-                seen.push(amcl.integrity_state());
-            }
-            let lost = seen.iter().filter(|s| **s == IntegrityState::Lost).count();
+            let seen = tracked_then(&world, &map, (seed, seed + 10), needs_place, (40, 15), |_, t, rng| {
+                let clear = scan(&world, t, rng);
+                cut_short(&clear, 2, rng)
+            });
+            let lost = seen.iter().filter(|s| s.0 == IntegrityState::Lost).count();
+            let worst = seen.iter().map(|s| s.1).fold(0.0, f64::max);
+            let seen: Vec<IntegrityState> = seen.iter().map(|s| s.0).collect();
             eprintln!(
                 "seed {seed}, lost_needs_place {needs_place}: {lost} lost, worst {worst:.2} m, {seen:?}"
             );
@@ -533,10 +560,11 @@ fn a_filter_on_the_robot_among_clutter_is_held_uncertain_not_lost() {
 /// sensor replaying old data), a third of their beams short among clutter: the estimate at the
 /// robot explains them poorly, and the search made when the filter would turn lost finds the
 /// place they came from, which explains them clearly better but not as a tracked place does.
-/// The weighting of those scans pulls the estimate a few decimetres off; with `lost_needs_place` the place found is judged
-/// on the next scan, the robot's own, which it does not explain: the filter is held `uncertain`
-/// (a formation holds), never `lost`, and its particles come back to the robot. On its shares
-/// alone it turns `lost` there (the scenario bites: a false alarm) and re-seeds.
+/// The weighting of those scans pulls the estimate a few decimetres off; with `lost_needs_place`
+/// the place found is judged on the next scan, the robot's own, which it does not explain: the
+/// filter is held `uncertain` (a formation holds), never `lost`, and its particles come back to
+/// the robot. On its shares alone it turns `lost` there (the scenario bites: a false alarm) and
+/// re-seeds.
 #[test]
 fn scans_from_elsewhere_for_two_updates_do_not_turn_the_filter_lost() {
     use super::IntegrityState;
@@ -546,41 +574,25 @@ fn scans_from_elsewhere_for_two_updates_do_not_turn_the_filter_lost() {
     for seed in 1..=3 {
         let mut states = Vec::new();
         for needs_place in [true, false] {
-            let mut params = shipped_params();
-            params.integrity.lost_needs_place = needs_place;
-            let (truth, scans, odom) = log(&world, seed);
-            let field = Arc::new(LikelihoodField::new(&map, &params, 30.0));
-            let mut amcl = Amcl::new(params.clone(), field, seed);
-            amcl.set_sensor_origin(Some([0.0, 0.0]));
-            let (sxy, syaw) = super::log::CLI_SPREAD;
-            amcl.init_pose(truth[0], sxy, syaw);
-            for (s, o) in scans.iter().zip(&odom).take(taken) {
-                amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
-            }
-            let mut rng = Rng::seed(seed + 20);
-            let mut seen = Vec::new();
-            let mut off = f64::INFINITY;
-            for k in taken..taken + 12 {
-                let t = truth[k];
-                let ghost = k < taken + 2;
-                let half_pi = std::f64::consts::FRAC_PI_2;
-                let from = if ghost { Se2::new(20.8, 4.6 - 0.6 * (k - taken) as f64, -half_pi) } else { t };
-                let clear = scan(&world, &from, &mut rng);
-                let ranges: Vec<f64> = clear
-                    .ranges_m()
-                    .iter()
-                    .map(
-                        |r| if ghost && r.is_finite() && rng.below(3) == 0 { rng.range(0.3, *r) } else { *r },
-                    )
-                    .collect();
-                let points = scan_points(&clear.with_ranges(ranges), &Se2::IDENTITY, &params);
-                amcl.update(odom[k], &points, false);
-                let e = amcl.estimate().map(|e| e.pose).unwrap();
-                off = (e.x - t.x).hypot(e.y - t.y);
-                let explained = amcl.integrity().map(|i| (100.0 * i.explained).round());
-                seen.push((amcl.integrity_state(), (100.0 * off).round(), explained));
-            }
+            let seen =
+                tracked_then(&world, &map, (seed, seed + 20), needs_place, (taken, 12), |k, t, rng| {
+                    if k < taken + 2 {
+                        let from =
+                            Se2::new(20.8, 4.6 - 0.6 * (k - taken) as f64, -std::f64::consts::FRAC_PI_2);
+                        let clear = scan(&world, &from, rng);
+                        cut_short(&clear, 3, rng)
+                    } else {
+                        scan(&world, t, rng)
+                    }
+                });
             let lost = seen.iter().filter(|s| s.0 == IntegrityState::Lost).count();
+            let off = seen.last().map_or(f64::INFINITY, |s| s.1);
+            let seen: Vec<(IntegrityState, f64, f64)> = seen
+                .iter()
+                .map(|(state, off, explained)| {
+                    (*state, (100.0 * off).round(), (100.0 * explained.unwrap_or(0.0)).round())
+                })
+                .collect();
             eprintln!(
                 "seed {seed}, lost_needs_place {needs_place}: {lost} lost, at the end {off:.2} m off; (state, cm off, % explained) {seen:?}"
             );
