@@ -41,8 +41,8 @@ impl fmt::Display for ConfigSource {
 /// Why a configuration could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
-    #[error("cannot read {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    #[error("cannot read {path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     #[error(transparent)]
     Invalid(#[from] ConfigError),
 }
@@ -71,7 +71,7 @@ pub fn load(source: &ConfigSource) -> Result<Config, LoadError> {
 fn walk(root: &Path, dir: &Path, out: &mut Vec<(String, Vec<u8>)>) -> Result<(), LoadError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
-        move |source| LoadError::Io { path, source }
+        move |error| LoadError::Io { path, error }
     };
     let mut entries =
         std::fs::read_dir(dir).map_err(io(dir))?.collect::<Result<Vec<_>, _>>().map_err(io(dir))?;
@@ -116,6 +116,10 @@ mod tests {
         let err = load(&ConfigSource::Dir(PathBuf::from("/nonexistent/amr-config"))).unwrap_err();
         assert!(matches!(err, LoadError::Io { .. }));
         assert!(err.to_string().contains("/nonexistent/amr-config"), "{err}");
+        // The cause is said once: in the message, not again as the error's source (which a
+        // report of the whole chain, `{:#}`, would print a second time).
+        assert!(err.to_string().contains("os error"), "{err}");
+        assert!(std::error::Error::source(&err).is_none(), "{err}");
     }
 
     #[test]

@@ -42,14 +42,14 @@ fn invalid(file: &Path, key: &str, line: Option<usize>, rule: String) -> LoadErr
 /// A map_server YAML and its image, from disk.
 pub fn load_map_path(yaml_path: &Path) -> Result<OccupancyGrid, LoadError> {
     let text = std::fs::read_to_string(yaml_path)
-        .map_err(|source| LoadError::Io { path: yaml_path.to_path_buf(), source })?;
+        .map_err(|error| LoadError::Io { path: yaml_path.to_path_buf(), error })?;
     let yaml = MapYaml::parse(&text).map_err(|e| match e {
         MapError::Invalid { key, rule } => invalid(yaml_path, key, key_line(&text, key), rule),
         other => invalid(yaml_path, "", None, other.to_string()),
     })?;
     let image_path = yaml_path.parent().unwrap_or(Path::new(".")).join(&yaml.image);
     let image =
-        std::fs::read(&image_path).map_err(|source| LoadError::Io { path: image_path.clone(), source })?;
+        std::fs::read(&image_path).map_err(|error| LoadError::Io { path: image_path.clone(), error })?;
     load_map(&yaml, &image).map_err(|e| invalid(&image_path, "", None, e.to_string()))
 }
 
@@ -75,7 +75,7 @@ impl Config {
         }
         let path = PathBuf::from(which);
         let text =
-            std::fs::read_to_string(&path).map_err(|source| LoadError::Io { path: path.clone(), source })?;
+            std::fs::read_to_string(&path).map_err(|error| LoadError::Io { path: path.clone(), error })?;
         let scenario = parse_file::<ScenarioConfig>(&path.display().to_string(), &text)?;
         let (map_name, map) = if is_map_path(&scenario.map) {
             let yaml = path.parent().unwrap_or(Path::new(".")).join(&scenario.map);

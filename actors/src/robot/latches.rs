@@ -94,12 +94,12 @@ pub struct Latched {
 /// Why the file could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum LatchFileError {
-    #[error("{path}: cannot read the robot's safety state: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: cannot read the robot's safety state: {error}")]
+    Read { path: PathBuf, error: std::io::Error },
     #[error("{path}: not a safety state file ({why})")]
     Corrupt { path: PathBuf, why: String },
-    #[error("{path}: cannot write the robot's safety state: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    #[error("{path}: cannot write the robot's safety state: {error}")]
+    Write { path: PathBuf, error: std::io::Error },
 }
 
 /// The robot's safety state file.
@@ -128,7 +128,7 @@ impl LatchFile {
         let text = match std::fs::read(&self.path) {
             Ok(bytes) => bytes,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Latched::default()),
-            Err(source) => return Err(LatchFileError::Read { path: self.path.clone(), source }),
+            Err(error) => return Err(LatchFileError::Read { path: self.path.clone(), error }),
         };
         let corrupt = |why: String| LatchFileError::Corrupt { path: self.path.clone(), why };
         let text = String::from_utf8(text).map_err(|_| corrupt("not UTF-8".into()))?;
@@ -137,7 +137,7 @@ impl LatchFile {
 
     /// Write `l`, atomically and durably.
     pub fn store(&self, l: Latched) -> Result<(), LatchFileError> {
-        let err = |source| LatchFileError::Write { path: self.path.clone(), source };
+        let err = |error| LatchFileError::Write { path: self.path.clone(), error };
         let dir = match self.path.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => PathBuf::from("."),

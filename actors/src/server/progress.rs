@@ -29,8 +29,8 @@ pub struct PlanProgress {
 /// Why the progress file could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum ProgressError {
-    #[error("{path}: cannot read the plan's progress: {source} (remove it to start the plan afresh)")]
-    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: cannot read the plan's progress: {error} (remove it to start the plan afresh)")]
+    Read { path: PathBuf, error: std::io::Error },
     #[error("{path}: not a plan progress file ({why}; remove it to start the plan afresh)")]
     Corrupt { path: PathBuf, why: String },
 }
@@ -56,7 +56,7 @@ impl PlanProgress {
                 Some(parse(&text).map_err(|why| ProgressError::Corrupt { path: path.to_owned(), why })?)
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-            Err(source) => return Err(ProgressError::Read { path: path.to_owned(), source }),
+            Err(error) => return Err(ProgressError::Read { path: path.to_owned(), error }),
         };
         let written = memory.as_ref().map(|(_, s)| *s);
         Ok(PlanProgress {
