@@ -53,7 +53,8 @@ impl Amcl {
         let (pose, share) = self.carried_to(&left, odom, &beams, &subsample(points, p.max_points));
         let evidence = left.evidence + (share - last.explained);
         let judged = left.judged + 1;
-        let beaten = share >= last.explained + p.switch_margin && share >= p.lost_ratio * last.level;
+        // The bar a place the search of the map finds must reach (`Amcl::search_need`).
+        let beaten = self.search_need().is_some_and(|need| share >= need);
         let streak = if beaten { left.streak + 1 } else { 0 };
         if evidence <= -p.switch_margin || judged > RIVAL_SCANS || same_place(&pose, &estimate) {
             return;
