@@ -474,6 +474,52 @@ fn a_filter_taken_off_the_robot_goes_back_to_the_place_it_left() {
     }
 }
 
+/// The surveyed log of `seed` tracked with `params` from its first true pose (RViz's spread) for
+/// `taken` scans: the filter, the true poses and the odometry.
+fn tracked(
+    world: &[Polygon],
+    map: &OccupancyGrid,
+    params: &AmclParams,
+    seed: u64,
+    taken: usize,
+) -> (Amcl, Vec<Se2>, Vec<Se2>) {
+    let (truth, scans, odom) = log(world, seed);
+    let field = Arc::new(LikelihoodField::new(map, params, 30.0));
+    let mut amcl = Amcl::new(params.clone(), field, seed);
+    amcl.set_sensor_origin(Some([0.0, 0.0]));
+    let (sxy, syaw) = super::log::CLI_SPREAD;
+    amcl.init_pose(truth[0], sxy, syaw);
+    for (s, o) in scans.iter().zip(&odom).take(taken) {
+        amcl.update(*o, &scan_points(s, &Se2::IDENTITY, params), false);
+    }
+    (amcl, truth, odom)
+}
+
+/// The surveyed log of `seed` tracked for its first 40 scans, then the robot at rest, its
+/// odometry still, and `n` scans from `at` (given the true poses; noise seeded `rng_seed`): per
+/// scan, the state and the estimate, and where the scans were taken.
+fn standing_then(
+    world: &[Polygon],
+    map: &OccupancyGrid,
+    (seed, rng_seed): (u64, u64),
+    n: usize,
+    at: impl FnOnce(&[Se2]) -> Se2,
+) -> (Se2, Vec<(super::IntegrityState, Se2)>) {
+    let taken = 40;
+    let params = shipped_params();
+    let (mut amcl, truth, odom) = tracked(world, map, &params, seed, taken);
+    let still = odom[taken - 1];
+    let there = at(&truth[..taken]);
+    let mut rng = Rng::seed(rng_seed);
+    let mut seen = Vec::new();
+    for _ in 0..n {
+        let points = scan_points(&scan(world, &there, &mut rng), &Se2::IDENTITY, &params);
+        amcl.update(still, &points, false);
+        seen.push((amcl.integrity_state(), amcl.pose_at(&still).unwrap()));
+    }
+    (there, seen)
+}
+
 /// The surveyed log of `seed` tracked from its first true pose for `taken` scans, then for `n`
 /// more whose scans `scan_at(k, truth, rng)` makes in place of the log's (`rng` seeded
 /// `rng_seed`), `lost_needs_place` as given; per one of those: the state, how far the estimate is
@@ -488,15 +534,7 @@ fn tracked_then(
 ) -> Vec<(super::IntegrityState, f64, Option<f64>)> {
     let mut params = shipped_params();
     params.integrity.lost_needs_place = needs_place;
-    let (truth, scans, odom) = log(world, seed);
-    let field = Arc::new(LikelihoodField::new(map, &params, 30.0));
-    let mut amcl = Amcl::new(params.clone(), field, seed);
-    amcl.set_sensor_origin(Some([0.0, 0.0]));
-    let (sxy, syaw) = super::log::CLI_SPREAD;
-    amcl.init_pose(truth[0], sxy, syaw);
-    for (s, o) in scans.iter().zip(&odom).take(taken) {
-        amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
-    }
+    let (mut amcl, truth, odom) = tracked(world, map, &params, seed, taken);
     let mut rng = Rng::seed(rng_seed);
     let mut seen = Vec::new();
     for k in taken..taken + n {
@@ -621,30 +659,13 @@ fn a_robot_lifted_at_rest_and_set_down_elsewhere_is_reported_lost_and_found() {
     use super::IntegrityState;
     let world = walls();
     let map = surveyed_map(&world);
-    let taken = 40;
     let room = Se2::new(20.8, 4.0, -std::f64::consts::FRAC_PI_2);
     let corridor = Se2::new(10.0, 8.0, std::f64::consts::PI);
     for (set_down, found_by) in [(room, 10), (corridor, 12)] {
         for seed in 1..=3 {
-            let params = shipped_params();
-            let (truth, scans, odom) = log(&world, seed);
-            let field = Arc::new(LikelihoodField::new(&map, &params, 30.0));
-            let mut amcl = Amcl::new(params.clone(), field, seed);
-            amcl.set_sensor_origin(Some([0.0, 0.0]));
-            let (sxy, syaw) = super::log::CLI_SPREAD;
-            amcl.init_pose(truth[0], sxy, syaw);
-            for (s, o) in scans.iter().zip(&odom).take(taken) {
-                amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
-            }
-            let still = odom[taken - 1];
-            let mut rng = Rng::seed(seed + 30);
-            let mut seen = Vec::new();
-            for _ in 0..found_by + 4 {
-                let points = scan_points(&scan(&world, &set_down, &mut rng), &Se2::IDENTITY, &params);
-                amcl.update(still, &points, false);
-                let e = amcl.pose_at(&still).unwrap();
-                seen.push((amcl.integrity_state(), (e.x - set_down.x).hypot(e.y - set_down.y)));
-            }
+            let (_, seen) = standing_then(&world, &map, (seed, seed + 30), found_by + 4, |_| set_down);
+            let seen: Vec<(IntegrityState, f64)> =
+                seen.iter().map(|(s, e)| (*s, (e.x - set_down.x).hypot(e.y - set_down.y))).collect();
             let shown: Vec<(IntegrityState, f64)> =
                 seen.iter().map(|(s, off)| (*s, (100.0 * off).round())).collect();
             eprintln!("set down at {set_down:?}, seed {seed}: (state, cm off) {shown:?}");
@@ -674,30 +695,18 @@ fn a_robot_turned_at_rest_unseen_by_its_odometry_is_corrected_not_lost() {
     use super::IntegrityState;
     let world = walls();
     let map = surveyed_map(&world);
-    let taken = 40;
     for (turn_deg, shift_m) in [(9.0, 0.0), (-8.0, 0.15)] {
         for seed in 1..=3 {
-            let params = shipped_params();
-            let (truth, scans, odom) = log(&world, seed);
-            let field = Arc::new(LikelihoodField::new(&map, &params, 30.0));
-            let mut amcl = Amcl::new(params.clone(), field, seed);
-            amcl.set_sensor_origin(Some([0.0, 0.0]));
-            let (sxy, syaw) = super::log::CLI_SPREAD;
-            amcl.init_pose(truth[0], sxy, syaw);
-            for (s, o) in scans.iter().zip(&odom).take(taken) {
-                amcl.update(*o, &scan_points(s, &Se2::IDENTITY, &params), false);
-            }
-            let still = odom[taken - 1];
-            let turned = truth[taken - 1] * Se2::new(shift_m, 0.0, f64::to_radians(turn_deg));
-            let mut rng = Rng::seed(seed + 40);
-            let mut seen = Vec::new();
-            for _ in 0..12 {
-                let points = scan_points(&scan(&world, &turned, &mut rng), &Se2::IDENTITY, &params);
-                amcl.update(still, &points, false);
-                let e = amcl.pose_at(&still).unwrap();
-                let heading = crate::se2::angle_diff(e.theta, turned.theta).to_degrees();
-                seen.push((amcl.integrity_state(), (e.x - turned.x).hypot(e.y - turned.y), heading));
-            }
+            let (turned, seen) = standing_then(&world, &map, (seed, seed + 40), 12, |truth| {
+                truth[truth.len() - 1] * Se2::new(shift_m, 0.0, f64::to_radians(turn_deg))
+            });
+            let seen: Vec<(IntegrityState, f64, f64)> = seen
+                .iter()
+                .map(|(s, e)| {
+                    let heading = crate::se2::angle_diff(e.theta, turned.theta).to_degrees();
+                    (*s, (e.x - turned.x).hypot(e.y - turned.y), heading)
+                })
+                .collect();
             let shown: Vec<(IntegrityState, f64, f64)> = seen
                 .iter()
                 .map(|(s, off, deg)| (*s, (100.0 * off).round(), (10.0 * deg).round() / 10.0))
