@@ -23,7 +23,10 @@
 //!   wrong place, say a corridor a few metres off, explains most of the scan, but persistently
 //!   less than where it is right; a scan or two full of people do not move the median);
 //! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
-//!   `tracking_ratio` × level;
+//!   `tracking_ratio` × level, or when the median of the `window` updates since the state last
+//!   changed is at that bar (a filter back at the robot where people or clutter take a scan or
+//!   two below the bar now and then: the run alone held it `lost` for 26 scans, 1–9 cm from the
+//!   reference, on a development log);
 //! - `Lost` also when the filter found a place that explains the scan far better than the
 //!   estimate ([`Monitor::declare_lost`]).
 //!
@@ -523,6 +526,7 @@ impl Monitor {
         self.ambiguous = ambiguous;
         if ambiguous && self.state == IntegrityState::Tracking {
             self.state = IntegrityState::Uncertain;
+            self.recent.clear();
         }
         if let Some(last) = &mut self.last {
             last.state = self.state;
@@ -539,6 +543,7 @@ impl Monitor {
     /// the scan far better): `Lost` now, and `recover` good updates in a row to track again.
     pub fn declare_lost(&mut self) {
         self.state = IntegrityState::Lost;
+        self.recent.clear();
         self.held = 0;
         self.ambiguous = false;
         self.below_lost = self.params.confirm;
@@ -576,6 +581,9 @@ impl Monitor {
         self.below_uncertain = u32::from(median < p.uncertain_ratio);
         let run = self.above_tracking;
         self.above_tracking = if ratio >= p.tracking_ratio { run + 1 } else { 0 };
+        // A full window whose median is at the tracking bar: the scans at the estimate are
+        // explained as where it is tracked, but for one or two (people walking by).
+        let settled = self.recent.len() >= p.window && median >= p.tracking_ratio;
         let before = self.state;
         let held = self.held > 0;
         self.held = self.held.saturating_sub(1);
@@ -585,14 +593,17 @@ impl Monitor {
                 IntegrityState::Uncertain
             }
             IntegrityState::Uncertain | IntegrityState::Lost
-                if self.above_tracking >= p.recover && !self.ambiguous =>
+                if (self.above_tracking >= p.recover || settled) && !self.ambiguous =>
             {
                 IntegrityState::Tracking
             }
             s => s,
         };
-        // Back to tracking: the median starts again from the good updates, not the bad ones.
-        if before != IntegrityState::Tracking && self.state == IntegrityState::Tracking {
+        // The window holds the judgements since the state last changed: back to tracking, the
+        // median starts again from the good updates, not the bad ones; out of it, the median
+        // that would bring it back is of the scans since (those before were of an estimate now
+        // in doubt, or re-seeded away).
+        if before != self.state {
             self.recent.clear();
             self.recent.push_back(ratio);
         }
@@ -740,6 +751,32 @@ mod tests {
         assert_eq!(turned, Some(3), "the median of 5 turns at the third");
         for _ in 0..20 {
             assert_eq!(m.observe(&one(mid)).state, IntegrityState::Uncertain);
+        }
+    }
+
+    #[test]
+    fn a_window_at_the_tracking_bar_since_a_loss_tracks_though_scans_dip_below_it() {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..10 {
+            m.observe(&one(0.9));
+        }
+        let level = m.last().unwrap().level;
+        m.observe(&one(0.1));
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Lost);
+        // Back at the robot among people: every other scan below the uncertain bar, so never
+        // `recover` good ones in a row. The window since the loss (its first scan the lost one)
+        // is not at the bar until the lost scan has left it and three of five are.
+        let (good, dip) = (level * (p.tracking_ratio + 0.02), level * (p.uncertain_ratio - 0.05));
+        for share in [good, dip, good, dip] {
+            assert_eq!(m.observe(&one(share)).state, IntegrityState::Lost);
+        }
+        assert_eq!(m.observe(&one(good)).state, IntegrityState::Tracking);
+        // A window mostly below the bar does not: lost again, then two of five good.
+        m.observe(&one(0.1));
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Lost);
+        for share in [good, dip, dip, good, dip, dip, good, dip, dip] {
+            assert_eq!(m.observe(&one(share)).state, IntegrityState::Lost);
         }
     }
 
