@@ -25,8 +25,8 @@
 //! - `Uncertain`/`Lost` → `Tracking` after `recover` updates in a row at or above
 //!   `tracking_ratio` × level, or when the median of the `window` updates since the state last
 //!   changed is at that bar (a filter back at the robot where people or clutter take a scan or
-//!   two below the bar now and then: the run alone held it `lost` for 26 scans, 1–9 cm from the
-//!   reference, on a development log);
+//!   two below the bar now and then: the run alone held it `lost` for 26 scans, within 0.2 m
+//!   of the reference, on a development log);
 //! - `Lost` also when the filter found a place that explains the scan far better than the
 //!   estimate ([`Monitor::declare_lost`]).
 //!
