@@ -103,7 +103,7 @@ pub struct IntegrityParams {
     /// facing open space sees one or two returns, and their share says nothing.
     pub min_points: usize,
     /// A scan's level never falls below this (a filter that starts lost must not learn a low
-    /// level), share.
+    /// level), share; above 0 (the level divides the scan's share).
     pub floor: f64,
     /// Where the level of every range band starts, share.
     pub initial_level: f64,
@@ -231,8 +231,12 @@ impl IntegrityParams {
                 self.min_points, self.max_points
             ));
         }
+        // The level is a divisor ([`Monitor::observe`]): never below `floor`, which must be
+        // above 0.
+        if !(self.floor.is_finite() && self.floor > 0.0 && self.floor <= 1.0) {
+            return Err(format!("floor must be within 0 < floor <= 1 (got {})", self.floor));
+        }
         for (name, v) in [
-            ("floor", self.floor),
             ("initial_level", self.initial_level),
             ("level_alpha", self.level_alpha),
             ("reseed_share", self.reseed_share),
@@ -718,6 +722,15 @@ mod tests {
     #[test]
     fn shipped_defaults_are_consistent() {
         IntegrityParams::default().check().unwrap();
+    }
+
+    #[test]
+    fn a_floor_of_zero_is_refused_with_the_reason() {
+        for floor in [0.0, -0.1, 1.5, f64::NAN] {
+            let e = IntegrityParams { floor, ..IntegrityParams::default() }.check().unwrap_err();
+            assert!(e.contains("floor must be within 0 < floor <= 1"), "{floor}: {e}");
+        }
+        IntegrityParams { floor: 1.0, ..IntegrityParams::default() }.check().unwrap();
     }
 
     #[test]
