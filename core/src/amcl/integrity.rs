@@ -719,6 +719,18 @@ mod tests {
         Judged::in_one_band(1000, (share.clamp(0.0, 1.0) * 1000.0).round() as u32)
     }
 
+    /// A monitor with the shipped settings after ten scans explained at 0.9 (`Tracking`), its
+    /// settings and its level.
+    fn tracking_at_0_9() -> (IntegrityParams, Monitor, f64) {
+        let p = IntegrityParams::default();
+        let mut m = Monitor::new(p);
+        for _ in 0..10 {
+            m.observe(&one(0.9));
+        }
+        let level = m.last().map_or(f64::NAN, |i| i.level);
+        (p, m, level)
+    }
+
     #[test]
     fn shipped_defaults_are_consistent() {
         IntegrityParams::default().check().unwrap();
@@ -769,12 +781,7 @@ mod tests {
 
     #[test]
     fn a_window_at_the_tracking_bar_since_a_loss_tracks_though_scans_dip_below_it() {
-        let p = IntegrityParams::default();
-        let mut m = Monitor::new(p);
-        for _ in 0..10 {
-            m.observe(&one(0.9));
-        }
-        let level = m.last().unwrap().level;
+        let (p, mut m, level) = tracking_at_0_9();
         m.observe(&one(0.1));
         assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Lost);
         // Back at the robot among people: every other scan below the uncertain bar, so never
@@ -849,12 +856,7 @@ mod tests {
 
     #[test]
     fn a_unique_estimate_between_the_bars_tracks_after_a_run_of_vouched_updates() {
-        let p = IntegrityParams::default();
-        let mut m = Monitor::new(p);
-        for _ in 0..10 {
-            m.observe(&one(0.9));
-        }
-        let level = m.last().unwrap().level;
+        let (p, mut m, level) = tracking_at_0_9();
         m.declare_lost();
         let between = level * (p.uncertain_ratio + p.tracking_ratio) / 2.0;
         // Between the bars, unvouched: lost however long it lasts.
