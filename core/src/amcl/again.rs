@@ -40,7 +40,7 @@ impl Amcl {
             (None, true) => verify_bar,
             (None, false) => return Again::Places(Vec::new()),
         };
-        let (found, complete) = self.scored_places(points, bar);
+        let (found, complete) = self.scored_places(points, bar, self.last_odom);
         if verifiable
             && complete
             && let Some(at) = estimate
@@ -68,19 +68,64 @@ impl Amcl {
     /// The places the exhaustive search of the map ([`places::PlaceSearch`]) finds for this scan
     /// whose endpoints it counts as explained at `need` of them, each climbed to its optimum,
     /// with the share of the scan the integrity measure (judged as the estimate is) finds there,
-    /// kept if at least `need`; the best the search found first. And whether the search looked
-    /// at the whole map (it stops at a budget).
-    pub(super) fn scored_places(&mut self, points: &[[f64; 2]], need: f64) -> (Vec<(Se2, f64)>, bool) {
+    /// kept if at least `need`; the best first. And whether the search looked at the whole map
+    /// (it stops at `search_budget`).
+    ///
+    /// Where it stopped, and with `near` (the odometry now) and an anchor
+    /// ([`Amcl::near_centre`]), the square of `near_search_m` around the anchor is searched to
+    /// the end as well, and its places (those not found already) join the others: on a large map
+    /// (an outdoor campus) the whole map's search at the low bar of a scan explained poorly stops
+    /// at its budget without having reached the robot, and a filter carried off its robot by a
+    /// slip, a push or a missed turn has its robot near. Where the whole map was searched, the
+    /// square adds nothing it could find.
+    pub(super) fn scored_places(
+        &mut self,
+        points: &[[f64; 2]],
+        need: f64,
+        near: Option<Se2>,
+    ) -> (Vec<(Se2, f64)>, bool) {
+        let (mut found, complete) = self.scored_in(points, need, None);
+        if complete {
+            return (found, true);
+        }
+        if let Some(window) = near.and_then(|odom| self.near_centre(odom)) {
+            let (near, _) = self.scored_in(points, need, Some(window));
+            for (q, share) in near {
+                if !found.iter().any(|(f, _)| rivals::same_place(f, &q)) {
+                    found.push((q, share));
+                }
+            }
+            found.sort_by(|a, b| b.1.total_cmp(&a.1));
+        }
+        (found, false)
+    }
+
+    /// The square the search looks in as well: `near_search_m` around the anchor (the pose of
+    /// the last scan judged while tracking) carried on by the odometry to `odom`.
+    fn near_centre(&self, odom: Se2) -> Option<([f64; 2], f64)> {
+        let r = self.monitor.params().near_search_m;
+        let (pose, at) = self.anchor?;
+        let now = pose * (at.inverse() * odom);
+        (r > 0.0).then_some(([now.x, now.y], r))
+    }
+
+    /// [`Self::scored_places`] within `window` (centre, half side), or the whole map.
+    fn scored_in(
+        &mut self,
+        points: &[[f64; 2]],
+        need: f64,
+        window: Option<([f64; 2], f64)>,
+    ) -> (Vec<(Se2, f64)>, bool) {
         let p = *self.monitor.params();
         let field = Arc::clone(&self.field);
         let beams = subsample(points, self.params.max_beams.usize());
-        let (found, cost) = field.place_search().search(
-            &beams,
-            need,
-            SEARCHED_PLACES * 4,
-            places::PLACES_APART,
-            places::SEARCH_BUDGET,
-        );
+        let (max, apart) = (SEARCHED_PLACES * 4, places::PLACES_APART);
+        let search = field.place_search();
+        // The square has a budget of its own: it is searched because the whole map's ran out.
+        let (found, cost) = match window {
+            Some(w) => search.search_near(&beams, need, max, apart, places::SEARCH_BUDGET, w),
+            None => search.search(&beams, need, max, apart, p.search_budget),
+        };
         let fixed = FixedPoints::new(&beams);
         let judged = subsample(points, p.max_points);
         let scored = found

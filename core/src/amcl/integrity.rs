@@ -140,6 +140,17 @@ pub struct IntegrityParams {
     /// (clutter, a half view), and uniform draws rarely reach a place on a large map. 0: searched
     /// only on turning lost.
     pub search_again_every: u32,
+    /// The search of the whole map (`place_search`) counts at most this many squares: it bounds
+    /// what the update that searches costs (36-512 ms for the whole search on the real logs'
+    /// maps, docs/results.md). A search stopped by it returns what it found so far.
+    pub search_budget: u64,
+    /// Where the search of the whole map stops at `search_budget` (a large map, a scan explained
+    /// so poorly that the bar is low and little is pruned), the square within this distance (m,
+    /// along each axis of the map) of the last pose the filter held while tracking, carried on by
+    /// the odometry since, is searched as well, to the end, and its places join those found: a
+    /// robot that slipped, was pushed or was carried a few metres is near where it was believed.
+    /// 0: not searched.
+    pub near_search_m: f64,
     /// The search made again while lost also checks the estimate: if the estimate is among the
     /// places it finds, explains the scan at least as a tracked place does at the lowest level
     /// (`tracking_ratio` × `floor`), and no place elsewhere explains it within this share of
@@ -204,6 +215,8 @@ impl Default for IntegrityParams {
             alternative_draws: 100,
             place_search: true,
             search_again_every: 5,
+            search_budget: super::places::SEARCH_BUDGET,
+            near_search_m: 8.0,
             verify_margin: 0.0,
             reseed_candidates: 200,
             reseed_max_particles: 500,
@@ -247,6 +260,12 @@ impl IntegrityParams {
             if !share(v) {
                 return Err(format!("{name} must be within 0..=1 (got {v})"));
             }
+        }
+        if self.search_budget == 0 {
+            return Err("search_budget must be > 0".to_owned());
+        }
+        if !(self.near_search_m.is_finite() && self.near_search_m >= 0.0) {
+            return Err(format!("near_search_m must be >= 0 (got {})", self.near_search_m));
         }
         if !(self.lost_ratio > 0.0
             && self.lost_ratio < self.uncertain_ratio
@@ -743,6 +762,17 @@ mod tests {
             assert!(e.contains("floor must be within 0 < floor <= 1"), "{floor}: {e}");
         }
         IntegrityParams { floor: 1.0, ..IntegrityParams::default() }.check().unwrap();
+    }
+
+    #[test]
+    fn a_search_without_budget_or_with_a_negative_square_is_refused() {
+        let e = IntegrityParams { search_budget: 0, ..IntegrityParams::default() }.check().unwrap_err();
+        assert!(e.contains("search_budget must be > 0"), "{e}");
+        for near_search_m in [-1.0, f64::NAN, f64::INFINITY] {
+            let e = IntegrityParams { near_search_m, ..IntegrityParams::default() }.check().unwrap_err();
+            assert!(e.contains("near_search_m must be >= 0"), "{near_search_m}: {e}");
+        }
+        IntegrityParams { near_search_m: 0.0, ..IntegrityParams::default() }.check().unwrap();
     }
 
     #[test]

@@ -103,6 +103,10 @@ pub struct Amcl {
     /// estimate but less than a tracked place does: the filter is held, and they are judged on the
     /// next scan before it turns lost ([`Amcl::doubt_loss`]).
     unconfirmed: Vec<rivals::Rival>,
+    /// The pose judged on the last scan the filter was `tracking` on, and the odometry then: where
+    /// a search of the whole map stops at its budget, the square around it, carried on by the
+    /// odometry, is searched too (`near_search_m`).
+    anchor: Option<(Se2, Se2)>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -161,6 +165,7 @@ impl Amcl {
             turning_places: None,
             holds: 0,
             unconfirmed: Vec::new(),
+            anchor: None,
         }
     }
 
@@ -226,6 +231,7 @@ impl Amcl {
     /// the next odometry pose as the reference, with no motion step from the old frame to the new.
     pub fn odometry_restarted(&mut self) {
         self.last_odom = None;
+        self.anchor = None;
     }
 
     fn max(&self) -> usize {
@@ -262,6 +268,7 @@ impl Amcl {
         self.twins = false;
         self.left = None;
         self.holds = 0;
+        self.anchor = None;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -282,6 +289,7 @@ impl Amcl {
         self.twins = false;
         self.left = None;
         self.holds = 0;
+        self.anchor = None;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -510,6 +518,9 @@ impl Amcl {
     fn observe(&mut self, judgement: &integrity::Judged, odom: Se2, points: &[[f64; 2]]) {
         self.unjudged = 0;
         let before = self.monitor.state();
+        if before == IntegrityState::Tracking {
+            self.anchor = self.pose_at(&odom).map(|pose| (pose, odom));
+        }
         self.monitor.observe(judgement);
         self.doubt_loss(before, odom, points);
     }
@@ -586,7 +597,7 @@ impl Amcl {
             self.monitor.hold(hold);
             return;
         };
-        let (found, complete) = self.scored_places(points, need);
+        let (found, complete) = self.scored_places(points, need, Some(odom));
         let tracked = self.monitor.last().map_or(1.0, |i| p.tracking_ratio * i.level);
         if self.corrected_in_place(odom, &found, tracked) {
             self.monitor.hold(0);
@@ -764,9 +775,15 @@ impl Amcl {
     /// The places the exhaustive search of the map ([`places::PlaceSearch`]) finds for this scan
     /// whose endpoints it counts as explained at `need` of them, each climbed to its optimum and
     /// kept if the integrity measure, judged as the estimate was, finds `need` there: at most
-    /// [`SEARCHED_PLACES`], the best first.
+    /// [`SEARCHED_PLACES`], the best first (and the square around the anchor, if the search of
+    /// the whole map stopped at its budget: [`Self::scored_places`]).
     fn searched_places(&mut self, points: &[[f64; 2]], need: f64) -> Vec<Se2> {
-        self.scored_places(points, need).0.into_iter().map(|(q, _)| q).take(SEARCHED_PLACES).collect()
+        self.scored_places(points, need, self.last_odom)
+            .0
+            .into_iter()
+            .map(|(q, _)| q)
+            .take(SEARCHED_PLACES)
+            .collect()
     }
 
     /// The share of the scan a replacement (a re-seeded particle) must explain: clearly more than

@@ -127,13 +127,60 @@ impl PlaceSearch {
         apart: (f64, f64),
         budget: u64,
     ) -> (Vec<Place>, SearchCost) {
+        self.search_in(self.bounds, points, min_share, max_places, apart, budget)
+    }
+
+    /// As [`Self::search`], over the robot positions within `half_side_m` of `centre` (a point
+    /// of the world) along each axis of the map's grid: a square of the map around a pose, the
+    /// first place to look for a robot that was there.
+    #[must_use]
+    pub fn search_near(
+        &self,
+        points: &[[f64; 2]],
+        min_share: f64,
+        max_places: usize,
+        apart: (f64, f64),
+        budget: u64,
+        (centre, half_side_m): ([f64; 2], f64),
+    ) -> (Vec<Place>, SearchCost) {
+        self.search_in(self.window(centre, half_side_m), points, min_share, max_places, apart, budget)
+    }
+
+    /// The blocks of `bounds` within `half_side_m` of `centre` along each axis of the grid; `None`
+    /// where they hold no free block's bounds, or the window is no number.
+    fn window(&self, centre: [f64; 2], half_side_m: f64) -> Option<(usize, usize, usize, usize)> {
+        let (x0, y0, x1, y1) = self.bounds?;
+        let m = self.map_to_world.inverse().transform_point(centre);
+        let (lo_x, lo_y) = ((m[0] - half_side_m) / self.block_m, (m[1] - half_side_m) / self.block_m);
+        let (hi_x, hi_y) = ((m[0] + half_side_m) / self.block_m, (m[1] + half_side_m) / self.block_m);
+        if ![lo_x, lo_y, hi_x, hi_y].iter().all(|v| v.is_finite()) || half_side_m < 0.0 {
+            return None;
+        }
+        // Clamped to the free blocks' bounds before the cast: a window far off the map is empty.
+        let clamp = |v: f64, lo: usize, hi: usize| v.floor().clamp(lo as f64, hi as f64) as usize;
+        let (wx0, wx1) = (clamp(lo_x, x0, x1), clamp(hi_x, x0, x1));
+        let (wy0, wy1) = (clamp(lo_y, y0, y1), clamp(hi_y, y0, y1));
+        let inside =
+            hi_x >= x0 as f64 && lo_x <= x1 as f64 + 1.0 && hi_y >= y0 as f64 && lo_y <= y1 as f64 + 1.0;
+        inside.then_some((wx0, wy0, wx1, wy1))
+    }
+
+    fn search_in(
+        &self,
+        bounds: Option<(usize, usize, usize, usize)>,
+        points: &[[f64; 2]],
+        min_share: f64,
+        max_places: usize,
+        apart: (f64, f64),
+        budget: u64,
+    ) -> (Vec<Place>, SearchCost) {
         let mut cost = SearchCost::default();
         // Endpoints that are no place (not finite) are left out.
         let finite: Vec<[f64; 2]> =
             points.iter().filter(|p| p[0].is_finite() && p[1].is_finite()).copied().collect();
         let points = &finite[..];
         let n = points.len();
-        let Some((x0, y0, x1, y1)) = self.bounds else { return (Vec::new(), cost) };
+        let Some((x0, y0, x1, y1)) = bounds else { return (Vec::new(), cost) };
         if n == 0 || max_places == 0 || !(min_share.is_finite()) {
             return (Vec::new(), cost);
         }
@@ -368,6 +415,36 @@ mod tests {
             assert!(m < 0.05 && rad < 0.01, "climbed to {m} m, {rad} rad off");
             eprintln!("truth {truth:?}: rank {at} of {}, {} squares", places.len(), cost.squares);
         }
+    }
+
+    /// A search near a pose finds the robot there, with fewer squares counted than the whole map
+    /// takes, and only places within its square; one around a pose 10 m away does not find it.
+    #[test]
+    fn a_search_near_a_pose_finds_only_what_is_near() {
+        let g = rooms();
+        let search = PlaceSearch::new(&field(&g));
+        let truth = g.origin * Se2::new(23.1, 7.6, -2.6);
+        let points = scan(&g, &truth, 90);
+        let within = |q: &Se2, at: &Se2, r: f64| {
+            let (a, b) = (g.origin.inverse() * *q, g.origin.inverse() * *at);
+            (a.x - b.x).abs() <= r + 0.1 && (a.y - b.y).abs() <= r + 0.1
+        };
+        let (all, whole) = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX);
+        let carried_off = truth * Se2::new(2.0, -3.0, 1.0);
+        let centre = [carried_off.x, carried_off.y];
+        let (near, cost) = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, (centre, 5.0));
+        assert!(!cost.cut && cost.squares < whole.squares, "{cost:?} against {whole:?}");
+        let at =
+            |places: &[Place]| places.iter().any(|q| (truth.inverse() * q.pose).translation_norm() < 0.4);
+        assert!(at(&all) && at(&near), "near {near:?}");
+        assert!(near.iter().all(|q| within(&q.pose, &carried_off, 5.0)), "{near:?}");
+        let away = g.origin * Se2::new(10.0, 16.0, 0.0);
+        let (far, _) = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([away.x, away.y], 3.0));
+        assert!(!at(&far) && far.iter().all(|q| within(&q.pose, &away, 3.0)), "{far:?}");
+        // A window off the map, or no number, holds nothing.
+        let off_map = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([500.0, -400.0], 5.0));
+        let nan = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([f64::NAN, 0.0], 5.0));
+        assert!(off_map.0.is_empty() && nan.0.is_empty() && nan.1.squares == 0);
     }
 
     /// The bound prunes nothing it should not: on a small map every block and heading whose count
