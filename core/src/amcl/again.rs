@@ -122,10 +122,8 @@ impl Amcl {
         let (max, apart) = (SEARCHED_PLACES * 4, places::PLACES_APART);
         let search = field.place_search();
         // The square has a budget of its own: it is searched because the whole map's ran out.
-        let (found, cost) = match window {
-            Some(w) => search.search_near(&beams, need, max, apart, places::SEARCH_BUDGET, w),
-            None => search.search(&beams, need, max, apart, p.search_budget),
-        };
+        let budget = if window.is_some() { places::SEARCH_BUDGET } else { p.search_budget };
+        let (found, cost) = search.search(&beams, need, max, apart, budget, window);
         let fixed = FixedPoints::new(&beams);
         let judged = subsample(points, p.max_points);
         let scored = found

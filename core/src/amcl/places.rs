@@ -117,7 +117,8 @@ impl PlaceSearch {
     /// endpoints in the robot's frame) land in near blocks, standing in a free block: at most
     /// `max_places`, the best first, each at least `apart_m` or `apart_rad` from those before it.
     /// At most `budget` squares are counted (the search then returns what it found so far, and
-    /// says so).
+    /// says so). The whole map, or `within` a square: the robot positions within `half_side_m`
+    /// of `centre` (a point of the world) along each axis of the map's grid.
     #[must_use]
     pub fn search(
         &self,
@@ -126,24 +127,13 @@ impl PlaceSearch {
         max_places: usize,
         apart: (f64, f64),
         budget: u64,
+        within: Option<([f64; 2], f64)>,
     ) -> (Vec<Place>, SearchCost) {
-        self.search_in(self.bounds, points, min_share, max_places, apart, budget)
-    }
-
-    /// As [`Self::search`], over the robot positions within `half_side_m` of `centre` (a point
-    /// of the world) along each axis of the map's grid: a square of the map around a pose, the
-    /// first place to look for a robot that was there.
-    #[must_use]
-    pub fn search_near(
-        &self,
-        points: &[[f64; 2]],
-        min_share: f64,
-        max_places: usize,
-        apart: (f64, f64),
-        budget: u64,
-        (centre, half_side_m): ([f64; 2], f64),
-    ) -> (Vec<Place>, SearchCost) {
-        self.search_in(self.window(centre, half_side_m), points, min_share, max_places, apart, budget)
+        let bounds = match within {
+            None => self.bounds,
+            Some((centre, half_side_m)) => self.window(centre, half_side_m),
+        };
+        self.search_in(bounds, points, min_share, max_places, apart, budget)
     }
 
     /// The blocks of `bounds` within `half_side_m` of `centre` along each axis of the grid; `None`
@@ -398,7 +388,7 @@ mod tests {
             let truth = g.origin * in_map;
             let points = scan(&g, &truth, 90);
             assert!(points.len() > 60, "{}", points.len());
-            let (places, cost) = search.search(&points, 0.9, 20, (1.0, 0.35), u64::MAX);
+            let (places, cost) = search.search(&points, 0.9, 20, (1.0, 0.35), u64::MAX, None);
             assert!(!cost.cut);
             // Found to the search's grain (blocks, and endpoints counted within `NEAR_M`: the
             // count is level over a few blocks around the truth) ...
@@ -417,10 +407,10 @@ mod tests {
         }
     }
 
-    /// A search near a pose finds the robot there, with fewer squares counted than the whole map
-    /// takes, and only places within its square; one around a pose 10 m away does not find it.
+    /// A search within a square around a pose finds the robot there, with fewer squares counted than
+    /// the whole map takes, and only places within the square; one around a pose 10 m away does not.
     #[test]
-    fn a_search_near_a_pose_finds_only_what_is_near() {
+    fn a_search_within_a_square_finds_only_what_is_in_it() {
         let g = rooms();
         let search = PlaceSearch::new(&field(&g));
         let truth = g.origin * Se2::new(23.1, 7.6, -2.6);
@@ -429,21 +419,21 @@ mod tests {
             let (a, b) = (g.origin.inverse() * *q, g.origin.inverse() * *at);
             (a.x - b.x).abs() <= r + 0.1 && (a.y - b.y).abs() <= r + 0.1
         };
-        let (all, whole) = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX);
+        let (all, whole) = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX, None);
         let carried_off = truth * Se2::new(2.0, -3.0, 1.0);
         let centre = [carried_off.x, carried_off.y];
-        let (near, cost) = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, (centre, 5.0));
+        let (near, cost) = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX, Some((centre, 5.0)));
         assert!(!cost.cut && cost.squares < whole.squares, "{cost:?} against {whole:?}");
         let at =
             |places: &[Place]| places.iter().any(|q| (truth.inverse() * q.pose).translation_norm() < 0.4);
         assert!(at(&all) && at(&near), "near {near:?}");
         assert!(near.iter().all(|q| within(&q.pose, &carried_off, 5.0)), "{near:?}");
         let away = g.origin * Se2::new(10.0, 16.0, 0.0);
-        let (far, _) = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([away.x, away.y], 3.0));
+        let (far, _) = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX, Some(([away.x, away.y], 3.0)));
         assert!(!at(&far) && far.iter().all(|q| within(&q.pose, &away, 3.0)), "{far:?}");
         // A window off the map, or no number, holds nothing.
-        let off_map = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([500.0, -400.0], 5.0));
-        let nan = search.search_near(&points, 0.6, 20, (1.0, 0.35), u64::MAX, ([f64::NAN, 0.0], 5.0));
+        let off_map = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX, Some(([500.0, -400.0], 5.0)));
+        let nan = search.search(&points, 0.6, 20, (1.0, 0.35), u64::MAX, Some(([f64::NAN, 0.0], 5.0)));
         assert!(off_map.0.is_empty() && nan.0.is_empty() && nan.1.squares == 0);
     }
 
@@ -457,7 +447,7 @@ mod tests {
         let search = PlaceSearch::new(&f);
         let truth = g.origin * Se2::new(27.3, 1.1, 2.2);
         let points = scan(&g, &truth, 40);
-        let (places, cost) = search.search(&points, 0.7, usize::MAX, (0.0, 0.0), u64::MAX);
+        let (places, cost) = search.search(&points, 0.7, usize::MAX, (0.0, 0.0), u64::MAX, None);
         // Every block and heading counted directly.
         let n = points.len();
         let need = (0.7 * n as f64).ceil() as usize;
@@ -498,13 +488,13 @@ mod tests {
         let g = rooms();
         let search = PlaceSearch::new(&field(&g));
         let points = scan(&g, &(g.origin * Se2::new(5.0, 10.0, 0.3)), 60);
-        let (_, cost) = search.search(&points, 0.8, 10, (1.0, 0.35), 1_000);
+        let (_, cost) = search.search(&points, 0.8, 10, (1.0, 0.35), 1_000, None);
         assert!(cost.cut && cost.squares == 1_000, "{cost:?}");
-        assert!(search.search(&[], 0.8, 10, (1.0, 0.35), u64::MAX).0.is_empty());
-        assert!(search.search(&points, f64::NAN, 10, (1.0, 0.35), u64::MAX).0.is_empty());
+        assert!(search.search(&[], 0.8, 10, (1.0, 0.35), u64::MAX, None).0.is_empty());
+        assert!(search.search(&points, f64::NAN, 10, (1.0, 0.35), u64::MAX, None).0.is_empty());
         // Endpoints that are no place, or far off any map, are not a reason to fail.
         let odd = [[f64::NAN, 1.0], [f64::INFINITY, 0.0], [1e300, -1e300], [3.0, 4.0], [-2.0, 0.5]];
-        let (_, cost) = search.search(&odd, 0.5, 10, (1.0, 0.35), 100_000);
+        let (_, cost) = search.search(&odd, 0.5, 10, (1.0, 0.35), 100_000, None);
         assert!(cost.squares > 0);
     }
 }

@@ -104,7 +104,7 @@ impl PlaceSearchCost {
         let build_s = t.elapsed().as_secs_f64();
         let beams = amr_core::amcl::subsample(points, params.max_beams.usize());
         let bar = params.integrity.tracking_ratio * params.integrity.initial_level;
-        let go = || search.search(&beams, bar, 32, places::PLACES_APART, places::SEARCH_BUDGET);
+        let go = || search.search(&beams, bar, 32, places::PLACES_APART, places::SEARCH_BUDGET, None);
         let (found, cost) = go();
         let timing = time(runs, go);
         let reference_rank = found.iter().position(|q| {
