@@ -72,8 +72,8 @@ impl Amcl {
     /// (it stops at `search_budget`).
     ///
     /// Where it stopped, and with `near` (the odometry now) and an anchor
-    /// ([`Amcl::near_centre`]), the square of `near_search_m` around the anchor is searched to
-    /// the end as well, and its places (those not found already) join the others: on a large map
+    /// ([`Amcl::near_centre`]), the square of `near_search_m` around the anchor is searched as
+    /// well (a budget of its own), and its places (those not found already) join the others: on a large map
     /// (an outdoor campus) the whole map's search at the low bar of a scan explained poorly stops
     /// at its budget without having reached the robot, and a filter carried off its robot by a
     /// slip, a push or a missed turn has its robot near. Where the whole map was searched, the

@@ -258,7 +258,7 @@ fn a_robot_kidnapped_on_a_large_site_is_found_again() {
 /// a scan explained poorly asks little and prunes little: freiburg-campus, a real log kept out of
 /// tuning, stops at the shipped 4 million) finds the robot all the same when it was carried no
 /// further than `near_search_m` from where it was tracked: the square around that place is
-/// searched to the end. On every seed of four: `Lost` at the 2nd update, within 0.3 m and 10°
+/// searched with a budget of its own. On every seed of four: `Lost` at the 2nd update, within 0.3 m and 10°
 /// from the 3rd (measured: `tracking` from the 5th, 16th, 12th and 5th, never off the robot).
 /// Without the square, the same budget leaves the filter to uniform draws: back within 10
 /// updates on none of the four (measured: seed 2 from the 20th, the others in none of the 40).
