@@ -147,9 +147,9 @@ pub struct IntegrityParams {
     /// Where the search of the whole map stops at `search_budget` (a large map, a scan explained
     /// so poorly that the bar is low and little is pruned), the square within this distance (m,
     /// along each axis of the map) of the last pose the filter held while tracking, carried on by
-    /// the odometry since, is searched as well, with a budget of its own (`places::SEARCH_BUDGET`), and its places join
-    /// those found: a
-    /// robot that slipped, was pushed or was carried a few metres is near where it was believed.
+    /// the odometry since, is searched as well, with a budget of its own
+    /// (`places::SEARCH_BUDGET`), and its places join those found: a robot that slipped, was
+    /// pushed or was carried a few metres is near where it was believed.
     /// 0: not searched.
     pub near_search_m: f64,
     /// The search made again while lost also checks the estimate: if the estimate is among the
