@@ -417,7 +417,21 @@ pub(crate) enum BenchCommand {
         /// drawn from the seed): whether the filter reports `Lost` and tracks again.
         #[arg(long, value_name = "N")]
         kidnap: Option<usize>,
+        /// Which runs to make of each log and seed (the kidnapped ones need `--kidnap N`).
+        #[arg(long, value_enum, value_delimiter = ',', default_values_t = [RunKind::Tracking, RunKind::Global, RunKind::Kidnapped])]
+        runs: Vec<RunKind>,
     },
+}
+
+/// A run of `amr bench localize`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum RunKind {
+    /// From the first reference pose.
+    Tracking,
+    /// With no initial pose.
+    Global,
+    /// From the first reference pose, the odometry teleported every `--kidnap` scans.
+    Kidnapped,
 }
 
 #[derive(Debug, clap::Args)]

@@ -169,11 +169,21 @@ fn bench_command(command: BenchCommand) -> anyhow::Result<()> {
             |c, quick| amr_lab::bench::run(&c.vamr, quick),
             amr_lab::bench::markdown,
         ),
-        BenchCommand::Localize { logs, only, seeds, nav2, params, config, json, kidnap } => {
+        BenchCommand::Localize { logs, only, seeds, nav2, params, config, json, kidnap, runs } => {
             (|| -> anyhow::Result<()> {
                 let params = localize::load_params(params.as_deref(), config)?;
+                let wants = |k: cli::RunKind| runs.contains(&k);
+                anyhow::ensure!(
+                    kidnap.is_some() || wants(cli::RunKind::Tracking) || wants(cli::RunKind::Global),
+                    "nothing to run: the kidnapped runs need `--kidnap N`"
+                );
+                let runs = amr_lab::bench_localize::Runs {
+                    tracking: wants(cli::RunKind::Tracking),
+                    global: wants(cli::RunKind::Global),
+                    kidnapped: kidnap.filter(|_| wants(cli::RunKind::Kidnapped)),
+                };
                 let report =
-                    amr_lab::bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref(), kidnap)?;
+                    amr_lab::bench_localize::run(&params, &logs, &only, &seeds, nav2.as_deref(), runs)?;
                 let text = if json {
                     serde_json::to_string_pretty(&report)? + "\n"
                 } else {

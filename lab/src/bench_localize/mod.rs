@@ -495,14 +495,26 @@ fn odometry_only(records: &[Record], reference: &[RefPose]) -> Score {
     score(reference, &est)
 }
 
+/// Which runs of each log and seed [`run`] makes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Runs {
+    /// From the first reference pose.
+    pub tracking: bool,
+    /// With no initial pose.
+    pub global: bool,
+    /// With the odometry teleported every N scans, from the first reference pose.
+    pub kidnapped: Option<usize>,
+}
+
 pub fn run(
     params: &AmclParams,
     dir: &Path,
     only: &[String],
     seeds: &[u64],
     nav2_dir: Option<&Path>,
-    kidnap_every: Option<usize>,
+    runs: Runs,
 ) -> anyhow::Result<Report> {
+    let kidnap_every = runs.kidnapped;
     let names = if only.is_empty() { logs_in(dir)? } else { only.to_vec() };
     let mut logs = Vec::new();
     let mut skipped = Vec::new();
@@ -529,12 +541,12 @@ pub fn run(
         }
         tracing::info!(log = %name, scans, "localising");
         let tracked = Start::resolve(Some(first), params);
-        let tracking =
-            seeds.iter().map(|&s| run_once(&grid, &records, params, tracked, s, &reference, &[])).collect();
-        let global = seeds
-            .iter()
-            .map(|&s| run_once(&grid, &records, params, Start::Global, s, &reference, &[]))
-            .collect();
+        let each = |start: Start, on: bool| -> Vec<Run> {
+            let seeds = if on { seeds } else { &[][..] };
+            seeds.iter().map(|&s| run_once(&grid, &records, params, start, s, &reference, &[])).collect()
+        };
+        let tracking = each(tracked, runs.tracking);
+        let global = each(Start::Global, runs.global);
         // The same log with its odometry teleported every `kidnap_every` scans (jumps drawn from
         // the seed), tracked from the first reference pose.
         let mut kidnapped = Vec::new();
