@@ -102,26 +102,30 @@ impl Site {
     }
 }
 
-/// How the robot sees and drives: the sensor's field of view, the distance between scans and the
-/// odometry's noise (a share of each increment, and as much sideways and 0.6× in radians per metre).
+/// How the robot sees and drives: the sensor's field of view, the distance between scans, the
+/// odometry's noise (a share of each increment, and as much sideways and 0.6× in radians per
+/// metre), and how far it is carried when kidnapped (m, the least and the most).
 #[derive(Debug, Clone, Copy)]
 struct View {
     fov_deg: u16,
     step_m: f64,
     odom_noise: f64,
+    carried_m: [f64; 2],
 }
 
-/// 360°, a scan every 0.1 m, the odometry exact.
-const FULL: View = View { fov_deg: 360, step_m: 0.1, odom_noise: 0.0 };
+/// 360°, a scan every 0.1 m, the odometry exact, carried 3–5 m.
+const FULL: View = View { fov_deg: 360, step_m: 0.1, odom_noise: 0.0, carried_m: [3.0, 5.0] };
 /// 180° (the SICKs of the real logs), a scan every 0.3 m, the odometry 3 % off.
-const HALF: View = View { fov_deg: 180, step_m: 0.3, odom_noise: 0.03 };
+const HALF: View = View { fov_deg: 180, step_m: 0.3, odom_noise: 0.03, ..FULL };
+/// As [`FULL`], carried 15–20 m: beyond the square around where it was tracked.
+const FAR: View = View { carried_m: [15.0, 20.0], ..FULL };
 
-/// A start and a destination 3–5 m from it, turned 1–3 rad, each with 4 m to drive clear ahead;
+/// A start and a destination `view.carried_m` from it, turned 1–3 rad, each with 4 m to drive clear ahead;
 /// the start where the map explains most of the scan.
 fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng, view: View) -> (Se2, Se2) {
     loop {
         let start = Se2::new(rng.range(10.0, 90.0), rng.range(10.0, 90.0), rng.range(-PI, PI));
-        let d = rng.range(3.0, 5.0);
+        let d = rng.range(view.carried_m[0], view.carried_m[1]);
         let a = rng.range(-PI, PI);
         let dest = Se2::new(start.x + d * a.cos(), start.y + d * a.sin(), start.theta + rng.range(1.0, 3.0));
         let clear = |p: &Se2| {
@@ -281,6 +285,31 @@ fn a_search_stopped_by_its_budget_finds_the_robot_near_where_it_was_tracked() {
         without_back += usize::from(alone.back.is_some_and(|b| b < 10));
     }
     assert!(without_back <= 1, "without the square, back within 10 updates on {without_back} of 4 seeds");
+}
+
+/// A robot carried 15–20 m, beyond the square around where it was tracked, with the search of
+/// the whole map stopped at its budget (20 000 squares) and not (the shipped 4 million): reported
+/// `lost`, and never `tracking` off the robot after that, on every seed of four; with the search
+/// cut short, `lost` within 3 updates. Measured: cut short, `lost` at the 2nd update on every
+/// seed, back on the robot on seed 2 alone (from the 28th); the whole map searched, `lost` at the
+/// 2nd, 8th, 2nd and 3rd, back on seeds 1 and 2 (from the 9th and 6th). Where the robot is not
+/// found again it stays `lost`: on seed 0 it stands by the site's fence, and a place 28 m along
+/// the fence explains its scans as well (0.63–0.67 each, update after update); the two are
+/// carried as twins, and the filter is never `tracking` at either.
+#[test]
+fn a_robot_carried_beyond_the_square_is_reported_lost() {
+    let s = site(3);
+    let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
+    let mut cut = shipped_params();
+    cut.integrity.search_budget = 20_000;
+    for seed in 0..4 {
+        let short = kidnapped(&s, &field, &cut, seed, FAR);
+        let whole = kidnapped(&s, &field, &shipped_params(), seed, FAR);
+        eprintln!("seed {seed}: the search cut short {short:?}; the whole map {whole:?}");
+        assert!(!short.lost_before && !whole.lost_before, "seed {seed}: lost before the kidnapping");
+        assert!(short.lost.is_some_and(|l| l < 3) && short.tracking_off == 0, "seed {seed}: {short:?}");
+        assert!(whole.lost.is_some_and(|l| l < 10) && whole.tracking_off == 0, "seed {seed}: {whole:?}");
+    }
 }
 
 /// Global localisation (no initial pose) on the same site, the robot driving 2 m: with the place
