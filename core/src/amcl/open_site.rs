@@ -120,8 +120,8 @@ const HALF: View = View { fov_deg: 180, step_m: 0.3, odom_noise: 0.03, ..FULL };
 /// As [`FULL`], carried 15–20 m: beyond the square around where it was tracked.
 const FAR: View = View { carried_m: [15.0, 20.0], ..FULL };
 
-/// A start and a destination `view.carried_m` from it, turned 1–3 rad, each with 4 m to drive clear ahead;
-/// the start where the map explains most of the scan.
+/// A start and a destination `view.carried_m` from it, turned 1–3 rad, each with 4 m to drive
+/// clear ahead; the start where the map explains most of the scan.
 fn start_and_destination(s: &Site, field: &LikelihoodField, rng: &mut Rng, view: View) -> (Se2, Se2) {
     loop {
         let start = Se2::new(rng.range(10.0, 90.0), rng.range(10.0, 90.0), rng.range(-PI, PI));
