@@ -104,21 +104,23 @@ impl Site {
 
 /// How the robot sees and drives: the sensor's field of view, the distance between scans, the
 /// odometry's noise (a share of each increment, and as much sideways and 0.6× in radians per
-/// metre), and how far it is carried when kidnapped (m, the least and the most).
+/// metre), how far it is carried when kidnapped (m, the least and the most) and how far it drives
+/// on after that (m).
 #[derive(Debug, Clone, Copy)]
 struct View {
     fov_deg: u16,
     step_m: f64,
     odom_noise: f64,
     carried_m: [f64; 2],
+    drive_m: f64,
 }
 
-/// 360°, a scan every 0.1 m, the odometry exact, carried 3–5 m.
-const FULL: View = View { fov_deg: 360, step_m: 0.1, odom_noise: 0.0, carried_m: [3.0, 5.0] };
+/// 360°, a scan every 0.1 m, the odometry exact, carried 3–5 m, driving on 4 m.
+const FULL: View = View { fov_deg: 360, step_m: 0.1, odom_noise: 0.0, carried_m: [3.0, 5.0], drive_m: 4.0 };
 /// 180° (the SICKs of the real logs), a scan every 0.3 m, the odometry 3 % off.
 const HALF: View = View { fov_deg: 180, step_m: 0.3, odom_noise: 0.03, ..FULL };
-/// As [`FULL`], carried 15–20 m: beyond the square around where it was tracked.
-const FAR: View = View { carried_m: [15.0, 20.0], ..FULL };
+/// As [`FULL`], carried 15–20 m (beyond the square around where it was tracked), driving on 1.5 m.
+const FAR: View = View { carried_m: [15.0, 20.0], drive_m: 1.5, ..FULL };
 
 /// A start and a destination `view.carried_m` from it, turned 1–3 rad, each with 4 m to drive
 /// clear ahead; the start where the map explains most of the scan.
@@ -162,8 +164,8 @@ struct Outcome {
     tracking_off: usize,
 }
 
-/// The robot tracked along 3 m, then carried 3–5 m off and turned, driving on 4 m; the odometry
-/// sees the driving (with `view`'s noise), not the jump.
+/// The robot tracked along 3 m, then carried `view.carried_m` off and turned, driving on
+/// `view.drive_m`; the odometry sees the driving (with `view`'s noise), not the jump.
 fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: u64, view: View) -> Outcome {
     let mut rng = Rng::seed(100 + seed);
     let mut noise = Rng::seed(900 + seed);
@@ -173,7 +175,7 @@ fn kidnapped(s: &Site, field: &Arc<LikelihoodField>, params: &AmclParams, seed: 
             .map(|k| from * Se2::new(view.step_m * f64::from(k), 0.0, 0.0))
             .collect()
     };
-    let (before, after) = (drive(start, 3.0), drive(dest, 4.0));
+    let (before, after) = (drive(start, 3.0), drive(dest, view.drive_m));
     let mut amcl = Amcl::new(params.clone(), Arc::clone(field), 7 + seed);
     amcl.init_pose(before[0], 0.05, 0.02);
     let mut odom = Se2::new(1.0, 2.0, 0.3);
@@ -289,13 +291,14 @@ fn a_search_stopped_by_its_budget_finds_the_robot_near_where_it_was_tracked() {
 
 /// A robot carried 15–20 m, beyond the square around where it was tracked, with the search of
 /// the whole map stopped at its budget (20 000 squares) and not (the shipped 4 million): reported
-/// `lost`, and never `tracking` off the robot after that, on every seed of four; with the search
-/// cut short, `lost` within 3 updates. Measured: cut short, `lost` at the 2nd update on every
-/// seed, back on the robot on seed 2 alone (from the 28th); the whole map searched, `lost` at the
-/// 2nd, 8th, 2nd and 3rd, back on seeds 1 and 2 (from the 9th and 6th). Where the robot is not
-/// found again it stays `lost`: on seed 0 it stands by the site's fence, and a place 28 m along
-/// the fence explains its scans as well (0.63–0.67 each, update after update); the two are
-/// carried as twins, and the filter is never `tracking` at either.
+/// `lost`, and never `tracking` off the robot after that, over 15 updates on every seed of four;
+/// with the search cut short, `lost` within 3 updates. Measured: cut short, `lost` at the 2nd
+/// update on every seed, back on the robot on none (driven on 4 m, on seed 2 from the 28th
+/// update); the whole map searched, `lost` at the 2nd, 8th, 2nd and 3rd, back on seeds 1 and 2
+/// (from the 9th and 6th). Where the robot is not found again it stays `lost`: on seed 0 it
+/// stands by the site's fence, and a place 28 m along the fence explains its scans as well
+/// (0.63–0.67 each, update after update, over 4 m); the two are carried as twins, and the filter
+/// is never `tracking` at either.
 #[test]
 fn a_robot_carried_beyond_the_square_is_reported_lost() {
     let s = site(3);
