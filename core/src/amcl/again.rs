@@ -84,10 +84,23 @@ impl Amcl {
         need: f64,
         near: Option<Se2>,
     ) -> (Vec<(Se2, f64)>, bool) {
-        let (mut found, complete) = self.scored_in(points, need, None);
-        if complete {
+        let (found, ongoing) = self.scored_in(points, need, None);
+        if ongoing.complete() {
             return (found, true);
         }
+        (self.with_square(found, points, need, near), false)
+    }
+
+    /// `found` (places of a search of the whole map that stopped at its budget) and the places of
+    /// the square around the anchor ([`Self::near_centre`], with `near` the odometry now) not
+    /// found already, the best first.
+    pub(super) fn with_square(
+        &mut self,
+        mut found: Vec<(Se2, f64)>,
+        points: &[[f64; 2]],
+        need: f64,
+        near: Option<Se2>,
+    ) -> Vec<(Se2, f64)> {
         if let Some(window) = near.and_then(|odom| self.near_centre(odom)) {
             let (near, _) = self.scored_in(points, need, Some(window));
             for (q, share) in near {
@@ -97,7 +110,7 @@ impl Amcl {
             }
             found.sort_by(|a, b| b.1.total_cmp(&a.1));
         }
-        (found, false)
+        found
     }
 
     /// The square the search looks in as well: `near_search_m` around the anchor (the pose of
@@ -109,13 +122,14 @@ impl Amcl {
         (r > 0.0).then_some(([now.x, now.y], r))
     }
 
-    /// [`Self::scored_places`] within `window` (centre, half side), or the whole map.
-    fn scored_in(
+    /// [`Self::scored_places`] within `window` (centre, half side), or the whole map; and the
+    /// search, complete or stopped at its budget.
+    pub(super) fn scored_in(
         &mut self,
         points: &[[f64; 2]],
         need: f64,
         window: Option<([f64; 2], f64)>,
-    ) -> (Vec<(Se2, f64)>, bool) {
+    ) -> (Vec<(Se2, f64)>, places::Ongoing) {
         let p = *self.monitor.params();
         let field = Arc::clone(&self.field);
         let beams = subsample(points, self.params.max_beams.usize());
@@ -123,18 +137,36 @@ impl Amcl {
         let search = field.place_search();
         // The square has a budget of its own: it is searched because the whole map's ran out.
         let budget = if window.is_some() { places::SEARCH_BUDGET } else { p.search_budget };
-        let (found, cost) = search.search(&beams, need, max, apart, budget, window);
+        let mut ongoing = match window {
+            Some((centre, half_side_m)) => search.start_within(&beams, need, max, apart, centre, half_side_m),
+            None => search.start(&beams, need, max, apart),
+        };
+        search.carry_on(&mut ongoing, budget);
         let fixed = FixedPoints::new(&beams);
+        let scored = self.scored(&ongoing.places(), &fixed, points, need);
+        (scored, ongoing)
+    }
+
+    /// `found` (places of a scan whose beams are `beams`) climbed to their optimum for that scan,
+    /// with the share of `points` (the scan) the integrity measure finds there, kept if at least
+    /// `need`.
+    pub(super) fn scored(
+        &self,
+        found: &[places::Place],
+        beams: &FixedPoints,
+        points: &[[f64; 2]],
+        need: f64,
+    ) -> Vec<(Se2, f64)> {
+        let p = self.monitor.params();
         let judged = subsample(points, p.max_points);
-        let scored = found
-            .into_iter()
-            .map(|q| refine(&field, &fixed, q.pose))
+        found
+            .iter()
+            .map(|q| refine(&self.field, beams, q.pose))
             .map(|pose| {
-                let share = integrity::explained_share(&field, &pose, &judged, self.sensor_origin, &p);
+                let share = integrity::explained_share(&self.field, &pose, &judged, self.sensor_origin, p);
                 (pose, share.unwrap_or(0.0))
             })
             .filter(|(_, share)| *share >= need)
-            .collect();
-        (scored, !cost.cut)
+            .collect()
     }
 }

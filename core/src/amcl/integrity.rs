@@ -144,6 +144,13 @@ pub struct IntegrityParams {
     /// what the update that searches costs (36-512 ms for the whole search on the real logs'
     /// maps, docs/results.md). A search stopped by it returns what it found so far.
     pub search_budget: u64,
+    /// Where the search of the whole map made on turning lost stops at `search_budget` having
+    /// found no place that explains the scan clearly better than the estimate (not even in the
+    /// square of `near_search_m`), it is carried on, one budget per update, over at most this many
+    /// updates after it, on the scan it started with, and the filter is held `uncertain` until it
+    /// is complete; then it decides as a complete search does (`amcl/unfinished.rs`). 0: it
+    /// decides at once, on the places found so far (none), and the filter turns lost.
+    pub search_carried_updates: u32,
     /// Where the search of the whole map stops at `search_budget` (a large map, a scan explained
     /// so poorly that the bar is low and little is pruned), the square within this distance (m,
     /// along each axis of the map) of the last pose the filter held while tracking, carried on by
@@ -217,6 +224,7 @@ impl Default for IntegrityParams {
             place_search: true,
             search_again_every: 5,
             search_budget: super::places::SEARCH_BUDGET,
+            search_carried_updates: 4,
             near_search_m: 8.0,
             verify_margin: 0.0,
             reseed_candidates: 200,
@@ -516,18 +524,22 @@ impl Monitor {
     }
 
     /// The filter just turned `lost` on its shares, and no place of the map explains the scan
-    /// clearly better than the estimate: `uncertain` instead, and shares below the lost bar do
-    /// not turn it lost for the next `scans` judged scans (then one more does, and the map is
-    /// searched again). Nothing else changes: the level, the window, the runs.
+    /// clearly better than the estimate (or the search for one is still under way): `uncertain`
+    /// instead, and shares below the lost bar do not turn it lost for the next `scans` judged
+    /// scans (then one more does, and the map is searched again). A filter `uncertain` is held
+    /// alike; one `tracking` is not. Nothing else changes: the level, the window, the runs.
     pub fn hold(&mut self, scans: u32) {
-        if self.state != IntegrityState::Lost {
-            return;
+        match self.state {
+            IntegrityState::Tracking => return,
+            IntegrityState::Uncertain => {}
+            IntegrityState::Lost => {
+                self.state = IntegrityState::Uncertain;
+                if let Some(last) = &mut self.last {
+                    last.state = IntegrityState::Uncertain;
+                }
+            }
         }
-        self.state = IntegrityState::Uncertain;
         self.held = scans;
-        if let Some(last) = &mut self.last {
-            last.state = IntegrityState::Uncertain;
-        }
     }
 
     /// The last judgement was below the lost ratio: one more confirms a loss.
@@ -829,6 +841,29 @@ mod tests {
         for share in [good, dip, dip, good, dip, dip, good, dip, dip] {
             assert_eq!(m.observe(&one(share)).state, IntegrityState::Lost);
         }
+    }
+
+    /// A hold keeps a filter that turned lost `uncertain`, and one already `uncertain` from
+    /// turning lost, for its scans; then one more scan below the lost bar turns it lost. A filter
+    /// `tracking` is not held.
+    #[test]
+    fn a_hold_keeps_a_filter_from_turning_lost_for_its_scans() {
+        let (_, mut m, _) = tracking_at_0_9();
+        m.hold(3);
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Tracking);
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Lost, "a hold while tracking counted");
+        m.hold(2);
+        assert_eq!(
+            (m.state(), m.last().map(|i| i.state)),
+            (IntegrityState::Uncertain, Some(IntegrityState::Uncertain))
+        );
+        for _ in 0..2 {
+            assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Uncertain);
+        }
+        // Uncertain still, held again (a search under way): as long again.
+        m.hold(1);
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Uncertain);
+        assert_eq!(m.observe(&one(0.1)).state, IntegrityState::Lost);
     }
 
     #[test]

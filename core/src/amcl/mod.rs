@@ -21,10 +21,12 @@ pub mod motion;
 pub mod particles;
 pub mod places;
 mod rivals;
+mod unfinished;
 
 use std::sync::Arc;
 
 use again::Again;
+use unfinished::{Carried, Unfinished};
 
 use crate::config::AmclParams;
 use crate::rng::Rng;
@@ -107,6 +109,10 @@ pub struct Amcl {
     /// a search of the whole map stops at its budget, the square around it, carried on by the
     /// odometry, is searched too (`near_search_m`).
     anchor: Option<(Se2, Se2)>,
+    /// A search of the whole map made when the filter would turn lost, stopped by its budget
+    /// before it found a place explaining the scan as a tracked place does: carried on over the
+    /// next updates while the filter is held (`unfinished.rs`).
+    unfinished: Option<Unfinished>,
 }
 
 /// The valid beams of a scan as base-frame points within `[min_range, max_range]` (the AMCL
@@ -166,6 +172,7 @@ impl Amcl {
             holds: 0,
             unconfirmed: Vec::new(),
             anchor: None,
+            unfinished: None,
         }
     }
 
@@ -232,6 +239,7 @@ impl Amcl {
     pub fn odometry_restarted(&mut self) {
         self.last_odom = None;
         self.anchor = None;
+        self.unfinished = None;
     }
 
     fn max(&self) -> usize {
@@ -269,6 +277,7 @@ impl Amcl {
         self.left = None;
         self.holds = 0;
         self.anchor = None;
+        self.unfinished = None;
     }
 
     /// Global localisation: `max_particles` poses uniform over the free space and all headings, until
@@ -290,6 +299,7 @@ impl Amcl {
         self.left = None;
         self.holds = 0;
         self.anchor = None;
+        self.unfinished = None;
         self.estimate = particles::cluster_estimate(&self.particles);
     }
 
@@ -553,9 +563,16 @@ impl Amcl {
     /// When the best place found (or confirmed) is the estimate's own place, a little off it, the
     /// estimate is moved there and the filter held `uncertain` ([`Self::corrected_in_place`]): it
     /// was off, not lost.
+    ///
+    /// A search stopped by its budget that found nothing, in the square around the anchor
+    /// neither, is carried on over the next updates (`search_carried_updates`, `unfinished.rs`),
+    /// the filter held `uncertain` meanwhile; complete, it decides as above, on its places carried
+    /// to the scan then. Where it found places, or runs out of updates, the filter turns lost on
+    /// what it found.
     fn doubt_loss(&mut self, before: IntegrityState, odom: Se2, points: &[[f64; 2]]) {
         self.turning_places = None;
         let unconfirmed = std::mem::take(&mut self.unconfirmed);
+        let unfinished = self.unfinished.take();
         let p = *self.monitor.params();
         // The holds in a row end where the filter tracks again or stays lost (a rival won, a
         // search found a place): the next turn to lost is held one scan first.
@@ -565,6 +582,15 @@ impl Amcl {
             self.holds = 0;
         }
         if !p.lost_needs_place || !p.place_search {
+            return;
+        }
+        if let Some(unfinished) = unfinished
+            && !self.search_moot(before)
+        {
+            match self.carry_search_on(unfinished, odom, points) {
+                Carried::Searching => self.monitor.hold(1),
+                Carried::Done { found, complete } => self.decide_loss(odom, &found, complete),
+            }
             return;
         }
         if !unconfirmed.is_empty()
@@ -591,27 +617,57 @@ impl Amcl {
         if before == IntegrityState::Lost || self.monitor.state() != IntegrityState::Lost {
             return;
         }
-        let hold = 1u32.checked_shl(self.holds).unwrap_or(u32::MAX).min(HOLD_MAX_SCANS);
         let Some(need) = self.search_need() else {
+            let hold = self.next_hold();
             self.holds = self.holds.saturating_add(1);
             self.monitor.hold(hold);
             return;
         };
-        let (found, complete) = self.scored_places(points, need, Some(odom));
+        let (found, ongoing) = self.scored_in(points, need, None);
+        if ongoing.complete() {
+            self.decide_loss(odom, &found, true);
+            return;
+        }
+        let found = self.with_square(found, points, need, Some(odom));
+        if p.search_carried_updates > 0 && found.is_empty() {
+            let beams = subsample(points, self.params.max_beams.usize());
+            self.unfinished = Some(Unfinished::new(ongoing, beams, odom, need));
+            self.monitor.hold(1);
+            return;
+        }
+        self.decide_loss(odom, &found, false);
+    }
+
+    /// The hold of the next turn to lost held in a row: one judged scan, each next twice as
+    /// long, up to [`HOLD_MAX_SCANS`].
+    fn next_hold(&self) -> u32 {
+        1u32.checked_shl(self.holds).unwrap_or(u32::MAX).min(HOLD_MAX_SCANS)
+    }
+
+    /// The filter would turn lost, and a search of the map (`complete`, or stopped by its budget)
+    /// found `found` (poses at odometry `odom` with the share of the scan each explains, the best
+    /// first): corrected in place, held, or lost with the places for its re-seeding
+    /// ([`Self::doubt_loss`]).
+    fn decide_loss(&mut self, odom: Se2, found: &[(Se2, f64)], complete: bool) {
+        let p = *self.monitor.params();
         let tracked = self.monitor.last().map_or(1.0, |i| p.tracking_ratio * i.level);
-        if self.corrected_in_place(odom, &found, tracked) {
+        if self.corrected_in_place(odom, found, tracked) {
             self.monitor.hold(0);
             return;
         }
         if complete && found.iter().all(|(_, share)| *share < tracked) {
+            let hold = self.next_hold();
             self.holds = self.holds.saturating_add(1);
             self.monitor.hold(hold);
             self.unconfirmed =
-                found.into_iter().take(SEARCHED_PLACES).map(|(q, _)| rivals::Rival::found(q, odom)).collect();
+                found.iter().take(SEARCHED_PLACES).map(|(q, _)| rivals::Rival::found(*q, odom)).collect();
             return;
         }
         self.holds = 0;
-        self.turning_places = Some(found.into_iter().map(|(q, _)| q).take(SEARCHED_PLACES).collect());
+        if self.monitor.state() != IntegrityState::Lost {
+            self.monitor.declare_lost();
+        }
+        self.turning_places = Some(found.iter().map(|(q, _)| *q).take(SEARCHED_PLACES).collect());
     }
 
     /// The best of `places` (poses at odometry `odom` and the share of the scan each explains) is

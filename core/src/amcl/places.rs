@@ -75,6 +75,83 @@ pub struct SearchCost {
     pub cut: bool,
 }
 
+/// A search of the map under way ([`PlaceSearch::start`]): where it stands, what it has found.
+/// Carried on a budget at a time ([`PlaceSearch::carry_on`]), so that an update that searches a
+/// large map is bounded and the search completes over the updates after it.
+#[derive(Debug, Clone)]
+pub struct Ongoing {
+    /// The scan's endpoints.
+    n: usize,
+    /// The blocks searched, `(x0, y0, x1, y1)`.
+    bounds: (usize, usize, usize, usize),
+    /// The count sought (rises with the best found), the slack below the best, the best.
+    need: usize,
+    slack: usize,
+    best: usize,
+    /// The heading step, rad, and every heading's endpoints as block offsets.
+    step: f64,
+    offsets: Vec<Vec<(isize, isize)>>,
+    /// The next top-level square to bound (heading, row, column in one index).
+    next_top: usize,
+    /// The top-level squares bounded at `need` or more: `(bound, i, j, heading)`, the best first
+    /// once all are bounded.
+    tops: Vec<(usize, usize, usize, usize)>,
+    /// The next of `tops` to descend into.
+    next_descent: usize,
+    /// Squares to look into: `(bound, i, j, level, heading)`.
+    stack: Vec<(usize, usize, usize, usize, usize)>,
+    /// Blocks found: `(count, i, j, heading)`.
+    found: Vec<(usize, usize, usize, usize)>,
+    max_places: usize,
+    apart: (f64, f64),
+    block_m: f64,
+    map_to_world: Se2,
+    cost: SearchCost,
+    complete: bool,
+}
+
+impl Ongoing {
+    /// Whether the search has looked at everything it was started on.
+    #[must_use]
+    pub fn complete(&self) -> bool {
+        self.complete
+    }
+
+    /// What it has counted so far (`cut` while it is not complete and stopped at a budget).
+    #[must_use]
+    pub fn cost(&self) -> SearchCost {
+        self.cost
+    }
+
+    /// The places found so far: at most `max_places`, the best first, each at least `apart` from
+    /// those before it; all of them, once the search is complete.
+    #[must_use]
+    pub fn places(&self) -> Vec<Place> {
+        let mut found: Vec<_> = self.found.iter().filter(|f| f.0 >= self.need).copied().collect();
+        found.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
+        let mut places: Vec<Place> = Vec::new();
+        for (count, i, j, hk) in found {
+            if places.len() >= self.max_places {
+                break;
+            }
+            let in_map = Se2::new(
+                (i as f64 + 0.5) * self.block_m,
+                (j as f64 + 0.5) * self.block_m,
+                hk as f64 * self.step,
+            );
+            let pose = self.map_to_world * in_map;
+            let distinct = places.iter().all(|q| {
+                let d = q.pose.inverse() * pose;
+                d.translation_norm() >= self.apart.0 || d.theta.abs() >= self.apart.1
+            });
+            if distinct {
+                places.push(Place { pose, share: count as f64 / self.n as f64 });
+            }
+        }
+        places
+    }
+}
+
 impl PlaceSearch {
     /// The grids for `field`'s map.
     #[must_use]
@@ -164,29 +241,83 @@ impl PlaceSearch {
         apart: (f64, f64),
         budget: u64,
     ) -> (Vec<Place>, SearchCost) {
-        let mut cost = SearchCost::default();
+        let mut ongoing = self.start_in(bounds, points, min_share, max_places, apart);
+        self.carry_on(&mut ongoing, budget);
+        (ongoing.places(), ongoing.cost)
+    }
+
+    /// A search of the whole map for the places [`Self::search`] finds, not yet run: run it with
+    /// [`Self::carry_on`], a budget at a time, until it is complete ([`Ongoing::complete`]).
+    #[must_use]
+    pub fn start(
+        &self,
+        points: &[[f64; 2]],
+        min_share: f64,
+        max_places: usize,
+        apart: (f64, f64),
+    ) -> Ongoing {
+        self.start_in(self.bounds, points, min_share, max_places, apart)
+    }
+
+    /// As [`Self::start`], within a square: the robot positions within `half_side_m` of `centre`
+    /// (a point of the world) along each axis of the map's grid.
+    #[must_use]
+    pub fn start_within(
+        &self,
+        points: &[[f64; 2]],
+        min_share: f64,
+        max_places: usize,
+        apart: (f64, f64),
+        centre: [f64; 2],
+        half_side_m: f64,
+    ) -> Ongoing {
+        self.start_in(self.window(centre, half_side_m), points, min_share, max_places, apart)
+    }
+
+    fn start_in(
+        &self,
+        bounds: Option<(usize, usize, usize, usize)>,
+        points: &[[f64; 2]],
+        min_share: f64,
+        max_places: usize,
+        apart: (f64, f64),
+    ) -> Ongoing {
         // Endpoints that are no place (not finite) are left out.
-        let finite: Vec<[f64; 2]> =
+        let points: Vec<[f64; 2]> =
             points.iter().filter(|p| p[0].is_finite() && p[1].is_finite()).copied().collect();
-        let points = &finite[..];
         let n = points.len();
-        let Some((x0, y0, x1, y1)) = bounds else { return (Vec::new(), cost) };
+        let mut ongoing = Ongoing {
+            n,
+            bounds: (0, 0, 0, 0),
+            need: 0,
+            slack: 0,
+            best: 0,
+            step: 0.0,
+            offsets: Vec::new(),
+            next_top: 0,
+            tops: Vec::new(),
+            next_descent: 0,
+            stack: Vec::new(),
+            found: Vec::new(),
+            max_places,
+            apart,
+            block_m: self.block_m,
+            map_to_world: self.map_to_world,
+            cost: SearchCost::default(),
+            complete: true,
+        };
+        let Some(bounds) = bounds else { return ongoing };
         if n == 0 || max_places == 0 || !(min_share.is_finite()) {
-            return (Vec::new(), cost);
+            return ongoing;
         }
-        let floor = ((min_share.clamp(0.0, 1.0) * n as f64).ceil() as usize).max(1);
-        let slack = (SLACK * n as f64).ceil() as usize;
-        let mut need = floor;
-        let mut best = 0usize;
         // The heading step moves the farthest endpoint by about a block.
         let far = points.iter().map(|p| p[0].hypot(p[1])).fold(0.0, f64::max);
         let step =
             if far > 0.0 { (self.block_m / far).clamp(MIN_STEP_RAD, MAX_STEP_RAD) } else { MAX_STEP_RAD };
         let headings = (2.0 * PI / step).ceil() as usize;
         let step = 2.0 * PI / headings as f64;
-        let top = self.levels.len() - 1;
         // Every heading's endpoints as block offsets from the robot's block.
-        let offsets: Vec<Vec<(isize, isize)>> = (0..headings)
+        ongoing.offsets = (0..headings)
             .map(|hk| {
                 let (s, c) = (hk as f64 * step).sin_cos();
                 points
@@ -199,94 +330,102 @@ impl PlaceSearch {
                     .collect()
             })
             .collect();
-        cost.headings = headings;
+        ongoing.bounds = bounds;
+        ongoing.need = ((min_share.clamp(0.0, 1.0) * n as f64).ceil() as usize).max(1);
+        ongoing.slack = (SLACK * n as f64).ceil() as usize;
+        ongoing.step = step;
+        ongoing.cost.headings = headings;
+        ongoing.complete = false;
+        ongoing
+    }
+
+    /// Runs `ongoing` on (a search [`Self::start`]ed on this map's grids) until it is complete or
+    /// has counted `budget` more squares (at least 4: a square stopped among its four children is
+    /// looked into again, its children counted anew, and a run counts them all). The places it
+    /// finds are the same, in the same order, whether it runs on one budget or on many.
+    pub fn carry_on(&self, ongoing: &mut Ongoing, budget: u64) {
+        if ongoing.complete {
+            return;
+        }
+        let limit = ongoing.cost.squares.saturating_add(budget.max(4));
+        let o = ongoing;
+        let top = self.levels.len() - 1;
+        let (x0, y0, x1, y1) = o.bounds;
         // The top level's squares at every heading, the best bound first: the best places are met
         // early, and the bar rises with them (as Cartographer's matcher orders its candidates).
         let side = 1usize << top;
-        let mut tops: Vec<(usize, usize, usize, usize)> = Vec::new(); // (bound, i, j, heading)
-        'top: for (hk, off) in offsets.iter().enumerate() {
-            for j in (y0..=y1).step_by(side) {
-                for i in (x0..=x1).step_by(side) {
-                    if cost.squares >= budget {
-                        cost.cut = true;
-                        break 'top;
-                    }
-                    cost.squares += 1;
-                    let bound = self.count(top, i, j, off, need);
-                    if bound >= need {
-                        tops.push((bound, i, j, hk));
-                    }
+        let (ni, nj) = ((x1 - x0) / side + 1, (y1 - y0) / side + 1);
+        let all_tops = o.offsets.len() * nj * ni;
+        if o.next_top < all_tops {
+            while o.next_top < all_tops {
+                if o.cost.squares >= limit {
+                    o.cost.cut = true;
+                    return;
+                }
+                let k = o.next_top;
+                let (hk, j, i) = (k / (nj * ni), y0 + (k / ni % nj) * side, x0 + (k % ni) * side);
+                o.next_top += 1;
+                o.cost.squares += 1;
+                let bound = self.count(top, i, j, &o.offsets[hk], o.need);
+                if bound >= o.need {
+                    o.tops.push((bound, i, j, hk));
                 }
             }
+            o.tops.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
         }
-        tops.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
-        let mut found: Vec<(usize, usize, usize, usize)> = Vec::new(); // (count, i, j, heading)
-        let mut stack: Vec<(usize, usize, usize, usize)> = Vec::new(); // (bound, i, j, level)
         let mut children: Vec<(usize, usize, usize)> = Vec::with_capacity(4);
-        'tops: for &(bound, i, j, hk) in &tops {
-            if bound < need {
-                break;
-            }
-            let off = &offsets[hk];
-            stack.push((bound, i, j, top));
-            while let Some((bound, i, j, l)) = stack.pop() {
-                if bound < need {
-                    continue;
-                }
-                if l == 0 {
-                    if bound > best {
-                        best = bound;
-                        need = need.max(best.saturating_sub(slack));
-                    }
-                    found.push((bound, i, j, hk));
-                    if found.len() >= KEPT {
-                        found.sort_by_key(|f| std::cmp::Reverse(f.0));
-                        found.truncate(KEPT / 2);
-                        need = need.max(found.last().map_or(need, |f| f.0));
-                    }
-                    continue;
-                }
-                let s = 1usize << (l - 1);
-                children.clear();
-                for (di, dj) in [(0, 0), (s, 0), (0, s), (s, s)] {
-                    let (ci, cj) = (i + di, j + dj);
-                    if ci > x1 || cj > y1 || (l == 1 && !self.free[cj * self.width + ci]) {
+        loop {
+            let Some((bound, i, j, l, hk)) = o.stack.pop() else {
+                match o.tops.get(o.next_descent) {
+                    Some(&(bound, i, j, hk)) if bound >= o.need => {
+                        o.next_descent += 1;
+                        o.stack.push((bound, i, j, top, hk));
                         continue;
                     }
-                    if cost.squares >= budget {
-                        cost.cut = true;
-                        break 'tops;
-                    }
-                    cost.squares += 1;
-                    let b = self.count(l - 1, ci, cj, off, need);
-                    if b >= need {
-                        children.push((b, ci, cj));
-                    }
+                    _ => break,
                 }
-                // The best child popped first.
-                children.sort_by_key(|c| c.0);
-                stack.extend(children.iter().map(|&(b, ci, cj)| (b, ci, cj, l - 1)));
+            };
+            if bound < o.need {
+                continue;
             }
+            if l == 0 {
+                if bound > o.best {
+                    o.best = bound;
+                    o.need = o.need.max(o.best.saturating_sub(o.slack));
+                }
+                o.found.push((bound, i, j, hk));
+                if o.found.len() >= KEPT {
+                    o.found.sort_by_key(|f| std::cmp::Reverse(f.0));
+                    o.found.truncate(KEPT / 2);
+                    o.need = o.need.max(o.found.last().map_or(o.need, |f| f.0));
+                }
+                continue;
+            }
+            let s = 1usize << (l - 1);
+            children.clear();
+            for (di, dj) in [(0, 0), (s, 0), (0, s), (s, s)] {
+                let (ci, cj) = (i + di, j + dj);
+                if ci > x1 || cj > y1 || (l == 1 && !self.free[cj * self.width + ci]) {
+                    continue;
+                }
+                if o.cost.squares >= limit {
+                    // Looked into again when the search carries on (its children counted anew).
+                    o.stack.push((bound, i, j, l, hk));
+                    o.cost.cut = true;
+                    return;
+                }
+                o.cost.squares += 1;
+                let b = self.count(l - 1, ci, cj, &o.offsets[hk], o.need);
+                if b >= o.need {
+                    children.push((b, ci, cj));
+                }
+            }
+            // The best child popped first.
+            children.sort_by_key(|c| c.0);
+            o.stack.extend(children.iter().map(|&(b, ci, cj)| (b, ci, cj, l - 1, hk)));
         }
-        found.retain(|f| f.0 >= need);
-        found.sort_by(|a, b| b.0.cmp(&a.0).then((a.3, a.2, a.1).cmp(&(b.3, b.2, b.1))));
-        let mut places: Vec<Place> = Vec::new();
-        for (count, i, j, hk) in found {
-            if places.len() >= max_places {
-                break;
-            }
-            let in_map =
-                Se2::new((i as f64 + 0.5) * self.block_m, (j as f64 + 0.5) * self.block_m, hk as f64 * step);
-            let pose = self.map_to_world * in_map;
-            let distinct = places.iter().all(|q| {
-                let d = q.pose.inverse() * pose;
-                d.translation_norm() >= apart.0 || d.theta.abs() >= apart.1
-            });
-            if distinct {
-                places.push(Place { pose, share: count as f64 / n as f64 });
-            }
-        }
-        (places, cost)
+        o.cost.cut = false;
+        o.complete = true;
     }
 
     /// The endpoints (at `offsets` from block `(i, j)`) that land in near squares of level `l`,
@@ -496,5 +635,37 @@ mod tests {
         let odd = [[f64::NAN, 1.0], [f64::INFINITY, 0.0], [1e300, -1e300], [3.0, 4.0], [-2.0, 0.5]];
         let (_, cost) = search.search(&odd, 0.5, 10, (1.0, 0.35), 100_000, None);
         assert!(cost.squares > 0);
+    }
+
+    /// A search carried on a budget at a time (budgets that stop it while it bounds the top
+    /// level's squares, and while it descends) finds the places one run finds, in the same order;
+    /// each run counts no more than its budget (at least 4) and, stopped, says so.
+    #[test]
+    fn a_search_carried_on_finds_what_one_run_finds() {
+        let g = rooms();
+        let search = PlaceSearch::new(&field(&g));
+        for (k, at) in [Se2::new(5.0, 10.0, 0.3), Se2::new(21.0, 4.0, -2.0)].iter().enumerate() {
+            let points = scan(&g, &(g.origin * *at), 60);
+            for bar in [0.5, 0.8] {
+                let (once, cost) = search.search(&points, bar, 20, (1.0, 0.35), u64::MAX, None);
+                assert!(!cost.cut && !once.is_empty(), "place {k} at {bar}: {cost:?}");
+                for budget in [1u64, 777, 20_000] {
+                    let most = budget.max(4);
+                    let mut ongoing = search.start(&points, bar, 20, (1.0, 0.35));
+                    let mut runs = 0u64;
+                    while !ongoing.complete() {
+                        let before = ongoing.cost().squares;
+                        search.carry_on(&mut ongoing, budget);
+                        let counted = ongoing.cost().squares - before;
+                        assert!(counted <= most, "counted {counted} on a budget of {budget}");
+                        assert_eq!(ongoing.cost().cut, !ongoing.complete());
+                        runs += 1;
+                        assert!(runs <= cost.squares + 1, "no end on a budget of {budget}");
+                    }
+                    assert!(runs > 1, "place {k} at {bar}: one budget of {budget} sufficed");
+                    assert_eq!(ongoing.places(), once, "place {k} at {bar} on a budget of {budget}");
+                }
+            }
+        }
     }
 }
