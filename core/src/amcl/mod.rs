@@ -589,7 +589,8 @@ impl Amcl {
         {
             match self.carry_search_on(unfinished, odom, points) {
                 Carried::Searching => self.monitor.hold(1),
-                Carried::Done { found, complete } => self.decide_loss(odom, &found, complete),
+                Carried::Done { found, complete: true } => self.confirm_loss(odom, found),
+                Carried::Done { found, complete: false } => self.decide_loss(odom, &found, false),
             }
             return;
         }
@@ -604,13 +605,8 @@ impl Amcl {
                 .map(|place| self.carried_to(place, odom, &beams, &judged))
                 .filter(|(_, share)| *share >= need)
                 .collect();
-            if self.corrected_in_place(odom, &confirmed, need) {
-                return;
-            }
             if !confirmed.is_empty() {
-                self.holds = 0;
-                self.monitor.declare_lost();
-                self.turning_places = Some(confirmed.into_iter().map(|(q, _)| q).collect());
+                self.confirm_loss(odom, confirmed);
                 return;
             }
         }
@@ -636,6 +632,30 @@ impl Amcl {
             return;
         }
         self.decide_loss(odom, &found, false);
+    }
+
+    /// Places a search found for an earlier scan, carried to this one and judged on it, that
+    /// explain it clearly better than the estimate (`confirmed`, the best first): the estimate
+    /// moved to the best if that is its own place, else the filter lost with them for its
+    /// re-seeding. None: held as on a complete search that found nothing.
+    fn confirm_loss(&mut self, odom: Se2, confirmed: Vec<(Se2, f64)>) {
+        let need = self.search_need().unwrap_or(f64::INFINITY);
+        if self.corrected_in_place(odom, &confirmed, need) {
+            // Not lost: `uncertain` (held no longer) where this scan turned it lost.
+            if self.monitor.state() == IntegrityState::Lost {
+                self.monitor.hold(0);
+            }
+            return;
+        }
+        if confirmed.is_empty() {
+            let hold = self.next_hold();
+            self.holds = self.holds.saturating_add(1);
+            self.monitor.hold(hold);
+            return;
+        }
+        self.holds = 0;
+        self.monitor.declare_lost();
+        self.turning_places = Some(confirmed.into_iter().map(|(q, _)| q).collect());
     }
 
     /// The hold of the next turn to lost held in a row: one judged scan, each next twice as

@@ -40,7 +40,8 @@ pub(super) enum Carried {
     /// Still under way: the filter is held.
     Searching,
     /// Complete, or out of updates: the places found (carried to this scan, judged on it, kept if
-    /// they explain `need` of it, the best first), and whether it was complete.
+    /// they explain it clearly better than the estimate, the best first), and whether it was
+    /// complete.
     Done { found: Vec<(Se2, f64)>, complete: bool },
 }
 
@@ -68,7 +69,9 @@ impl Amcl {
             self.unfinished = Some(unfinished);
             return Carried::Searching;
         }
-        let need = unfinished.need;
+        // Judged on this scan as places a complete search found are on the scan after theirs
+        // (`Amcl::doubt_loss`): clearly better than the estimate explains it now.
+        let need = self.search_need().unwrap_or(f64::INFINITY);
         let then = FixedPoints::new(&unfinished.beams);
         let now = FixedPoints::new(&subsample(points, self.params.max_beams.usize()));
         let judged = subsample(points, p.max_points);
@@ -82,7 +85,7 @@ impl Amcl {
             .collect();
         found.sort_by(|a, b| b.1.total_cmp(&a.1));
         if !complete {
-            found = self.with_square(found, points, need, Some(odom));
+            found = self.with_square(found, points, unfinished.need, Some(odom));
         }
         Carried::Done { found, complete }
     }
