@@ -297,11 +297,11 @@ fn a_search_stopped_by_its_budget_finds_the_robot_near_where_it_was_tracked() {
 /// A robot carried 15–20 m, beyond the square around where it was tracked, with the search of
 /// the whole map stopped at its budget (20 000 squares) and not (the shipped 4 million): reported
 /// `lost`, and never `tracking` off the robot after that, over 15 updates on every seed of four;
-/// with the search cut short, `lost` once the search has been carried on over its updates
-/// (`search_carried_updates`) at the latest. Measured: cut short, `lost` at the 6th, 6th, 2nd
-/// and 2nd update (where the search and the square found nothing, after the four updates it was
-/// carried on; where they found places, at once), back on the robot on none; the whole map
-/// searched, `lost` at the 2nd, 8th, 2nd and 3rd, back on seeds 1 and 2 (from the 9th and 6th). Where the robot is not found again it stays `lost`: on seed 0 it
+/// with the search cut short, `lost` at the 2nd update (with `search_carried_updates` set, once
+/// the search has been carried on over its updates: the 6th, 6th, 2nd and 2nd measured at 4).
+/// Measured: cut short, `lost` at the 2nd update on every seed, back on the robot on none
+/// (driven on 4 m, on seed 2 from the 28th update); the whole map searched, `lost` at the 2nd,
+/// 8th, 2nd and 3rd, back on seeds 1 and 2 (from the 9th and 6th). Where the robot is not found again it stays `lost`: on seed 0 it
 /// stands by the site's fence, and a place 28 m along the fence explains its scans as well
 /// (0.63–0.67 each, update after update, over 4 m); the two are carried as twins, and the filter
 /// is never `tracking` at either.
@@ -507,8 +507,8 @@ fn in_a_crowd(
 /// A robot tracked into a crowd (people about it hide 40 % of its view; its estimate stays at it)
 /// turns lost on its shares, and the search of the whole map stops at its budget (1 million
 /// squares here; a complete search of this site for such a scan counts 4–5 million). Decided at
-/// once on the nothing found, the filter is `lost` on every seed of four. Carried on over the
-/// next updates (`search_carried_updates`, 4), the search completes where five budgets suffice
+/// once on the nothing found (the default), the filter is `lost` on every seed of four. Carried on
+/// over the next updates (`search_carried_updates` at 4), the search completes where five budgets suffice
 /// and decides as a search of the whole map made at once does. Measured: carried on, held and
 /// never `lost` on seed 3, whose search completes; on seed 0 its search needs more than five
 /// budgets (`lost` after them); on seeds 1 and 2 the whole map searched at once finds places
@@ -520,7 +520,7 @@ fn a_robot_in_a_crowd_is_held_while_a_search_stopped_by_its_budget_is_carried_on
     let field = Arc::new(LikelihoodField::new(&s.grid, &shipped_params(), 30.0));
     let mut carried = shipped_params();
     carried.integrity.search_budget = 1_000_000;
-    assert!(carried.integrity.search_carried_updates > 0, "the shipped filter carries a search on");
+    carried.integrity.search_carried_updates = 4;
     let mut at_once = carried.clone();
     at_once.integrity.search_carried_updates = 0;
     let mut held = 0;
